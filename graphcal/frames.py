@@ -1,0 +1,268 @@
+"""Coordinate frames: WGS-84 geodetic, ECEF, radar-local ENU and radar polar.
+
+Units are stated once: angles in radians, lengths in metres.  Every function is
+vectorised over leading array dimensions; 3-vectors live in the last axis.
+
+Radar polar coordinates follow the contract: slant range, azimuth clockwise from
+true north in ``[0, 2*pi)``, elevation above the local horizontal plane at the
+antenna, straight line of sight (no refraction).
+
+* geodetic -> ECEF: paper 003 eq. 3 (corrected: the z component is
+  ``(N (1 - e^2) + h) sin(lat)``).
+* ECEF -> ENU: paper 003 eq. 1-2, paper 002 eq. 5 (its transpose).
+* ENU -> polar: paper 003 eq. 4 (with ``atan2`` so that the quadrant is kept).
+* polar -> ENU: paper 001 eq. 5/7, paper 000 eq. 1.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+#: WGS-84 semi-major axis [m].
+WGS84_A_M = 6378137.0
+#: WGS-84 flattening.
+WGS84_F = 1.0 / 298.257223563
+#: WGS-84 semi-minor axis [m].
+WGS84_B_M = WGS84_A_M * (1.0 - WGS84_F)
+#: WGS-84 first eccentricity squared.
+WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
+
+TWO_PI = 2.0 * np.pi
+
+Array = NDArray[np.float64]
+
+
+def wrap_to_2pi(angle_rad: ArrayLike) -> Array:
+    """Wrap angles to ``[0, 2*pi)`` [rad]."""
+    wrapped = np.mod(np.asarray(angle_rad, dtype=float), TWO_PI)
+    # np.mod can return exactly 2*pi for tiny negative inputs.
+    return np.where(wrapped >= TWO_PI, 0.0, wrapped)
+
+
+def wrap_to_pi(angle_rad: ArrayLike) -> Array:
+    """Wrap angles to ``[-pi, pi)`` [rad]; used for angle differences."""
+    return np.mod(np.asarray(angle_rad, dtype=float) + np.pi, TWO_PI) - np.pi
+
+
+def _check_latitude(lat_rad: Array) -> None:
+    if np.any(np.abs(lat_rad) > np.pi / 2 + 1e-12):
+        raise ValueError("latitude must be within [-pi/2, pi/2] rad")
+
+
+def geodetic_to_ecef(lat_rad: ArrayLike, lon_rad: ArrayLike, alt_m: ArrayLike) -> Array:
+    """Geodetic WGS-84 coordinates to ECEF [m], shape ``(..., 3)``.
+
+    ``x = (N + h) cos(lat) cos(lon)``, ``y = (N + h) cos(lat) sin(lon)``,
+    ``z = (N (1 - e^2) + h) sin(lat)``, ``N = a / sqrt(1 - e^2 sin^2(lat))``
+    (paper 003 eq. 3, corrected).
+    """
+    lat = np.asarray(lat_rad, dtype=float)
+    lon = np.asarray(lon_rad, dtype=float)
+    alt = np.asarray(alt_m, dtype=float)
+    _check_latitude(lat)
+    sin_lat = np.sin(lat)
+    cos_lat = np.cos(lat)
+    n = WGS84_A_M / np.sqrt(1.0 - WGS84_E2 * sin_lat**2)
+    x = (n + alt) * cos_lat * np.cos(lon)
+    y = (n + alt) * cos_lat * np.sin(lon)
+    z = (n * (1.0 - WGS84_E2) + alt) * sin_lat
+    return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+
+
+def ecef_to_geodetic(ecef_m: ArrayLike) -> tuple[Array, Array, Array]:
+    """ECEF [m] to geodetic WGS-84 ``(lat_rad, lon_rad, alt_m)``.
+
+    Bowring's initial guess refined by Newton-like iterations on the latitude;
+    accurate to well below a millimetre for heights from -1e4 m to 1e7 m.
+    Points on the polar axis return longitude 0.
+    """
+    p_ecef = np.asarray(ecef_m, dtype=float)
+    x, y, z = p_ecef[..., 0], p_ecef[..., 1], p_ecef[..., 2]
+    lon = np.arctan2(y, x)
+    p = np.hypot(x, y)
+    ep2 = WGS84_E2 / (1.0 - WGS84_E2)
+    theta = np.arctan2(z * WGS84_A_M, p * WGS84_B_M)
+    lat = np.arctan2(
+        z + ep2 * WGS84_B_M * np.sin(theta) ** 3,
+        p - WGS84_E2 * WGS84_A_M * np.cos(theta) ** 3,
+    )
+    for _ in range(3):
+        sin_lat = np.sin(lat)
+        n = WGS84_A_M / np.sqrt(1.0 - WGS84_E2 * sin_lat**2)
+        lat = np.arctan2(z + WGS84_E2 * n * sin_lat, p)
+    sin_lat = np.sin(lat)
+    cos_lat = np.cos(lat)
+    n = WGS84_A_M / np.sqrt(1.0 - WGS84_E2 * sin_lat**2)
+    # Height formula that stays well conditioned at the equator and the poles.
+    alt = p * cos_lat + z * sin_lat - WGS84_A_M**2 / n
+    return lat, lon, alt
+
+
+def ecef_to_enu_rotation(lat_rad: ArrayLike, lon_rad: ArrayLike) -> Array:
+    """Rotation matrix ``R`` with ``enu = R @ (ecef - ecef_site)``, shape ``(..., 3, 3)``.
+
+    Rows are the east, north and up unit vectors in ECEF (paper 003 eq. 2).
+    It is also the (constant) Jacobian d(enu)/d(ecef); its transpose is
+    d(ecef)/d(enu) (paper 002 eq. 5).
+    """
+    lat = np.asarray(lat_rad, dtype=float)
+    lon = np.asarray(lon_rad, dtype=float)
+    _check_latitude(lat)
+    sl, cl = np.sin(lat), np.cos(lat)
+    so, co = np.sin(lon), np.cos(lon)
+    zero = np.zeros_like(sl * so)
+    rows = [
+        [-so + zero, co + zero, zero],
+        [-sl * co, -sl * so, cl + zero],
+        [cl * co, cl * so, sl + zero],
+    ]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def ecef_to_enu(ecef_m: ArrayLike, lat_rad: float, lon_rad: float, alt_m: float) -> Array:
+    """ECEF points [m] to the ENU frame [m] of the site at ``(lat, lon, alt)``."""
+    origin = geodetic_to_ecef(lat_rad, lon_rad, alt_m)
+    rotation = ecef_to_enu_rotation(lat_rad, lon_rad)
+    delta = np.asarray(ecef_m, dtype=float) - origin
+    return delta @ rotation.T
+
+
+def enu_to_ecef(enu_m: ArrayLike, lat_rad: float, lon_rad: float, alt_m: float) -> Array:
+    """ENU points [m] of the site at ``(lat, lon, alt)`` to ECEF [m]."""
+    origin = geodetic_to_ecef(lat_rad, lon_rad, alt_m)
+    rotation = ecef_to_enu_rotation(lat_rad, lon_rad)
+    return np.asarray(enu_m, dtype=float) @ rotation + origin
+
+
+def enu_to_polar(enu_m: ArrayLike) -> tuple[Array, Array, Array]:
+    """ENU [m] to radar polar ``(range_m, azimuth_rad, elevation_rad)``.
+
+    ``range = |enu|``, ``azimuth = atan2(east, north)`` wrapped to ``[0, 2*pi)``,
+    ``elevation = atan2(up, hypot(east, north))``.  At the zenith the azimuth is
+    undefined and returned as 0; at the origin all angles are 0.
+    """
+    enu = np.asarray(enu_m, dtype=float)
+    east, north, up = enu[..., 0], enu[..., 1], enu[..., 2]
+    ground = np.hypot(east, north)
+    range_m = np.sqrt(ground**2 + up**2)
+    azimuth = wrap_to_2pi(np.arctan2(east, north))
+    elevation = np.arctan2(up, ground)
+    return range_m, azimuth, elevation
+
+
+def polar_to_enu(range_m: ArrayLike, azimuth_rad: ArrayLike, elevation_rad: ArrayLike) -> Array:
+    """Radar polar to ENU [m]: ``r cos(el) sin(az), r cos(el) cos(az), r sin(el)``.
+
+    Raises
+    ------
+    ValueError
+        If any range is negative.
+    """
+    r = np.asarray(range_m, dtype=float)
+    if np.any(r < 0):
+        raise ValueError("range must be non-negative")
+    az = np.asarray(azimuth_rad, dtype=float)
+    el = np.asarray(elevation_rad, dtype=float)
+    ground = r * np.cos(el)
+    return np.stack(
+        np.broadcast_arrays(ground * np.sin(az), ground * np.cos(az), r * np.sin(el)), axis=-1
+    )
+
+
+def polar_to_enu_jacobian(
+    range_m: ArrayLike, azimuth_rad: ArrayLike, elevation_rad: ArrayLike
+) -> Array:
+    """Jacobian d(east, north, up)/d(range, azimuth, elevation), shape ``(..., 3, 3)``.
+
+    Paper 002 eq. 18-19 and paper 000 eq. 1 (written here for azimuth from north)::
+
+        [[cos(el) sin(az),  r cos(el) cos(az), -r sin(el) sin(az)],
+         [cos(el) cos(az), -r cos(el) sin(az), -r sin(el) cos(az)],
+         [sin(el),          0,                  r cos(el)        ]]
+    """
+    r = np.asarray(range_m, dtype=float)
+    az = np.asarray(azimuth_rad, dtype=float)
+    el = np.asarray(elevation_rad, dtype=float)
+    r, az, el = np.broadcast_arrays(r, az, el)
+    sa, ca = np.sin(az), np.cos(az)
+    se, ce = np.sin(el), np.cos(el)
+    zero = np.zeros_like(r)
+    rows = [
+        [ce * sa, r * ce * ca, -r * se * sa],
+        [ce * ca, -r * ce * sa, -r * se * ca],
+        [se, zero, r * ce],
+    ]
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def enu_to_polar_jacobian(enu_m: ArrayLike) -> Array:
+    """Jacobian d(range, azimuth, elevation)/d(east, north, up), shape ``(..., 3, 3)``.
+
+    With ``g = hypot(e, n)`` and ``r = |enu|``::
+
+        [[ e/r,          n/r,          u/r  ],
+         [ n/g^2,       -e/g^2,        0    ],
+         [-e u/(r^2 g), -n u/(r^2 g),  g/r^2]]
+
+    Raises
+    ------
+    ValueError
+        At the zenith or the origin (``g == 0``), where azimuth is undefined.
+    """
+    enu = np.asarray(enu_m, dtype=float)
+    e, n, u = enu[..., 0], enu[..., 1], enu[..., 2]
+    g2 = e**2 + n**2
+    if np.any(g2 == 0.0):
+        raise ValueError("azimuth Jacobian is undefined at the zenith (zero ground range)")
+    g = np.sqrt(g2)
+    r2 = g2 + u**2
+    r = np.sqrt(r2)
+    zero = np.zeros_like(e)
+    rows = [
+        [e / r, n / r, u / r],
+        [n / g2, -e / g2, zero],
+        [-e * u / (r2 * g), -n * u / (r2 * g), g / r2],
+    ]
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def ecef_to_polar(
+    ecef_m: ArrayLike, lat_rad: float, lon_rad: float, alt_m: float
+) -> tuple[Array, Array, Array]:
+    """ECEF [m] to the polar coordinates of the radar at ``(lat, lon, alt)``."""
+    return enu_to_polar(ecef_to_enu(ecef_m, lat_rad, lon_rad, alt_m))
+
+
+def polar_to_ecef(
+    range_m: ArrayLike,
+    azimuth_rad: ArrayLike,
+    elevation_rad: ArrayLike,
+    lat_rad: float,
+    lon_rad: float,
+    alt_m: float,
+) -> Array:
+    """Polar coordinates of the radar at ``(lat, lon, alt)`` to ECEF [m]."""
+    return enu_to_ecef(polar_to_enu(range_m, azimuth_rad, elevation_rad), lat_rad, lon_rad, alt_m)
+
+
+def elevation_from_height(
+    range_m: ArrayLike, target_alt_m: ArrayLike, lat_rad: float, alt_m: float
+) -> Array:
+    """Elevation [rad] of a target at slant range ``range_m`` and ellipsoidal height.
+
+    Used for 2-D radars, which do not measure elevation: the target's height
+    (from Mode C or ADS-B) fixes it.  Solved on a sphere of the local Gaussian
+    radius of curvature, which is exact to a few microradians below 100 km height
+    (the ellipsoid's curvature variation over a radar's coverage)::
+
+        (R + h_t)^2 = (R + h_r)^2 + r^2 + 2 r (R + h_r) sin(el)
+    """
+    r = np.asarray(range_m, dtype=float)
+    sin_lat2 = np.sin(lat_rad) ** 2
+    radius = WGS84_A_M * np.sqrt(1.0 - WGS84_E2) / (1.0 - WGS84_E2 * sin_lat2)
+    rt = radius + np.asarray(target_alt_m, dtype=float)
+    rr = radius + alt_m
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sin_el = (rt**2 - rr**2 - r**2) / (2.0 * r * rr)
+    return np.arcsin(np.clip(sin_el, -1.0, 1.0))
