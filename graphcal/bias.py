@@ -135,3 +135,19 @@ def measurement_bias_jacobian(range_true_m: ArrayLike) -> NDArray[np.float64]:
     jac[..., 1, 2] = 1.0
     jac[..., 2, 3] = 1.0
     return jac
+
+
+def compose_bias(first: RadarBias, increment: RadarBias) -> RadarBias:
+    """The single bias equivalent to ``first`` followed by ``increment``.
+
+    If plots corrected with ``first`` still carry ``increment``, the measured
+    plots carry the returned bias: ``gain = (1 + g1)(1 + dg) - 1``,
+    ``offset = o1 + (1 + g1) do``; angles and time offsets add.
+    """
+    return RadarBias(
+        range_offset_m=first.range_offset_m + (1.0 + first.range_gain) * increment.range_offset_m,
+        range_gain=(1.0 + first.range_gain) * (1.0 + increment.range_gain) - 1.0,
+        azimuth_bias_rad=first.azimuth_bias_rad + increment.azimuth_bias_rad,
+        elevation_bias_rad=first.elevation_bias_rad + increment.elevation_bias_rad,
+        time_offset_s=first.time_offset_s + increment.time_offset_s,
+    )

@@ -1,0 +1,5 @@
+"""``python -m graphcal``: the command line."""
+
+from graphcal.cli import app
+
+app()

@@ -1,0 +1,187 @@
+"""Cross-radar observations of paper 001 (no ADS-B needed).
+
+For every pair of radars ``(a, b)`` that see the same aircraft, each plot
+of ``b`` is paired with ``a``'s track interpolated to its time
+(:func:`graphcal.align.pair_plots`).  Both are converted to ECEF with the
+measured (biased) values; the difference is the observation of paper 001
+eq. 8 (there with radar 1 as the reference; here every pair)::
+
+    z_k = P_b Z_b(k) + Z_cr_b - (P_a Z_a(k) + Z_cr_a)          (eq. 8)
+        = H_k X + M_k V(k)                                    (eq. 9)
+
+with ``H_k = dz/dX`` at ``X = 0`` (the measured values), i.e. the
+polar -> ECEF Jacobian times the bias Jacobian of each radar (``-`` for
+``a``, ``+`` for ``b``; the ``a`` rows blend its two bracketing plots with
+the interpolation weights), and ``M_k cov(V) M_k^T`` the converted
+measurement covariance (paper 002).  A 2-D radar has no elevation: its plot
+is placed at the reported (Mode C) height, and the range column includes
+the change of elevation with range at that height; 2-D plots without an
+altitude are left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graphcal import frames
+from graphcal.align import PlotArrays, PlotPairs, pair_plots
+from graphcal.bias import measurement_bias_jacobian
+from graphcal.dataset import Dataset, Site
+from graphcal.estimators.linear import ParameterLayout
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class ConvertedPlots:
+    """Plots converted to ECEF with the Jacobian w.r.t. the radar's biases."""
+
+    ecef_m: FloatArray  # (n, 3)
+    bias_jacobian: FloatArray  # (n, 3, 4): d ecef / d (offset, gain, az, el)
+    cov_m2: FloatArray  # (n, 3, 3): measurement noise in ECEF
+    usable: NDArray[np.bool_]
+
+
+def convert_plots(site: Site, plots: PlotArrays) -> ConvertedPlots:
+    """Measured plots -> ECEF with d(ECEF)/d(bias) and the converted noise covariance.
+
+    For a 2-D radar the elevation comes from the reported height via
+    :func:`graphcal.frames.elevation_from_height` and
+    ``d el / d r = -(R_t^2 - R_r^2 + r^2) / (2 r^2 R_r cos el)`` enters the range
+    column.
+    """
+    r = plots.range_m
+    az = plots.azimuth_rad
+    n = len(r)
+    cov_polar = np.zeros((n, 3, 3))
+    cov_polar[:, 0, 0] = site.sigma_range_m**2
+    cov_polar[:, 1, 1] = site.sigma_azimuth_rad**2
+    if site.is_3d:
+        el = plots.elevation_rad
+        usable = np.isfinite(el)
+        cov_polar[:, 2, 2] = site.sigma_elevation_rad**2
+        d_el_d_r = np.zeros(n)
+    else:
+        el = frames.elevation_from_height(r, plots.altitude_m, site.lat_rad, site.alt_m)
+        usable = np.isfinite(el) & np.isfinite(plots.altitude_m)
+        radius = _gaussian_radius_m(site.lat_rad)
+        rt = radius + np.nan_to_num(plots.altitude_m)
+        rr = radius + site.alt_m
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d_el_d_r = -(rt**2 - rr**2 + r**2) / (2.0 * r**2 * rr * np.cos(el))
+    el = np.where(usable, el, 0.0)
+    enu_jac = frames.polar_to_enu_jacobian(r, az, el)  # (n, 3, 3)
+    if not site.is_3d:
+        # Range moves the point along the slant direction and, at fixed height, in elevation.
+        enu_jac = enu_jac.copy()
+        enu_jac[:, :, 0] += enu_jac[:, :, 2] * np.nan_to_num(d_el_d_r)[:, None]
+        cov_polar[:, 2, 2] = 0.0
+    rot = site.ecef_to_enu.T  # d ecef / d enu
+    ecef_jac = rot @ enu_jac
+    ecef = site.ecef_from_polar(r, az, el)
+    bias_jac = ecef_jac @ measurement_bias_jacobian(r)
+    if not site.is_3d:
+        bias_jac[:, :, 3] = 0.0
+    cov = ecef_jac @ cov_polar @ np.swapaxes(ecef_jac, 1, 2)
+    return ConvertedPlots(ecef, bias_jac, cov, usable)
+
+
+def _gaussian_radius_m(lat_rad: float) -> float:
+    sin2 = np.sin(lat_rad) ** 2
+    return frames.WGS84_A_M * np.sqrt(1.0 - frames.WGS84_E2) / (1.0 - frames.WGS84_E2 * sin2)
+
+
+@dataclass
+class CrossObservations:
+    """Stacked paper-001 observations ``z_k = H_k X + noise`` for all radar pairs.
+
+    Attributes
+    ----------
+    z : ndarray (m, 3)
+        Position differences [m] (radar b minus radar a), ECEF.
+    h : ndarray (m, 3, p)
+        ``dz/dX`` over the layout's parameters.
+    cov : ndarray (m, 3, 3)
+        Converted measurement covariance of each ``z_k`` [m^2].
+    time_s : ndarray (m,)
+        Time of radar b's plot.
+    pair : ndarray (m, 2) of int
+        Radar indices (a, b) in the layout's radar order.
+    n_plots : dict
+        Plots of each radar that entered at least one observation.
+    """
+
+    z: FloatArray
+    h: FloatArray
+    cov: FloatArray
+    time_s: FloatArray
+    pair: NDArray[np.int64]
+    n_plots: dict[str, int]
+
+    def __len__(self) -> int:
+        return len(self.z)
+
+
+def cross_observations(
+    dataset: Dataset, layout: ParameterLayout, max_gap_s: float | None = None
+) -> CrossObservations:
+    """Build the paper-001 observations for every pair of radars ``a < b``."""
+    radar_ids = list(dataset.radar_ids)
+    p = len(layout)
+    zs, hs, covs, times, pairs = [], [], [], [], []
+    used: dict[str, set[int]] = {rid: set() for rid in radar_ids}
+    for ia, ra in enumerate(radar_ids):
+        for ib in range(ia + 1, len(radar_ids)):
+            rb = radar_ids[ib]
+            pairs_ab = pair_plots(dataset, ra, rb, max_gap_s)
+            if len(pairs_ab) == 0:
+                continue
+            z, h, cov, ok = _pair_rows(dataset, layout, pairs_ab)
+            if not np.any(ok):
+                continue
+            zs.append(z[ok])
+            hs.append(h[ok])
+            covs.append(cov[ok])
+            times.append(pairs_ab.b_plots.time_s[pairs_ab.b_index[ok]])
+            pairs.append(np.tile([ia, ib], (int(ok.sum()), 1)))
+            a_idx = pairs_ab.a_plots.index
+            used[ra].update(a_idx[pairs_ab.a_index0[ok]].tolist())
+            used[ra].update(a_idx[pairs_ab.a_index0[ok] + 1].tolist())
+            used[rb].update(pairs_ab.b_plots.index[pairs_ab.b_index[ok]].tolist())
+    if not zs:
+        return CrossObservations(
+            np.zeros((0, 3)), np.zeros((0, 3, p)), np.zeros((0, 3, 3)), np.zeros(0),
+            np.zeros((0, 2), np.int64), {rid: 0 for rid in radar_ids},
+        )
+    return CrossObservations(
+        np.concatenate(zs), np.concatenate(hs), np.concatenate(covs), np.concatenate(times),
+        np.concatenate(pairs), {rid: len(v) for rid, v in used.items()},
+    )
+
+
+def _pair_rows(
+    dataset: Dataset,
+    layout: ParameterLayout,
+    pairs: PlotPairs,
+) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
+    site_a, site_b = dataset.sites[pairs.radar_a], dataset.sites[pairs.radar_b]
+    conv_a = convert_plots(site_a, pairs.a_plots)
+    conv_b = convert_plots(site_b, pairs.b_plots)
+    i0, i1, w, ib = pairs.a_index0, pairs.a_index0 + 1, pairs.weight, pairs.b_index
+    w0, w1 = (1.0 - w)[:, None], w[:, None]
+    pos_a = w0 * conv_a.ecef_m[i0] + w1 * conv_a.ecef_m[i1]
+    z = conv_b.ecef_m[ib] - pos_a
+    m = len(ib)
+    h = np.zeros((m, 3, len(layout)))
+    cols_a, positions_a = layout.columns(pairs.radar_a)
+    cols_b, positions_b = layout.columns(pairs.radar_b)
+    jac_a = w0[:, :, None] * conv_a.bias_jacobian[i0] + w1[:, :, None] * conv_a.bias_jacobian[i1]
+    h[:, :, cols_a] = -jac_a[:, :, positions_a]
+    h[:, :, cols_b] = conv_b.bias_jacobian[ib][:, :, positions_b]
+    w0c, w1c = (1.0 - w)[:, None, None], w[:, None, None]
+    cov = conv_b.cov_m2[ib] + w0c**2 * conv_a.cov_m2[i0] + w1c**2 * conv_a.cov_m2[i1]
+    ok = conv_b.usable[ib] & conv_a.usable[i0] & conv_a.usable[i1]
+    return z, h, cov, ok
