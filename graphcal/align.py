@@ -132,7 +132,7 @@ def bracket(
     Returns ``(j, w, ok)`` such that the value at ``query_time_s`` is
     ``(1 - w) * v[j] + w * v[j + 1]``; ``ok`` is False where the query lies
     outside the track or the bracketing samples are more than ``max_gap_s``
-    apart.
+    apart (a query exactly at a sample time is always accepted).
     """
     n = len(track_time_s)
     if n < 2:
@@ -142,7 +142,8 @@ def bracket(
     j = np.clip(j, 0, n - 2)
     t0, t1 = track_time_s[j], track_time_s[j + 1]
     w = (query_time_s - t0) / (t1 - t0)
-    ok = (w >= 0.0) & (w <= 1.0) & (t1 - t0 <= max_gap_s)
+    on_sample = (w == 0.0) | (w == 1.0)
+    ok = (w >= 0.0) & (w <= 1.0) & ((t1 - t0 <= max_gap_s) | on_sample)
     return j, np.clip(w, 0.0, 1.0), ok
 
 
