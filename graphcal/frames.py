@@ -42,7 +42,8 @@ def wrap_to_2pi(angle_rad: ArrayLike) -> Array:
 
 def wrap_to_pi(angle_rad: ArrayLike) -> Array:
     """Wrap angles to ``[-pi, pi)`` [rad]; used for angle differences."""
-    return np.mod(np.asarray(angle_rad, dtype=float) + np.pi, TWO_PI) - np.pi
+    # Through wrap_to_2pi so that np.mod returning exactly 2*pi cannot give +pi.
+    return wrap_to_2pi(np.asarray(angle_rad, dtype=float) + np.pi) - np.pi
 
 
 def _check_latitude(lat_rad: Array) -> None:
@@ -146,7 +147,9 @@ def enu_to_polar(enu_m: ArrayLike) -> tuple[Array, Array, Array]:
     east, north, up = enu[..., 0], enu[..., 1], enu[..., 2]
     ground = np.hypot(east, north)
     range_m = np.sqrt(ground**2 + up**2)
-    azimuth = wrap_to_2pi(np.arctan2(east, north))
+    # Zero ground range (zenith, nadir, origin): azimuth 0 even for signed zeros,
+    # where arctan2(+-0.0, -0.0) would give +-pi.
+    azimuth = np.where(ground == 0.0, 0.0, wrap_to_2pi(np.arctan2(east, north)))
     elevation = np.arctan2(up, ground)
     return range_m, azimuth, elevation
 
@@ -253,8 +256,10 @@ def elevation_from_height(
 
     Used for 2-D radars, which do not measure elevation: the target's height
     (from Mode C or ADS-B) fixes it.  Solved on a sphere of the local Gaussian
-    radius of curvature, which is exact to a few microradians below 100 km height
-    (the ellipsoid's curvature variation over a radar's coverage)::
+    radius of curvature; the ellipsoid's curvature varies with azimuth, so the
+    error grows with range: measured at 48.7 deg N about 1 urad at 10 km,
+    12 urad at 100 km and 40 urad at 300 km (up to 80 urad at the equator),
+    i.e. under 12 m of height at 300 km::
 
         (R + h_t)^2 = (R + h_r)^2 + r^2 + 2 r (R + h_r) sin(el)
     """
