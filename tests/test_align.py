@@ -84,7 +84,8 @@ def test_cross_radar_pairs_match_target_and_time() -> None:
     assert np.all(ta[pairs.a_index0] <= tb) and np.all(tb <= ta[pairs.a_index0 + 1])
     same = pairs.a_plots.target_id[pairs.a_index0] == pairs.b_plots.target_id[pairs.b_index]
     assert np.all(same)
-    assert np.all(pairs.a_plots.target_id[pairs.a_index0 + 1] == pairs.a_plots.target_id[pairs.a_index0])
+    next_target = pairs.a_plots.target_id[pairs.a_index0 + 1]
+    assert np.all(next_target == pairs.a_plots.target_id[pairs.a_index0])
     assert np.all((pairs.weight >= 0) & (pairs.weight <= 1))
     assert not np.any(pairs.b_plots.target_id[pairs.b_index] == "")
     assert isinstance(ds.plots, pd.DataFrame)

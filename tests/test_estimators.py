@@ -68,7 +68,7 @@ def test_every_estimator_conforms(method: str) -> None:
     assert cal.observability.rank == p
     data = json.loads(cal.to_json())
     assert data["method"] == method
-    for rid, entry in data["radars"].items():
+    for entry in data["radars"].values():
         for key in ("range_offset_m", "range_gain", "azimuth_bias_mrad", "elevation_bias_mrad"):
             assert key in entry
             assert (entry[key] is None) == (key not in entry["sigma"])

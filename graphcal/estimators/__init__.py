@@ -49,7 +49,9 @@ def get_estimator(method: str) -> Estimator:
         return METHODS[method]
     available = ", ".join(METHODS)
     if method in PLANNED_METHODS:
-        raise ValueError(f"method '{method}' is not available in this version; use one of: {available}")
+        raise ValueError(
+            f"method '{method}' is not available in this version; use one of: {available}"
+        )
     raise ValueError(f"unknown method '{method}'; use one of: {available}")
 
 

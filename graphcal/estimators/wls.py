@@ -199,7 +199,9 @@ def _drop_unseen(cal: Calibration, layout: ParameterLayout) -> None:
     keep = [i for i, (rid, _) in enumerate(layout.labels) if rid in cal.radar_ids]
     dropped = sorted({rid for rid, _ in layout.labels} - set(cal.radar_ids))
     for rid in dropped:
-        cal.warnings.append(f"radar {rid} has no plots in common with another radar; not calibrated")
+        cal.warnings.append(
+            f"radar {rid} has no plots in common with another radar; not calibrated"
+        )
     cal.labels = [layout.labels[i] for i in keep]
     cal.estimate = cal.estimate[keep]
     cal.covariance = cal.covariance[np.ix_(keep, keep)]
