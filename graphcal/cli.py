@@ -51,7 +51,7 @@ def _errors_to_exit():
 
 @contextmanager
 def progress_bar(description: str):
-    """A rich progress bar yielding a ``callback(done, total)``; silent when not a terminal."""
+    """A rich progress bar yielding ``callback([stage,] done, total)``; silent off a terminal."""
     progress = Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -65,7 +65,12 @@ def progress_bar(description: str):
     with progress:
         task = progress.add_task(description, total=None)
 
-        def callback(done: int, total: int) -> None:
+        def callback(*args: object) -> None:
+            if len(args) == 3:
+                stage, done, total = args
+                progress.update(task, description=f"{description}: {stage}")
+            else:
+                done, total = args
             progress.update(task, completed=done, total=total)
 
         yield callback

@@ -36,8 +36,8 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
     """A table: one row per radar and parameter, estimate ± 1 sigma, truth if given."""
     table = Table(title=f"graphcal calibration, method {cal.method}")
     table.add_column("radar")
-    table.add_column("parameter")
-    table.add_column("estimate ± 1σ", justify="right")
+    table.add_column("parameter", no_wrap=True)
+    table.add_column("estimate ± 1σ", justify="right", no_wrap=True)
     if truth is not None:
         table.add_column("truth", justify="right")
         table.add_column("error/σ", justify="right")

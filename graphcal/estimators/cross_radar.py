@@ -15,8 +15,10 @@ polar -> ECEF Jacobian times the bias Jacobian of each radar (``-`` for
 the interpolation weights), and ``M_k cov(V) M_k^T`` the converted
 measurement covariance (paper 002).  A 2-D radar has no elevation: its plot
 is placed at the reported (Mode C) height, and the range column includes
-the change of elevation with range at that height; 2-D plots without an
-altitude are left out.
+the change of elevation with range at that height; the height carries a
+1-sigma error of :data:`ALTITUDE_SIGMA_M` in the covariance (without it two
+2-D radars would compare heights they both took from the same report as if
+they were exact); 2-D plots without an altitude are left out.
 """
 
 from __future__ import annotations
@@ -33,6 +35,10 @@ from graphcal.dataset import Dataset, Site
 from graphcal.estimators.linear import ParameterLayout
 
 FloatArray = NDArray[np.float64]
+
+#: 1-sigma error [m] of a reported (Mode C) height used to place a 2-D radar's plot:
+#: 25 ft quantisation plus barometric-versus-geometric height differences.
+ALTITUDE_SIGMA_M = 30.0
 
 
 @dataclass
@@ -72,13 +78,15 @@ def convert_plots(site: Site, plots: PlotArrays) -> ConvertedPlots:
         rr = radius + site.alt_m
         with np.errstate(invalid="ignore", divide="ignore"):
             d_el_d_r = -(rt**2 - rr**2 + r**2) / (2.0 * r**2 * rr * np.cos(el))
+            d_el_d_h = rt / (r * rr * np.cos(el))
+        # The reported height's error enters through the elevation.
+        cov_polar[:, 2, 2] = np.nan_to_num(d_el_d_h) ** 2 * ALTITUDE_SIGMA_M**2
     el = np.where(usable, el, 0.0)
     enu_jac = frames.polar_to_enu_jacobian(r, az, el)  # (n, 3, 3)
     if not site.is_3d:
         # Range moves the point along the slant direction and, at fixed height, in elevation.
         enu_jac = enu_jac.copy()
         enu_jac[:, :, 0] += enu_jac[:, :, 2] * np.nan_to_num(d_el_d_r)[:, None]
-        cov_polar[:, 2, 2] = 0.0
     rot = site.ecef_to_enu.T  # d ecef / d enu
     ecef_jac = rot @ enu_jac
     ecef = site.ecef_from_polar(r, az, el)
@@ -112,6 +120,14 @@ class CrossObservations:
         Radar indices (a, b) in the layout's radar order.
     n_plots : dict
         Plots of each radar that entered at least one observation.
+    plot_rows : ndarray (m, 3) of int
+        Row labels in ``dataset.plots`` of the plots behind ``z_k``: radar b's
+        plot and radar a's two bracketing plots.
+    plot_coefficients : ndarray (m, 3)
+        ``z_k``'s noise is ``sum_j plot_coefficients[k, j] * e[plot_rows[k, j]]``
+        with ``e`` a plot's ECEF noise: ``(1, -(1 - w), -w)``.
+    plot_cov : dict
+        ECEF noise covariance [m^2] of each plot row used.
     """
 
     z: FloatArray
@@ -120,6 +136,16 @@ class CrossObservations:
     time_s: FloatArray
     pair: NDArray[np.int64]
     n_plots: dict[str, int]
+    plot_rows: NDArray[np.int64]
+    plot_coefficients: FloatArray
+    plot_cov: dict[int, FloatArray]
+
+    def subset(self, keep: NDArray[np.bool_]) -> CrossObservations:
+        """The observations selected by ``keep``."""
+        return CrossObservations(
+            self.z[keep], self.h[keep], self.cov[keep], self.time_s[keep], self.pair[keep],
+            self.n_plots, self.plot_rows[keep], self.plot_coefficients[keep], self.plot_cov,
+        )
 
     def __len__(self) -> int:
         return len(self.z)
@@ -131,7 +157,8 @@ def cross_observations(
     """Build the paper-001 observations for every pair of radars ``a < b``."""
     radar_ids = list(dataset.radar_ids)
     p = len(layout)
-    zs, hs, covs, times, pairs = [], [], [], [], []
+    zs, hs, covs, times, pairs, rows, coefficients = [], [], [], [], [], [], []
+    plot_cov: dict[int, FloatArray] = {}
     used: dict[str, set[int]] = {rid: set() for rid in radar_ids}
     for ia, ra in enumerate(radar_ids):
         for ib in range(ia + 1, len(radar_ids)):
@@ -139,15 +166,20 @@ def cross_observations(
             pairs_ab = pair_plots(dataset, ra, rb, max_gap_s)
             if len(pairs_ab) == 0:
                 continue
-            z, h, cov, ok = _pair_rows(dataset, layout, pairs_ab)
+            z, h, cov, ok, conv_a, conv_b = _pair_rows(dataset, layout, pairs_ab)
             if not np.any(ok):
                 continue
+            a_idx, b_idx = pairs_ab.a_plots.index, pairs_ab.b_plots.index
+            i0, jb, w = pairs_ab.a_index0[ok], pairs_ab.b_index[ok], pairs_ab.weight[ok]
+            rows.append(np.stack([b_idx[jb], a_idx[i0], a_idx[i0 + 1]], axis=1))
+            coefficients.append(np.stack([np.ones_like(w), -(1.0 - w), -w], axis=1))
+            plot_cov.update(zip(a_idx.tolist(), conv_a.cov_m2, strict=True))
+            plot_cov.update(zip(b_idx.tolist(), conv_b.cov_m2, strict=True))
             zs.append(z[ok])
             hs.append(h[ok])
             covs.append(cov[ok])
             times.append(pairs_ab.b_plots.time_s[pairs_ab.b_index[ok]])
             pairs.append(np.tile([ia, ib], (int(ok.sum()), 1)))
-            a_idx = pairs_ab.a_plots.index
             used[ra].update(a_idx[pairs_ab.a_index0[ok]].tolist())
             used[ra].update(a_idx[pairs_ab.a_index0[ok] + 1].tolist())
             used[rb].update(pairs_ab.b_plots.index[pairs_ab.b_index[ok]].tolist())
@@ -155,18 +187,42 @@ def cross_observations(
         return CrossObservations(
             np.zeros((0, 3)), np.zeros((0, 3, p)), np.zeros((0, 3, 3)), np.zeros(0),
             np.zeros((0, 2), np.int64), {rid: 0 for rid in radar_ids},
+            np.zeros((0, 3), np.int64), np.zeros((0, 3)), {},
         )
     return CrossObservations(
         np.concatenate(zs), np.concatenate(hs), np.concatenate(covs), np.concatenate(times),
         np.concatenate(pairs), {rid: len(v) for rid, v in used.items()},
+        np.concatenate(rows), np.concatenate(coefficients), plot_cov,
     )
+
+
+def shared_noise_middle(obs: CrossObservations) -> FloatArray:
+    """``M = sum_plots G_p Sigma_p G_p^T`` with ``G_p = sum_k H_k^T Q_k c_kp``.
+
+    A plot enters several observations (as radar b's plot of one pair, as a
+    bracketing plot of another, with several other radars), so the ``z_k`` are
+    correlated.  ``A^-1 M A^-1`` is the exact covariance of the linear WLS
+    solution under that shared noise, where ``A^-1`` alone would be
+    over-confident.
+    """
+    p = obs.h.shape[2]
+    if len(obs) == 0:
+        return np.zeros((p, p))
+    labels = np.unique(obs.plot_rows)
+    position = np.searchsorted(labels, obs.plot_rows)
+    ht_q = np.swapaxes(obs.h, 1, 2) @ np.linalg.inv(obs.cov)  # (m, p, 3)
+    g = np.zeros((len(labels), p, 3))
+    for j in range(3):
+        np.add.at(g, position[:, j], obs.plot_coefficients[:, j, None, None] * ht_q)
+    cov = np.stack([obs.plot_cov[int(label)] for label in labels])
+    return np.einsum("npi,nij,nqj->pq", g, cov, g)
 
 
 def _pair_rows(
     dataset: Dataset,
     layout: ParameterLayout,
     pairs: PlotPairs,
-) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
+) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_], ConvertedPlots, ConvertedPlots]:
     site_a, site_b = dataset.sites[pairs.radar_a], dataset.sites[pairs.radar_b]
     conv_a = convert_plots(site_a, pairs.a_plots)
     conv_b = convert_plots(site_b, pairs.b_plots)
@@ -184,4 +240,4 @@ def _pair_rows(
     w0c, w1c = (1.0 - w)[:, None, None], w[:, None, None]
     cov = conv_b.cov_m2[ib] + w0c**2 * conv_a.cov_m2[i0] + w1c**2 * conv_a.cov_m2[i1]
     ok = conv_b.usable[ib] & conv_a.usable[i0] & conv_a.usable[i1]
-    return z, h, cov, ok
+    return z, h, cov, ok, conv_a, conv_b
