@@ -10,14 +10,15 @@ STAMP := $(VENV)/.installed
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e ".[test]"
 	touch $(STAMP)
 
 install: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m graphcal.demo
+	$(BIN)/graphcal simulate scenarios/demo_network.toml --out demo-out --seed 1 --overwrite
+	$(BIN)/graphcal calibrate demo-out --method fl-ls
+	$(BIN)/graphcal calibrate demo-out --method wls
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
