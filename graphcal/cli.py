@@ -24,7 +24,9 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
 )
-console = Console()
+#: Width used when the output is not a terminal (pipes, logs, ``make demo``).
+PLAIN_WIDTH = 120
+console = Console(width=None if sys.stdout.isatty() else PLAIN_WIDTH)
 err_console = Console(stderr=True)
 
 #: Exit status for bad input.

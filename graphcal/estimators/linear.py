@@ -22,6 +22,9 @@ from graphcal.dataset import Site
 #: Relative eigenvalue threshold (of the Jacobi-scaled information matrix) below
 #: which a direction counts as unobservable.
 RANK_TOLERANCE = 1e-10
+#: Observability degree below which a warning names the weakly determined parameters.
+#: Paper 001's path-2 geometry, where WLS fails, has Deg ~ 1e-5; path 1 ~ 2e-3.
+WEAK_DEGREE = 1e-4
 
 
 @dataclass(frozen=True)
@@ -150,7 +153,7 @@ def solve_normal_equations(
 
 
 def describe_weak_directions(
-    labels: list[tuple[str, str]], obs: Observability, threshold: float = 1e-6
+    labels: list[tuple[str, str]], obs: Observability, threshold: float = WEAK_DEGREE
 ) -> list[str]:
     """Plain-language warnings for directions the data hardly determine."""
     warnings = []
