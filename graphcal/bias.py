@@ -77,6 +77,12 @@ class RadarBias:
             [self.range_offset_m, self.range_gain, self.azimuth_bias_rad, self.elevation_bias_rad]
         )
 
+    def value(self, name: str) -> float:
+        """One bias by its name in :data:`PARAMETER_NAMES` (or ``time_offset``), SI units."""
+        if name == "time_offset":
+            return self.time_offset_s
+        return float(self.as_vector()[PARAMETER_NAMES.index(name)])
+
     @classmethod
     def from_vector(cls, values: ArrayLike, time_offset_s: float = 0.0) -> RadarBias:
         """Build from a vector in :data:`PARAMETER_NAMES` order."""

@@ -39,19 +39,10 @@ def _network(seed: int, bias_a=SMALL_A, bias_b=SMALL_B, *, adsb=True, estimate_a
     return make_dataset(rng, [(site_a, bias_a), (site_b, bias_b)], _tracks(rng, n), adsb=adsb)
 
 
-def _truth_value(bias: RadarBias, name: str) -> float:
-    return {
-        "range_offset": bias.range_offset_m,
-        "range_gain": bias.range_gain,
-        "azimuth_bias": bias.azimuth_bias_rad,
-        "elevation_bias": bias.elevation_bias_rad,
-    }[name]
-
-
 def _z_scores(cal: Calibration, truths: dict[str, RadarBias]) -> dict[tuple[str, str], float]:
     sd = np.sqrt(np.diag(cal.covariance))
     return {
-        label: (cal.estimate[i] - _truth_value(truths[label[0]], label[1])) / sd[i]
+        label: (cal.estimate[i] - truths[label[0]].value(label[1])) / sd[i]
         for i, label in enumerate(cal.labels)
     }
 

@@ -21,19 +21,10 @@ from graphcal.simulate import simulate
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 
 
-def _truth(bias: RadarBias, name: str) -> float:
-    return {
-        "range_offset": bias.range_offset_m,
-        "range_gain": bias.range_gain,
-        "azimuth_bias": bias.azimuth_bias_rad,
-        "elevation_bias": bias.elevation_bias_rad,
-    }[name]
-
-
 def _max_abs_z(cal: Calibration, biases: dict[str, RadarBias]) -> float:
     sd = np.sqrt(np.diag(cal.covariance))
     z = [
-        (cal.estimate[i] - _truth(biases[rid], name)) / sd[i]
+        (cal.estimate[i] - biases[rid].value(name)) / sd[i]
         for i, (rid, name) in enumerate(cal.labels)
     ]
     return float(np.max(np.abs(z)))
@@ -64,7 +55,7 @@ def test_wls_sigma_agrees_with_the_spread_over_seeds(demo_runs) -> None:
         cal = calibrate(run.dataset, "wls")
         sd = np.sqrt(np.diag(cal.covariance))
         z += [
-            (cal.estimate[i] - _truth(run.biases[rid], name)) / sd[i]
+            (cal.estimate[i] - run.biases[rid].value(name)) / sd[i]
             for i, (rid, name) in enumerate(cal.labels)
         ]
     assert 0.5 < np.mean(np.square(z)) < 2.0

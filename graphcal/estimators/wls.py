@@ -172,7 +172,7 @@ def _run_wls(
     info["n_observations"] = int(len(h_white))
     info["singular_values"] = sol.singular_values
     estimate = np.array(
-        [_value(biases[rid], name) for rid, name in layout.labels], dtype=float
+        [biases[rid].value(name) for rid, name in layout.labels], dtype=float
     )
     radar_ids = [rid for rid in dataset.radar_ids if obs.n_plots.get(rid, 0) > 0]
     cal = Calibration(
@@ -190,15 +190,6 @@ def _run_wls(
     cal.warnings.extend(describe_weak_directions(cal.labels, cal.observability))
     _adsb_residuals(cal, dataset)
     return cal
-
-
-def _value(bias: RadarBias, name: str) -> float:
-    return {
-        "range_offset": bias.range_offset_m,
-        "range_gain": bias.range_gain,
-        "azimuth_bias": bias.azimuth_bias_rad,
-        "elevation_bias": bias.elevation_bias_rad,
-    }[name]
 
 
 def _drop_unseen(cal: Calibration, layout: ParameterLayout) -> None:
