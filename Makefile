@@ -1,5 +1,6 @@
 # Two commands set everything up on a machine with only Python 3.11 and pip:
 #   make demo   create .venv, install graphcal, calibrate the bundled demo network
+#               (graph method, with ADS-B and from cross-radar observations alone)
 #   make test   same set-up, then the whole test suite
 PYTHON ?= python3
 VENV := .venv
@@ -17,8 +18,8 @@ install: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/graphcal simulate scenarios/demo_network.toml --out demo-out --seed 1 --overwrite
-	$(BIN)/graphcal calibrate demo-out --method fl-ls
-	$(BIN)/graphcal calibrate demo-out --method wls
+	$(BIN)/graphcal calibrate demo-out
+	$(BIN)/graphcal calibrate demo-out --no-adsb
 
 test: $(STAMP)
 	$(BIN)/python -m pytest

@@ -106,21 +106,15 @@ def simulate(
     )
 
 
-def _default_method(has_adsb: bool) -> str:
-    """The method used when none is given."""
-    from graphcal.estimators import METHODS
-
-    if "graph" in METHODS:
-        return "graph"
-    return "fl-ls" if has_adsb else "wls"
-
-
 @app.command()
 def calibrate(
     dataset_dir: Annotated[Path, typer.Argument(metavar="DIR", help="Dataset folder.")],
     method: Annotated[
         str | None,
-        typer.Option(help="Estimator: ls, fl, fl-ls, wls, wls-pruned (see 'graphcal methods')."),
+        typer.Option(
+            help="Estimator: graph (default), ls, fl, fl-ls, wls, wls-pruned "
+            "(see 'graphcal methods')."
+        ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the result JSON here.")] = None,
     truth: Annotated[
@@ -133,6 +127,32 @@ def calibrate(
     max_gap_s: Annotated[
         float | None, typer.Option(help="Longest time gap bridged by interpolation [s].")
     ] = None,
+    cross: Annotated[
+        str, typer.Option(help="graph: cross-radar factors: pairwise, target-state or none.")
+    ] = "pairwise",
+    robust: Annotated[
+        str, typer.Option(help="graph: robust kernel on every measurement: huber, cauchy, none.")
+    ] = "huber",
+    robust_scale: Annotated[
+        float, typer.Option(help="graph: multiplies the kernel's default threshold.")
+    ] = 1.0,
+    adsb: Annotated[
+        bool, typer.Option("--adsb/--no-adsb", help="graph: use the ADS-B table if present.")
+    ] = True,
+    init: Annotated[
+        str, typer.Option(help="graph: initial values: auto, zero, or a closed-form method.")
+    ] = "auto",
+    fix: Annotated[
+        list[str] | None,
+        typer.Option(
+            metavar="RADAR.KEY=VALUE",
+            help="graph: hold a bias at a known value, contract units "
+            "(e.g. NORD.range_gain=0, SUD.azimuth_bias_mrad=1.5); repeatable.",
+        ),
+    ] = None,
+    max_iterations: Annotated[
+        int, typer.Option(help="graph: Levenberg-Marquardt iteration limit.")
+    ] = 100,
 ) -> None:
     """Estimate every radar's biases from a dataset folder."""
     from graphcal.dataset import load_dataset
@@ -142,8 +162,7 @@ def calibrate(
     with _errors_to_exit():
         dataset = load_dataset(dataset_dir)
         if method is None:
-            method = _default_method(dataset.adsb is not None)
-            err_console.print(f"method: {method} (default)", highlight=False)
+            method = "graph"
         try:
             estimator = get_estimator(method)
         except ValueError as exc:
@@ -155,6 +174,17 @@ def calibrate(
             options["iterations"] = iterations
             with progress_bar("pruning" if method == "wls-pruned" else method) as callback:
                 cal = estimator(dataset, progress=callback, **options)
+        elif method == "graph":
+            try:
+                options.update(
+                    cross=cross, robust=robust, robust_scale=robust_scale, use_adsb=adsb,
+                    init=init, fixed=_parse_fixed(fix or [], dataset.sites),
+                    max_iterations=max_iterations,
+                )
+                with progress_bar("graph") as callback:
+                    cal = estimator(dataset, progress=callback, **options)
+            except ValueError as exc:
+                _fail(str(exc), EXIT_BAD_INPUT)
         else:
             cal = estimator(dataset, **options)
         if out is not None:
@@ -173,6 +203,30 @@ def calibrate(
             console.print(f"[yellow]warning:[/yellow] {warning}")
 
 
+def _parse_fixed(items: list[str], sites) -> dict[tuple[str, str], float]:
+    """``RADAR.KEY=VALUE`` (contract units) -> ``{(radar, parameter name): value SI}``."""
+    from graphcal.bias import NAME_FROM_KEY, from_contract_units
+
+    fixed = {}
+    for item in items:
+        target, sep, text = item.partition("=")
+        rid, dot, key = target.rpartition(".")
+        if not sep or not dot:
+            raise ValueError(f"--fix {item!r}: expected RADAR.KEY=VALUE, e.g. NORD.range_gain=0")
+        if rid not in sites:
+            raise ValueError(f"--fix {item!r}: unknown radar '{rid}'")
+        if key not in NAME_FROM_KEY or key == "time_offset_s":
+            keys = ", ".join(k for k in NAME_FROM_KEY if k != "time_offset_s")
+            raise ValueError(f"--fix {item!r}: unknown key '{key}'; use one of: {keys}")
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"--fix {item!r}: value '{text}' is not a number") from None
+        name = NAME_FROM_KEY[key]
+        fixed[(rid, name)] = from_contract_units(name, value)
+    return fixed
+
+
 @app.command()
 def methods() -> None:
     """List the available estimators."""
@@ -181,6 +235,67 @@ def methods() -> None:
     for name, function in METHODS.items():
         summary = (function.__doc__ or "").strip().splitlines()[0]
         console.print(f"{name:12s} {summary}", highlight=False)
+
+
+@app.command()
+def marginals(
+    result: Annotated[Path, typer.Argument(metavar="RESULT.json", help="Result JSON.")],
+    radar: Annotated[
+        str | None, typer.Option("--radar", metavar="ID", help="Only this radar.")
+    ] = None,
+    correlation: Annotated[
+        bool, typer.Option("--correlation", help="Also print correlation coefficients.")
+    ] = False,
+    min_rho: Annotated[
+        float, typer.Option(help="--correlation: list the pairs with |rho| above this.")
+    ] = 0.5,
+) -> None:
+    """Marginal covariance blocks, value ± sigma and correlations from a result JSON."""
+    from graphcal.calibration import Calibration
+    from graphcal.report_table import (
+        correlation_block_table,
+        correlation_matrix_tables,
+        marginal_table,
+        strong_correlations,
+        strong_correlations_table,
+    )
+
+    if not 0.0 <= min_rho < 1.0:
+        _fail(f"--min-rho must be in [0, 1), not {min_rho}", EXIT_BAD_INPUT)
+    with _errors_to_exit():
+        cal = Calibration.read_json(result)
+    if radar is not None and radar not in cal.radar_ids:
+        _fail(
+            f"{result}, field 'radars': no radar '{radar}'; known: {', '.join(cal.radar_ids)}",
+            EXIT_BAD_INPUT,
+        )
+    radar_ids = cal.radar_ids if radar is None else [radar]
+    console.print(
+        f"{result}: method {cal.method or '?'}, {len(cal.radar_ids)} radars, "
+        f"{len(cal.labels)} estimated parameters; units m, fraction, mrad, s",
+        highlight=False,
+    )
+    for rid in radar_ids:
+        if not cal.marginal_labels(rid):
+            console.print(f"{rid}: no estimated parameters", highlight=False)
+            continue
+        console.print(marginal_table(cal, rid))
+        if correlation and radar is not None:
+            console.print(correlation_block_table(cal, rid))
+    if not correlation:
+        return
+    if radar is None:
+        for table in correlation_matrix_tables(cal, console.width):
+            console.print(table)
+        pairs = strong_correlations(cal, min_rho)
+        what = "between parameters"
+    else:
+        pairs = strong_correlations(cal, min_rho, radar)
+        what = f"of {radar} with other radars' parameters"
+    if pairs:
+        console.print(strong_correlations_table(pairs, f"correlations {what}, |ρ| > {min_rho:g}"))
+    else:
+        console.print(f"no correlations {what} with |ρ| > {min_rho:g}", highlight=False)
 
 
 def main() -> None:  # pragma: no cover - console entry point

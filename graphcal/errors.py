@@ -47,5 +47,9 @@ class SensorModelError(GraphcalInputError):
     """A sensor model file is missing or invalid."""
 
 
+class ResultError(GraphcalInputError):
+    """A result JSON (``calibrate --out``) is missing or invalid."""
+
+
 class EstimationError(RuntimeError):
     """An estimator cannot run on the given data (no usable observations, ...)."""

@@ -49,7 +49,10 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
             value, sigma = cal.value(rid, key), cal.sigma(rid, key)
             if value is None:
                 continue
-            row = [rid if first else "", key, format_value(key, value, sigma)]
+            shown = format_value(key, value, sigma)
+            if f"{rid}.{key}" in cal.info.get("undetermined", []):
+                shown = f"not determined (prior ± {_FORMATS.get(key, '{:.4g}').format(sigma)})"
+            row = [rid if first else "", key, shown]
             if truth is not None:
                 true = truth.get("radars", {}).get(rid, {}).get(key)
                 row.append(format_value(key, true))
@@ -60,4 +63,124 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
             row.append(str(cal.n_plots.get(rid, "")) if first else "")
             table.add_row(*row)
             first = False
+    return table
+
+
+# ------------------------------------------------------------------ marginals
+def _stacked(key: str) -> str:
+    """A contract key as a two-line column header: ``azimuth\\nbias_mrad``."""
+    head, _, tail = key.partition("_")
+    return f"{head}\n{tail}" if tail else key
+
+
+def _number(value: float, fmt: str = "{:.4g}") -> str:
+    """A matrix entry; NaN/inf spelt out."""
+    if value != value:
+        return "nan"
+    if value in (float("inf"), float("-inf")):
+        return "inf" if value > 0 else "-inf"
+    return fmt.format(value)
+
+
+def marginal_table(cal: Calibration, radar_id: str) -> Table:
+    """One radar: each parameter's ``value ± 1σ`` and its marginal covariance block.
+
+    Covariance entries are in the products of the contract units of the row
+    and column keys (m, fraction, mrad, s), e.g. mrad² or m·mrad.
+    """
+    keys = cal.marginal_labels(radar_id)
+    block = cal.marginal(radar_id)
+    table = Table(title=f"{radar_id}: marginal covariance (contract units)")
+    table.add_column("parameter", no_wrap=True)
+    table.add_column("estimate ± 1σ", justify="right", no_wrap=True)
+    for key in keys:
+        table.add_column(_stacked(key), justify="right", no_wrap=True)
+    for i, key in enumerate(keys):
+        value, sigma = cal.value(radar_id, key), cal.sigma(radar_id, key)
+        table.add_row(key, format_value(key, value, sigma), *(_number(v) for v in block[i]))
+    return table
+
+
+def correlation_block_table(cal: Calibration, radar_id: str) -> Table:
+    """Correlation coefficients among one radar's parameters."""
+    keys = cal.marginal_labels(radar_id)
+    rho = cal.correlation(radar_id)
+    table = Table(title=f"{radar_id}: correlation")
+    table.add_column("parameter", no_wrap=True)
+    for key in keys:
+        table.add_column(_stacked(key), justify="right", no_wrap=True)
+    for i, key in enumerate(keys):
+        table.add_row(key, *(_number(v, "{:+.3f}") for v in rho[i]))
+    return table
+
+
+def correlation_matrix_tables(cal: Calibration, width: int = 120) -> list[Table]:
+    """The full correlation matrix, numbered columns, split to fit ``width`` characters.
+
+    Rows are ``[k] RADAR.key``; column ``k`` is the parameter of row ``k``.
+    """
+    labels = cal.contract_labels()
+    rho = cal.correlation()
+    n = len(labels)
+    row_names = [f"[{k + 1}] {label}" for k, label in enumerate(labels)]
+    first = max((len(name) for name in row_names), default=10) + 4
+    per_table = max(1, (width - first) // 8)
+    tables = []
+    for start in range(0, n, per_table):
+        cols = range(start, min(start + per_table, n))
+        title = "correlation" if n <= per_table else (
+            f"correlation, columns {cols[0] + 1}-{cols[-1] + 1} of {n}"
+        )
+        table = Table(title=title)
+        table.add_column("parameter", no_wrap=True)
+        for j in cols:
+            table.add_column(f"[{j + 1}]", justify="right", no_wrap=True)
+        for i in range(n):
+            cells = ["1" if i == j else _number(rho[i, j], "{:+.2f}") for j in cols]
+            table.add_row(row_names[i], *cells)
+        tables.append(table)
+    return tables
+
+
+def strong_correlations(
+    cal: Calibration, min_rho: float = 0.5, radar_id: str | None = None
+) -> list[tuple[str, str, float]]:
+    """Parameter pairs with ``|rho| > min_rho``, strongest first.
+
+    Parameters
+    ----------
+    cal : Calibration
+    min_rho : float
+        Threshold on the absolute correlation coefficient.
+    radar_id : str, optional
+        Only pairs of this radar's parameters with other radars' parameters.
+        Without it: every pair.
+
+    Returns
+    -------
+    list of (label_a, label_b, rho)
+        ``RADAR.key`` labels; ``label_a`` belongs to ``radar_id`` when given.
+    """
+    labels = cal.contract_labels()
+    rho = cal.correlation()
+    pairs = []
+    for i, (rid_i, _) in enumerate(cal.labels):
+        for j, (rid_j, _) in enumerate(cal.labels):
+            if radar_id is None:
+                wanted = j > i
+            else:
+                wanted = rid_i == radar_id and rid_j != radar_id
+            if wanted and abs(rho[i, j]) > min_rho:
+                pairs.append((labels[i], labels[j], float(rho[i, j])))
+    return sorted(pairs, key=lambda pair: -abs(pair[2]))
+
+
+def strong_correlations_table(pairs: list[tuple[str, str, float]], title: str) -> Table:
+    """A table of :func:`strong_correlations` pairs."""
+    table = Table(title=title)
+    table.add_column("parameter", no_wrap=True)
+    table.add_column("with", no_wrap=True)
+    table.add_column("ρ", justify="right", no_wrap=True)
+    for a, b, r in pairs:
+        table.add_row(a, b, f"{r:+.3f}")
     return table

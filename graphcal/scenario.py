@@ -12,7 +12,7 @@ The format is documented in ``scenarios/README.md``.  In short::
     [[aircraft]] piecewise legs from a start state, or constant ECEF velocity
     [traffic]    random waypoint traffic
     [opensky]    replay of an OpenSky-style state-vector table
-    [adsb]       ADS-B reports of every aircraft
+    [adsb]       ADS-B reports of every equipped aircraft (equipped_fraction)
 
 File values carry their units in the key names (deg, mrad, m, s); the
 dataclasses hold SI values (radians).  Every problem raises
@@ -154,12 +154,17 @@ class RadarSpec:
 
 @dataclass(frozen=True)
 class AdsbSpec:
-    """ADS-B reports of every simulated aircraft.
+    """ADS-B reports of the simulated aircraft that are equipped.
 
     Attributes
     ----------
     enabled : bool
         Whether ADS-B reports are produced.
+    equipped_fraction : float
+        Fraction of the aircraft that broadcast ADS-B, in ``[0, 1]``: that
+        many aircraft (rounded to the nearest whole number) are drawn without
+        replacement from the simulation's generator; 1 (the default) equips
+        every aircraft without drawing anything.
     period_s : float
         Report period [s]; each aircraft gets a random phase.
     nacp : int or None
@@ -178,6 +183,7 @@ class AdsbSpec:
     """
 
     enabled: bool = False
+    equipped_fraction: float = 1.0
     period_s: float = 1.0
     nacp: int | None = DEFAULT_NACP
     sigma_m: float | None = None
@@ -729,6 +735,7 @@ def _parse_adsb(t: _Table | None) -> AdsbSpec:
         nacp = DEFAULT_NACP
     spec = AdsbSpec(
         enabled=enabled,
+        equipped_fraction=t.number("equipped_fraction", 1.0, low=0.0, high=1.0),
         period_s=period,
         nacp=nacp,
         sigma_m=sigma,

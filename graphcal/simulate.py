@@ -24,11 +24,13 @@ quantised (Mode C style).
 
 ADS-B reports come every ``period_s`` from a random phase per aircraft, with
 Gaussian noise per axis in the ENU frame at the aircraft, optional outliers and
-dropouts.
+dropouts.  With ``equipped_fraction < 1`` only a random subset of the aircraft
+broadcasts (:func:`adsb_equipage`).
 
 Every random number is drawn from the one :class:`numpy.random.Generator`
 passed in, in a fixed order (traffic, antenna phases, radars in file order,
-ADS-B), so one seed reproduces a dataset exactly.
+ADS-B: equipage when ``equipped_fraction < 1``, then phases and noise), so one
+seed reproduces a dataset exactly.
 """
 
 from __future__ import annotations
@@ -81,7 +83,8 @@ class SimulationResult:
     scenario : Scenario
         The scenario simulated.
     dataset : Dataset
-        Sites, plots (contract columns, sorted by time) and ADS-B (or ``None``).
+        Sites, plots (contract columns, sorted by time) and ADS-B (``None``
+        when ADS-B is off or produced no report).
     biases : dict of str to RadarBias
         True biases per radar.
     plot_truth : pandas.DataFrame
@@ -100,6 +103,11 @@ class SimulationResult:
     n_candidates : dict of str to int
         Per radar, the beam hits in coverage before the detection draw (the
         plots are a Bernoulli thinning of them).
+    adsb_equipped : tuple of str
+        Addresses of the aircraft that broadcast ADS-B, in the order of
+        ``trajectories`` (every aircraft unless ``[adsb] equipped_fraction`` is
+        below 1; empty when ADS-B is off).  An equipped aircraft can still
+        have no report (dropouts, or no report time inside the scenario).
     """
 
     scenario: Scenario
@@ -111,6 +119,7 @@ class SimulationResult:
     antenna_phase_rad: dict[str, float]
     replay_stats: ReplayStats | None = None
     n_candidates: dict[str, int] = field(default_factory=dict)
+    adsb_equipped: tuple[str, ...] = ()
 
     def n_plots(self) -> dict[str, int]:
         """Number of plots per radar."""
@@ -356,13 +365,35 @@ def _radar_plots(
 # --------------------------------------------------------------------------- ADS-B
 
 
+def adsb_equipage(
+    equipped_fraction: float, n_flights: int, rng: np.random.Generator
+) -> NDArray[np.bool_]:
+    """Which of ``n_flights`` aircraft broadcast ADS-B (boolean mask).
+
+    ``round(equipped_fraction * n_flights)`` aircraft (halves round up) are
+    drawn without replacement.  A fraction of 1 equips every aircraft and
+    draws nothing from ``rng``, so scenarios without the key keep their
+    random stream.
+    """
+    if equipped_fraction >= 1.0:
+        return np.ones(n_flights, dtype=bool)
+    n_equipped = min(int(math.floor(equipped_fraction * n_flights + 0.5)), n_flights)
+    mask = np.zeros(n_flights, dtype=bool)
+    mask[rng.choice(n_flights, size=n_equipped, replace=False)] = True
+    return mask
+
+
 def _adsb_reports(
     spec: AdsbSpec, flights: list[Trajectory], duration_s: float, rng: np.random.Generator
-) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """ADS-B reports of every flight, and their truth."""
+) -> tuple[pd.DataFrame, pd.DataFrame, tuple[str, ...]]:
+    """ADS-B reports of the equipped flights, their truth and the equipped addresses."""
+    equipped = adsb_equipage(spec.equipped_fraction, len(flights), rng)
+    # One phase per flight, equipped or not: fixed draw shapes.
     phases = rng.uniform(0.0, spec.period_s, size=len(flights))
     times, ids, positions = [], [], []
-    for flight, phase in zip(flights, phases, strict=True):
+    for flight, phase, has_adsb in zip(flights, phases, equipped, strict=True):
+        if not has_adsb:
+            continue
         for seg0, seg1 in flight.segments():
             a, b = max(seg0, 0.0), min(seg1, duration_s)
             if not b >= a:
@@ -409,7 +440,8 @@ def _adsb_reports(
     truth = pd.DataFrame(
         {"x_m": pos[:, 0], "y_m": pos[:, 1], "z_m": pos[:, 2], "outlier": outlier}
     )[kept].reset_index(drop=True)
-    return reports, truth
+    addresses = tuple(f.target_id for f, e in zip(flights, equipped, strict=True) if e)
+    return reports, truth, addresses
 
 
 # --------------------------------------------------------------------------- simulate
@@ -470,8 +502,13 @@ def simulate(
     plots = plots.iloc[order].reset_index(drop=True)[list(PLOT_COLUMNS) + ["altitude_m"]]
     truth = truth.iloc[order].reset_index(drop=True)[list(_TRUTH_COLUMNS)]
     adsb = adsb_truth = None
+    equipped: tuple[str, ...] = ()
     if scenario.adsb.enabled:
-        adsb, adsb_truth = _adsb_reports(scenario.adsb, flights, scenario.duration_s, rng)
+        adsb, adsb_truth, equipped = _adsb_reports(scenario.adsb, flights, scenario.duration_s, rng)
+        if adsb.empty:
+            # No report at all (e.g. equipped_fraction = 0): no table, as a
+            # dataset's ADS-B file must have rows to be read back.
+            adsb = adsb_truth = None
     report(f"ADS-B: {0 if adsb is None else len(adsb)} reports")
     sites = {r.id: r.site() for r in scenario.radars}
     dataset = Dataset(sites=sites, plots=plots, adsb=adsb)
@@ -485,6 +522,7 @@ def simulate(
         antenna_phase_rad=phases,
         replay_stats=stats,
         n_candidates=candidates,
+        adsb_equipped=equipped,
     )
 
 

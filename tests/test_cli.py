@@ -87,12 +87,12 @@ def test_calibrate_prints_value_plus_minus_sigma_table(tmp_path: Path) -> None:
     assert "observability degree" in result.output
 
 
-def test_default_method_is_announced(tmp_path: Path) -> None:
+def test_default_method_is_graph(tmp_path: Path) -> None:
     data = tmp_path / "ds"
     _write_outside_tool_dataset(data)
     result = runner.invoke(app, ["calibrate", str(data)])
     assert result.exit_code == 0, result.output
-    assert "fl-ls" in result.output
+    assert "method graph" in result.output
 
 
 def test_bad_input_exits_2_with_file_row_and_field(tmp_path: Path) -> None:

@@ -132,6 +132,20 @@ def test_demo_network_counts():
     assert seconds < 5.0
 
 
+def test_benchmark_network_scenario_parses():
+    path = SCENARIOS.parent / "benchmarks" / "scenarios" / "network_10radars_1h.toml"
+    scenario = load_scenario(path)
+    models = [r.model for r in scenario.radars]
+    assert len(models) == 10 and len({r.id for r in scenario.radars}) == 10
+    assert models.count("ssr-mode-s") == 5
+    assert models.count("air-defence-3d") == 3
+    assert models.count("psr-approach") == 2
+    assert len({(r.bias.range_offset_m, r.bias.azimuth_bias_rad) for r in scenario.radars}) == 10
+    assert scenario.duration_s == 3600.0 and scenario.traffic.n_aircraft == 200
+    assert scenario.adsb.enabled and scenario.adsb.period_s == 1.0 and scenario.adsb.nacp == 8
+    assert scenario.adsb.equipped_fraction == 0.7
+
+
 # --------------------------------------------------------------------------- OpenSky replay
 
 

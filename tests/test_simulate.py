@@ -13,6 +13,7 @@ from scipy import stats
 from graphcal import frames
 from graphcal.bias import CONTRACT_KEYS, RadarBias, correct_bias, correct_time
 from graphcal.dataset import load_dataset
+from graphcal.errors import ScenarioError
 from graphcal.scenario import parse_scenario
 from graphcal.simulate import (
     beam_crossings,
@@ -376,6 +377,84 @@ def test_adsb_noise_outliers_and_dropouts():
     assert _chi2_ok(enu[~out, 2], 30.0)
     per_target = adsb.groupby("target_id")["time_s"].apply(lambda s: np.diff(np.sort(s)).min())
     assert (per_target >= 1.0 - 1e-9).all()
+
+
+def _equipage_document(fraction: float | None, n_aircraft: int = 40) -> dict:
+    adsb = {"nacp": 9}
+    if fraction is not None:
+        adsb["equipped_fraction"] = fraction
+    doc = _document(adsb=adsb, traffic={"n_aircraft": n_aircraft, "radius_m": 60_000.0})
+    doc["scenario"]["duration_s"] = 120.0
+    return doc
+
+
+def test_adsb_equipped_fraction_selects_that_many_aircraft():
+    result = simulate(parse_scenario(_equipage_document(0.5)), np.random.default_rng(21))
+    flights = [f.target_id for f in result.trajectories]
+    assert len(flights) == 42  # two explicit aircraft and 40 random ones
+    equipped = result.adsb_equipped
+    assert len(equipped) == 21 and len(set(equipped)) == 21
+    assert set(equipped) <= set(flights)
+    assert list(equipped) == [f for f in flights if f in set(equipped)]  # flight order
+    # Every equipped aircraft reports (all fly through the 120 s), no other does.
+    assert set(result.dataset.adsb["target_id"]) == set(equipped)
+    # Radar plots come before the ADS-B draws: unaffected by the equipage.
+    full = simulate(parse_scenario(_equipage_document(None)), np.random.default_rng(21))
+    pd.testing.assert_frame_equal(result.dataset.plots, full.dataset.plots)
+    assert len(full.adsb_equipped) == 42
+    per_aircraft = full.dataset.adsb.groupby("target_id").size()
+    assert len(result.dataset.adsb) == per_aircraft[list(equipped)].sum()
+
+
+def test_adsb_equipped_fraction_is_roughly_the_share_of_reporting_aircraft():
+    result = simulate(parse_scenario(_equipage_document(0.7, 200)), np.random.default_rng(22))
+    share = result.dataset.adsb["target_id"].nunique() / len(result.trajectories)
+    assert share == pytest.approx(0.7, abs=0.01)
+
+
+def test_adsb_equipped_fraction_zero_gives_no_adsb_table(tmp_path):
+    result = simulate(parse_scenario(_equipage_document(0.0)), np.random.default_rng(23))
+    assert result.adsb_equipped == ()
+    assert result.dataset.adsb is None and result.adsb_truth is None
+    assert len(result.dataset.plots) > 0
+    folder = write_simulation(result, tmp_path / "out")
+    assert not (folder / "adsb.csv").exists()
+    assert load_dataset(folder).adsb is None
+
+
+def test_adsb_equipped_fraction_one_keeps_the_random_stream():
+    default = simulate(parse_scenario(_equipage_document(None)), np.random.default_rng(24))
+    explicit = simulate(parse_scenario(_equipage_document(1.0)), np.random.default_rng(24))
+    pd.testing.assert_frame_equal(default.dataset.adsb, explicit.dataset.adsb)
+    pd.testing.assert_frame_equal(default.dataset.plots, explicit.dataset.plots)
+    assert default.adsb_equipped == explicit.adsb_equipped
+    assert len(default.adsb_equipped) == len(default.trajectories)
+
+
+def test_adsb_equipped_fraction_is_reproducible_with_a_seed():
+    scenario = parse_scenario(_equipage_document(0.5))
+    first = simulate(scenario, np.random.default_rng(25))
+    second = simulate(scenario, np.random.default_rng(25))
+    assert first.adsb_equipped == second.adsb_equipped
+    pd.testing.assert_frame_equal(first.dataset.adsb, second.dataset.adsb)
+    others = {simulate(scenario, np.random.default_rng(s)).adsb_equipped for s in (26, 27)}
+    assert any(set(o) != set(first.adsb_equipped) for o in others)
+
+
+@pytest.mark.parametrize(
+    ("value", "words"),
+    [(1.5, "within [0, 1]"), (-0.1, "within [0, 1]"), ("x", "must be a number")],
+)
+def test_bad_adsb_equipped_fraction_names_file_and_field(tmp_path, value, words):
+    doc = _equipage_document(None)
+    doc["adsb"]["equipped_fraction"] = value
+    path = tmp_path / "equipage.toml"
+    with pytest.raises(ScenarioError) as info:
+        parse_scenario(doc, path)
+    assert info.value.field == "adsb.equipped_fraction"
+    assert info.value.path == path
+    message = str(info.value)
+    assert str(path) in message and "adsb.equipped_fraction" in message and words in message
 
 
 # --------------------------------------------------------------------------- reproducibility

@@ -9,6 +9,7 @@ name           what                                                         need
 ``fl-ls``      paper 003: FL compensation, then LS                          ADS-B
 ``wls``        paper 001 eq. 8-11, cross-radar weighted least squares       2 radars
 ``wls-pruned`` paper 001 eq. 12 greedy pruning, then WLS                    2 radars
+``graph``      GTSAM factor graph: ADS-B and cross-radar factors, robust    either
 =============  ==========================================================  ========
 """
 
@@ -20,6 +21,7 @@ from typing import Any
 from graphcal.calibration import Calibration
 from graphcal.dataset import Dataset
 from graphcal.estimators.adsb_reference import fl, fl_ls, ls
+from graphcal.estimators.graph import graph
 from graphcal.estimators.wls import wls, wls_pruned
 
 Estimator = Callable[..., Calibration]
@@ -31,10 +33,11 @@ METHODS: dict[str, Estimator] = {
     "fl-ls": fl_ls,
     "wls": wls,
     "wls-pruned": wls_pruned,
+    "graph": graph,
 }
 
 #: Methods of the contract that are planned but not available in this version.
-PLANNED_METHODS: tuple[str, ...] = ("graph",)
+PLANNED_METHODS: tuple[str, ...] = ()
 
 
 def get_estimator(method: str) -> Estimator:

@@ -39,6 +39,8 @@ FloatArray = NDArray[np.float64]
 #: 1-sigma error [m] of a reported (Mode C) height used to place a 2-D radar's plot:
 #: 25 ft quantisation plus barometric-versus-geometric height differences.
 ALTITUDE_SIGMA_M = 30.0
+#: 2-D plots above this elevation [rad] (70 deg) are not placed from their reported height.
+MAX_2D_ELEVATION_RAD = np.deg2rad(70.0)
 
 
 @dataclass
@@ -59,20 +61,80 @@ def convert_plots(site: Site, plots: PlotArrays) -> ConvertedPlots:
     ``d el / d r = -(R_t^2 - R_r^2 + r^2) / (2 r^2 R_r cos el)`` enters the range
     column.
     """
-    r = plots.range_m
-    az = plots.azimuth_rad
+    geometry = _plot_geometry(site, plots.range_m, plots.azimuth_rad, plots)
+    bias_jac = geometry.ecef_jacobian @ measurement_bias_jacobian(plots.range_m)
+    if not site.is_3d:
+        bias_jac[:, :, 3] = 0.0
+    return ConvertedPlots(geometry.ecef_m, bias_jac, geometry.cov_m2, geometry.usable)
+
+
+def corrected_ecef(
+    site: Site, plots: PlotArrays, bias: FloatArray
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Plots corrected by ``bias`` -> ECEF, with the Jacobian w.r.t. the bias.
+
+    The correction is the inverse bias model (:func:`graphcal.bias.correct_bias`):
+    ``r = (r_m - offset) / (1 + gain)``, ``az = az_m - az_bias``,
+    ``el = el_m - el_bias`` (3-D) or the elevation of the reported height at
+    the corrected range (2-D).
+
+    Parameters
+    ----------
+    site : Site
+    plots : PlotArrays
+    bias : ndarray (4,)
+        ``(range_offset_m, range_gain, azimuth_bias_rad, elevation_bias_rad)``.
+
+    Returns
+    -------
+    ecef_m : ndarray (n, 3)
+    jacobian : ndarray (n, 3, 4)
+        ``d ecef / d bias`` [m per unit of each bias].
+    usable : ndarray (n,) of bool
+        False for 2-D plots without a reported height or 3-D plots without elevation.
+    """
+    offset, gain, az_bias, el_bias = (float(v) for v in bias)
+    r = (plots.range_m - offset) / (1.0 + gain)
+    az = plots.azimuth_rad - az_bias
+    geometry = _plot_geometry(site, r, az, plots, el_bias)
+    d_polar = np.zeros((len(r), 3, 4))
+    d_polar[:, 0, 0] = -1.0 / (1.0 + gain)
+    d_polar[:, 0, 1] = -r / (1.0 + gain)
+    d_polar[:, 1, 2] = -1.0
+    if site.is_3d:
+        d_polar[:, 2, 3] = -1.0
+    return geometry.ecef_m, geometry.ecef_jacobian @ d_polar, geometry.usable
+
+
+@dataclass
+class _Geometry:
+    ecef_m: FloatArray  # (n, 3)
+    ecef_jacobian: FloatArray  # (n, 3, 3) d ecef / d (r, az, el); 2-D: el follows r
+    cov_m2: FloatArray  # (n, 3, 3) measurement noise in ECEF
+    usable: NDArray[np.bool_]
+
+
+def _plot_geometry(
+    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float = 0.0
+) -> _Geometry:
+    """ECEF position, d ecef / d polar and converted noise of plots at ``(r, az)``."""
     n = len(r)
     cov_polar = np.zeros((n, 3, 3))
     cov_polar[:, 0, 0] = site.sigma_range_m**2
     cov_polar[:, 1, 1] = site.sigma_azimuth_rad**2
     if site.is_3d:
-        el = plots.elevation_rad
+        el = plots.elevation_rad - elevation_bias
         usable = np.isfinite(el)
         cov_polar[:, 2, 2] = site.sigma_elevation_rad**2
         d_el_d_r = np.zeros(n)
     else:
         el = frames.elevation_from_height(r, plots.altitude_m, site.lat_rad, site.alt_m)
-        usable = np.isfinite(el) & np.isfinite(plots.altitude_m)
+        # Near the zenith (or where noise puts the reported height out of reach of
+        # the slant range) the height says nothing usable about the elevation.
+        with np.errstate(invalid="ignore"):
+            usable = np.isfinite(el) & np.isfinite(plots.altitude_m) & (
+                np.abs(el) < MAX_2D_ELEVATION_RAD
+            )
         radius = _gaussian_radius_m(site.lat_rad)
         rt = radius + np.nan_to_num(plots.altitude_m)
         rr = radius + site.alt_m
@@ -90,11 +152,8 @@ def convert_plots(site: Site, plots: PlotArrays) -> ConvertedPlots:
     rot = site.ecef_to_enu.T  # d ecef / d enu
     ecef_jac = rot @ enu_jac
     ecef = site.ecef_from_polar(r, az, el)
-    bias_jac = ecef_jac @ measurement_bias_jacobian(r)
-    if not site.is_3d:
-        bias_jac[:, :, 3] = 0.0
     cov = ecef_jac @ cov_polar @ np.swapaxes(ecef_jac, 1, 2)
-    return ConvertedPlots(ecef, bias_jac, cov, usable)
+    return _Geometry(ecef, ecef_jac, cov, usable)
 
 
 def _gaussian_radius_m(lat_rad: float) -> float:

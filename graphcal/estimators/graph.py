@@ -1,0 +1,571 @@
+"""The factor-graph calibrator (``graph``): every radar's biases estimated jointly with GTSAM.
+
+One GTSAM variable per radar holds its free bias terms (range offset, range
+gain, azimuth bias, and elevation bias for 3-D radars; which ones is set per
+radar by its ``estimate`` list, and terms can be fixed at known values).  The
+factors:
+
+* **ADS-B factors** (:class:`~graphcal.estimators.factors.AdsbFactor`): each
+  plot matched to an ADS-B position of its aircraft, residual in the radar's
+  measurement space, noise = radar noise + ADS-B noise through the Jacobian.
+* **Cross-radar factors**, in one of two formulations (``cross``):
+
+  - ``pairwise`` (default, fast): paper 001's differences of converted
+    positions of two radars' plots of the same aircraft, target eliminated,
+    evaluated exactly at each iteration
+    (:class:`~graphcal.estimators.factors.PairwiseFactor`).  Plots matched to
+    ADS-B are not paired, so no plot's noise is counted twice; a plot still
+    enters several pairs, and the covariance is corrected for that shared
+    noise by a sandwich ``A^-1 (A - A_pair + M_pair) A^-1``.
+  - ``target-state``: each aircraft's trajectory is in the graph
+    (:mod:`graphcal.estimators.target_state`); every plot is a factor between
+    its radar's biases and the trajectory at its own time, ADS-B reports are
+    factors on the trajectory, and motion factors tie consecutive states.
+    Exact and free of interpolation, and slower.
+  - ``none``: ADS-B factors only.
+
+* **Weak priors** ``N(0, sigma_prior)`` on every free term keep it in a
+  physically plausible range (:func:`prior_sigmas`); they are reported, and a
+  term whose posterior variance is more than a quarter of its prior variance
+  is flagged as not determined by the data.
+
+Every measurement goes through a robust kernel (:mod:`graphcal.estimators.robust`).
+The problem is solved by Levenberg-Marquardt from the closed-form estimates
+(``fl-ls``/``ls`` with ADS-B, ``wls`` without; zero if they fail), and the
+joint covariance of all biases comes from GTSAM's marginals.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graphcal.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_adsb, pair_plots
+from graphcal.bias import CONTRACT_KEYS, PARAMETER_NAMES, RadarBias, from_contract_units
+from graphcal.calibration import Calibration
+from graphcal.dataset import Dataset, Site
+from graphcal.errors import EstimationError
+from graphcal.estimators.adsb_reference import _reference_polar_cov, residual_stats
+from graphcal.estimators.factors import (
+    AdsbFactor,
+    PairwiseFactor,
+    RadarTerms,
+    adsb_factor,
+    pairwise_factor,
+)
+from graphcal.estimators.linear import describe_weak_directions, observability
+from graphcal.estimators.robust import RobustKernel
+from graphcal.gtsam_adapter import FactorGraph, symbol
+from graphcal.sensor_models import load_sensor_model
+
+FloatArray = NDArray[np.float64]
+Progress = Callable[..., None]
+
+#: Cross-radar formulations.
+CROSS_MODES: tuple[str, ...] = ("pairwise", "target-state", "none")
+#: Prior 1-sigma of each term [SI] when the radar's sensor model gives no typical size.
+DEFAULT_PRIOR_SIGMA: dict[str, float] = {
+    "range_offset": 2000.0,
+    "range_gain": 0.02,
+    "azimuth_bias": 0.05,
+    "elevation_bias": 0.02,
+}
+#: With a sensor model, the prior sigma is at least this multiple of its typical bias.
+PRIOR_TYPICAL_MULTIPLE = 25.0
+#: A term whose posterior variance exceeds this fraction of its prior variance is
+#: reported as not determined by the data.
+UNDETERMINED_VARIANCE_RATIO = 0.25
+
+
+# --------------------------------------------------------------------------- set-up
+def radar_terms(site: Site, fixed: dict[tuple[str, str], float]) -> RadarTerms:
+    """Free and fixed terms of one radar: its ``estimate`` list minus the fixed ones."""
+    own_fixed = {name: value for (rid, name), value in fixed.items() if rid == site.id}
+    for name in own_fixed:
+        if name == "elevation_bias" and not site.is_3d:
+            raise ValueError(f"radar {site.id} is 2-D: it has no elevation bias to fix")
+    free = tuple(
+        name for name in PARAMETER_NAMES
+        if name in site.estimate and name not in own_fixed
+        and (site.is_3d or name != "elevation_bias")
+    )
+    return RadarTerms(site.id, free, own_fixed)
+
+
+def prior_sigmas(site: Site, terms: RadarTerms) -> FloatArray:
+    """Prior 1-sigma [SI] of each free term.
+
+    ``max(DEFAULT_PRIOR_SIGMA, PRIOR_TYPICAL_MULTIPLE x typical bias)``, the
+    typical bias coming from the radar's sensor model when it names one.
+    """
+    typical: dict[str, float] = {}
+    if site.model is not None:
+        for key, value in load_sensor_model(site.model).typical_bias.items():
+            for name, (contract_key, _) in CONTRACT_KEYS.items():
+                if contract_key == key:
+                    typical[name] = from_contract_units(name, value)
+    return np.array([
+        max(DEFAULT_PRIOR_SIGMA[name], PRIOR_TYPICAL_MULTIPLE * typical.get(name, 0.0))
+        for name in terms.free
+    ])
+
+
+@dataclass
+class _Problem:
+    """Factors and variables of one calibration."""
+
+    terms: dict[str, RadarTerms]
+    keys: dict[str, int]
+    adsb: dict[str, AdsbFactor] = field(default_factory=dict)
+    alignments: dict[str, AdsbAlignment] = field(default_factory=dict)
+    pairs: list[PairwiseFactor] = field(default_factory=list)
+    target_state: Any = None
+
+    def variable_radars(self) -> list[str]:
+        """Radars with at least one factor and one free term, in dataset order."""
+        seen = set(self.adsb)
+        for f in self.pairs:
+            seen.update([f.terms_a.radar_id, f.terms_b.radar_id])
+        if self.target_state is not None:
+            seen.update(self.target_state.radars_seen)
+        return [rid for rid in self.terms if rid in seen and self.terms[rid].free]
+
+
+def _reduced(dataset: Dataset, exclude_rows: NDArray[np.int64]) -> Dataset:
+    """``dataset`` without the plot rows ``exclude_rows``."""
+    if len(exclude_rows) == 0:
+        return dataset
+    plots = dataset.plots.drop(index=exclude_rows)
+    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path)
+
+
+def _build_factors(
+    dataset: Dataset,
+    problem: _Problem,
+    use_adsb: bool,
+    cross: str,
+    kernel: RobustKernel,
+    adsb_max_gap_s: float,
+    pair_max_gap_s: float | None,
+    progress: Progress | None,
+) -> None:
+    radar_ids = list(dataset.radar_ids)
+    matched: list[NDArray[np.int64]] = []
+    if use_adsb:
+        for i, rid in enumerate(radar_ids):
+            al = align_adsb(dataset, rid, adsb_max_gap_s)
+            if progress is not None:
+                progress("ADS-B association", i + 1, len(radar_ids))
+            if len(al) == 0:
+                continue
+            problem.alignments[rid] = al
+            problem.adsb[rid] = adsb_factor(
+                dataset.sites[rid], problem.terms[rid], problem.keys[rid], al.plots,
+                al.reference_polar, _reference_polar_cov(al), kernel,
+            )
+            matched.append(al.plots.index)
+    if cross != "pairwise":
+        return
+    rest = _reduced(dataset, np.concatenate(matched) if matched else np.zeros(0, np.int64))
+    todo = [(a, b) for i, a in enumerate(radar_ids) for b in radar_ids[i + 1:]]
+    for n, (ra, rb) in enumerate(todo):
+        pairs = pair_plots(rest, ra, rb, pair_max_gap_s)
+        if progress is not None:
+            progress("cross-radar pairs", n + 1, len(todo))
+        if len(pairs) == 0:
+            continue
+        factor = pairwise_factor(
+            dataset.sites[ra], dataset.sites[rb], problem.terms[ra], problem.terms[rb],
+            problem.keys[ra], problem.keys[rb], pairs.a_plots, pairs.b_plots,
+            pairs.a_index0, pairs.weight, pairs.b_index, kernel,
+        )
+        if factor is not None:
+            problem.pairs.append(factor)
+
+
+# --------------------------------------------------------------------------- initial values
+def initial_biases(
+    dataset: Dataset, use_adsb: bool, cross: str, init: str
+) -> tuple[dict[str, RadarBias], str, list[str]]:
+    """Initial biases from the closed-form estimators, or zero.
+
+    ``init``: ``auto`` (``fl-ls`` then ``ls`` with ADS-B; ``wls`` without),
+    a method name, or ``zero``.  Returns the biases, the method used and notes
+    on the methods that failed.
+    """
+    from graphcal.estimators import METHODS
+
+    if init == "zero":
+        return {}, "zero", []
+    if init == "auto":
+        candidates = ["fl-ls", "ls"] if use_adsb else (["wls"] if cross != "none" else [])
+    else:
+        if init not in METHODS:
+            raise ValueError(
+                f"unknown initialisation '{init}'; use auto, zero or a closed-form method"
+            )
+        candidates = [init]
+    notes = []
+    for method in candidates:
+        try:
+            cal = METHODS[method](dataset)
+        except (EstimationError, ValueError, np.linalg.LinAlgError) as exc:
+            notes.append(f"initialisation by {method} failed ({exc}); trying the next")
+            continue
+        biases = {}
+        for rid in cal.radar_ids:
+            vector = np.nan_to_num(cal.bias(rid).as_vector(), nan=0.0, posinf=0.0, neginf=0.0)
+            biases[rid] = RadarBias.from_vector(vector)
+        return biases, method, notes
+    return {}, "zero", notes
+
+
+def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) -> FloatArray:
+    if bias is None:
+        return np.zeros(len(terms.free))
+    values = bias.as_vector()[terms.positions]
+    # A closed-form estimate far outside the prior is not a useful start.
+    return np.where(np.abs(values) <= 3.0 * prior, values, 0.0)
+
+
+# --------------------------------------------------------------------------- covariance
+def _pairwise_sandwich_terms(
+    problem: _Problem, values: dict[str, FloatArray], columns: dict[str, list[int]], p: int
+) -> tuple[FloatArray, FloatArray]:
+    """``A_pair = sum J^T J`` and ``M_pair = sum_plots G C G^T`` over the pairwise factors.
+
+    ``G_plot = sum_k c_k,plot w_k J_k^T W_k`` collects, for every plot, its
+    share of the gradient noise across all the pairs it enters (paper 001's
+    observations share plots), with the robust weights ``w_k`` at the solution.
+    Accumulated one radar at a time to bound memory.
+    """
+    information = np.zeros((p, p))
+    # Per factor: (w J^T W) per pair (n, p, 3), the plots behind each pair, their covariances.
+    shares = []
+    for f in problem.pairs:
+        ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
+        e, (ja, jb) = f.whitened([values[ra], values[rb]])
+        w = f.kernel.weight(np.linalg.norm(e, axis=1), 3)
+        jac = np.zeros((len(f), 3, p))
+        jac[:, :, columns[ra] + columns[rb]] = np.concatenate([ja, jb], axis=2)
+        information += np.einsum("nip,niq,n->pq", jac, jac, w)
+        shares.append((f, w[:, None, None] * np.swapaxes(jac, 1, 2) @ f.whitening))
+    middle = np.zeros((p, p))
+    for rid in problem.terms:
+        labels_parts, cov_parts = [], []
+        for f, _ in shares:
+            for plots, cov, radar in ((f.a_plots, f.a_cov_m2, f.terms_a.radar_id),
+                                      (f.b_plots, f.b_cov_m2, f.terms_b.radar_id)):
+                if radar == rid:
+                    labels_parts.append(plots.index)
+                    cov_parts.append(cov)
+        if not labels_parts:
+            continue
+        all_labels = np.concatenate(labels_parts)
+        labels, first = np.unique(all_labels, return_index=True)
+        cov = np.concatenate(cov_parts)[first]
+        g = np.zeros((len(labels), p, 3))
+        for f, share in shares:
+            positions, coefficients = f.plot_noise()
+            na = len(f.a_plots)
+            for j in range(3):
+                pos = positions[:, j]
+                from_a = pos < na
+                radar = np.where(from_a, f.terms_a.radar_id, f.terms_b.radar_id)
+                mine = radar == rid
+                if not np.any(mine):
+                    continue
+                plot_labels = np.where(
+                    from_a[mine], f.a_plots.index[np.minimum(pos[mine], na - 1)],
+                    f.b_plots.index[np.maximum(pos[mine] - na, 0)],
+                )
+                rows = np.searchsorted(labels, plot_labels)
+                np.add.at(g, rows, coefficients[mine, j, None, None] * share[mine])
+        middle += np.einsum("npi,nij,nqj->pq", g, cov, g)
+    return information, middle
+
+
+# --------------------------------------------------------------------------- the estimator
+def graph(
+    dataset: Dataset,
+    *,
+    cross: str = "pairwise",
+    robust: str = "huber",
+    robust_scale: float = 1.0,
+    use_adsb: bool = True,
+    init: str = "auto",
+    fixed: dict[tuple[str, str], float] | None = None,
+    max_iterations: int = 100,
+    max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
+    pair_max_gap_s: float | None = None,
+    process_noise_m2_s3: float | None = None,
+    progress: Progress | None = None,
+) -> Calibration:
+    """Joint calibration of every radar with a GTSAM factor graph.
+
+    Parameters
+    ----------
+    dataset : Dataset
+    cross : {"pairwise", "target-state", "none"}
+        Cross-radar formulation (see the module docstring).
+    robust : {"huber", "cauchy", "none"}
+        Robust kernel on every measurement; ``robust_scale`` multiplies its
+        default threshold (the chi 95 % point of the measurement dimension).
+    use_adsb : bool
+        Use the ADS-B table when the dataset has one.
+    init : str
+        ``auto``, ``zero`` or a closed-form method for the initial values.
+    fixed : dict, optional
+        ``{(radar_id, parameter_name): value_si}``: terms held at a known value.
+    max_iterations : int
+        Levenberg-Marquardt iteration limit.
+    max_gap_s : float
+        Longest ADS-B gap bridged by interpolation [s].
+    pair_max_gap_s : float, optional
+        Longest gap between a radar's bracketing plots in pairwise mode [s]
+        (default 2.5 scans).
+    process_noise_m2_s3 : float, optional
+        Target-state mode: white-acceleration spectral density of the
+        constant-velocity motion factors.
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+
+    Returns
+    -------
+    Calibration
+        ``info`` holds the iterations, errors, convergence, priors, robust
+        down-weighting per radar and timings.
+    """
+    if cross not in CROSS_MODES:
+        raise ValueError(
+            f"unknown cross-radar mode '{cross}'; use one of: {', '.join(CROSS_MODES)}"
+        )
+    if max_iterations < 1:
+        raise ValueError("max_iterations must be at least 1")
+    kernel = RobustKernel(robust, robust_scale)
+    fixed = dict(fixed or {})
+    for rid, name in fixed:
+        if rid not in dataset.sites:
+            raise ValueError(f"cannot fix a term of unknown radar '{rid}'")
+        if name not in PARAMETER_NAMES:
+            raise ValueError(f"cannot fix unknown parameter '{name}'")
+    timing: dict[str, float] = {}
+    start = time.perf_counter()
+    have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
+    radar_ids = list(dataset.radar_ids)
+    terms = {rid: radar_terms(dataset.sites[rid], fixed) for rid in radar_ids}
+    keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
+    problem = _Problem(terms, keys)
+    if cross == "target-state":
+        from graphcal.estimators.target_state import build_target_state
+
+        problem.target_state = build_target_state(
+            dataset, terms, keys, kernel, use_adsb=have_adsb, adsb_max_gap_s=max_gap_s,
+            process_noise_m2_s3=process_noise_m2_s3, progress=progress,
+        )
+        if have_adsb:
+            # Residual statistics against ADS-B, for the report only.
+            for rid in radar_ids:
+                al = align_adsb(dataset, rid, max_gap_s)
+                if len(al):
+                    problem.alignments[rid] = al
+    else:
+        _build_factors(dataset, problem, have_adsb, cross, kernel, max_gap_s, pair_max_gap_s,
+                       progress)
+    timing["factors_s"] = time.perf_counter() - start
+    radars = problem.variable_radars()
+    if not radars:
+        raise EstimationError(
+            "nothing to calibrate: no plot matched ADS-B and no two radars saw the same "
+            "target_id within the time-gap limit"
+        )
+    # ---------------------------------------------------------------- initial values
+    t0 = time.perf_counter()
+    init_biases, init_method, init_notes = initial_biases(
+        dataset, have_adsb, "none" if cross == "none" else cross, init
+    )
+    timing["initialisation_s"] = time.perf_counter() - t0
+    priors = {rid: prior_sigmas(dataset.sites[rid], terms[rid]) for rid in radars}
+    fg = FactorGraph()
+    initial_free: dict[str, FloatArray] = {}
+    for rid in radars:
+        initial_free[rid] = _initial_free(terms[rid], init_biases.get(rid), priors[rid])
+        fg.add_variable(keys[rid], initial_free[rid])
+        fg.add_prior(keys[rid], np.zeros(len(terms[rid].free)), priors[rid])
+    variable = set(radars)
+    for factor in [*problem.adsb.values(), *problem.pairs]:
+        _add_factor(fg, factor, variable)
+    if problem.target_state is not None:
+        problem.target_state.add_to(fg, variable, initial_free)
+    # ---------------------------------------------------------------- solve
+    t0 = time.perf_counter()
+    if progress is not None:
+        progress("optimising", 0, 1)
+    result = fg.optimize(max_iterations=max_iterations)
+    timing["optimisation_s"] = time.perf_counter() - t0
+    values = {rid: result.vector(keys[rid]) for rid in radars}
+    full_values = {
+        rid: values[rid] if rid in values else np.zeros(0) for rid in radar_ids
+    }
+    # ---------------------------------------------------------------- covariance
+    t0 = time.perf_counter()
+    if progress is not None:
+        progress("marginals", 0, 1)
+    marginal = fg.joint_covariance(result.values, [keys[rid] for rid in radars])
+    labels = [(rid, name) for rid in radars for name in terms[rid].free]
+    p = len(labels)
+    columns: dict[str, list[int]] = {rid: [] for rid in radar_ids}
+    for i, (rid, _) in enumerate(labels):
+        columns[rid].append(i)
+    prior_information = np.diag(np.concatenate([priors[rid] for rid in radars]) ** -2.0)
+    information = np.linalg.inv(marginal)
+    information = 0.5 * (information + information.T)
+    covariance = marginal
+    covariance_note = "GTSAM marginals"
+    if problem.pairs:
+        a_pair, m_pair = _pairwise_sandwich_terms(problem, full_values, columns, p)
+        covariance = marginal @ (information - a_pair + m_pair) @ marginal
+        covariance = 0.5 * (covariance + covariance.T)
+        covariance_note = "GTSAM marginals, corrected for plots shared between pairs"
+    timing["marginals_s"] = time.perf_counter() - t0
+    data_information = information - prior_information
+    obs = observability(data_information)
+    # ---------------------------------------------------------------- result
+    estimate = np.concatenate([values[rid] for rid in radars])
+    prior_vector = np.concatenate([priors[rid] for rid in radars])
+    ratio = np.diag(covariance) / prior_vector**2
+    undetermined = [labels[i] for i in np.flatnonzero(ratio > UNDETERMINED_VARIANCE_RATIO)]
+    warnings = list(init_notes)
+    for rid, name in undetermined:
+        warnings.append(
+            f"{rid} {name.replace('_', ' ')} is not determined by the data: its estimate "
+            "and sigma come from the weak prior"
+        )
+    warnings.extend(describe_weak_directions(labels, obs))
+    if not result.converged:
+        warnings.append(
+            f"Levenberg-Marquardt stopped at the iteration limit ({max_iterations}) "
+            "before converging"
+        )
+    for rid in radar_ids:
+        if rid not in variable and terms[rid].free:
+            warnings.append(f"radar {rid} has no usable observations; not calibrated")
+    n_plots = _plots_used(problem, radars)
+    total_dimension = sum(f.dimension for f in [*problem.adsb.values(), *problem.pairs])
+    if problem.target_state is not None:
+        total_dimension += problem.target_state.dimension
+    info: dict[str, Any] = {
+        "cross": cross,
+        "robust": {"kernel": kernel.name, "scale": kernel.scale,
+                   "threshold_sigma_2d": kernel.threshold(2),
+                   "threshold_sigma_3d": kernel.threshold(3)},
+        "initialisation": init_method,
+        "optimizer": "Levenberg-Marquardt (GTSAM)",
+        "iterations": result.iterations,
+        "initial_error": result.initial_error,
+        "final_error": result.final_error,
+        "converged": result.converged,
+        "chi2_per_dof": 2.0 * result.final_error / max(total_dimension - p, 1),
+        "covariance": covariance_note,
+        "n_factors": len(fg),
+        "n_adsb_plots": int(sum(len(f.measured) for f in problem.adsb.values())),
+        "n_pairs": int(sum(len(f) for f in problem.pairs)),
+        "priors": {
+            rid: {CONTRACT_KEYS[name][0]: float(s * CONTRACT_KEYS[name][1])
+                  for name, s in zip(terms[rid].free, priors[rid], strict=True)}
+            for rid in radars
+        },
+        "fixed": {
+            rid: {CONTRACT_KEYS[name][0]: float(v * CONTRACT_KEYS[name][1])
+                  for name, v in terms[rid].fixed.items()}
+            for rid in radar_ids if terms[rid].fixed
+        },
+        "undetermined": [f"{rid}.{CONTRACT_KEYS[name][0]}" for rid, name in undetermined],
+        "downweighted": _downweighted(problem, full_values, radars, result),
+    }
+    if problem.target_state is not None:
+        info["target_state"] = problem.target_state.summary()
+    timing["total_s"] = time.perf_counter() - start
+    info["timing_s"] = timing
+    cal = Calibration(
+        method="graph",
+        radar_ids=radars,
+        is_3d={rid: dataset.sites[rid].is_3d for rid in radars},
+        labels=labels,
+        estimate=estimate,
+        covariance=covariance,
+        n_plots=n_plots,
+        observability=obs,
+        warnings=warnings,
+        info=info,
+    )
+    for rid, al in problem.alignments.items():
+        if rid in radars:
+            bias = RadarBias.from_vector(terms[rid].full(values[rid]))
+            cal.residuals[rid] = residual_stats(dataset.sites[rid], al, bias)
+    return cal
+
+
+def _add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: set[str]) -> None:
+    """Add a vectorised factor; radars without free terms enter as constants."""
+    radar_ids = (
+        [factor.terms.radar_id] if isinstance(factor, AdsbFactor)
+        else [factor.terms_a.radar_id, factor.terms_b.radar_id]
+    )
+    is_variable = [rid in variable for rid in radar_ids]
+    if not any(is_variable):
+        return
+    keys = [k for k, v in zip(factor.keys, is_variable, strict=True) if v]
+
+    def error(current: list[FloatArray], want: bool):
+        it = iter(current)
+        full = [next(it) if v else np.zeros(0) for v in is_variable]
+        e, jac = factor.error(full, want)
+        if jac is not None:
+            jac = [j for j, v in zip(jac, is_variable, strict=True) if v]
+        return e, jac
+
+    fg.add_custom(keys, factor.dimension, error)
+
+
+def _plots_used(problem: _Problem, radars: list[str]) -> dict[str, int]:
+    used: dict[str, set[int]] = {rid: set() for rid in problem.terms}
+    for rid, f in problem.adsb.items():
+        used[rid].update(f.plot_rows.tolist())
+    for f in problem.pairs:
+        used[f.terms_a.radar_id].update(f.a_plots.index.tolist())
+        used[f.terms_b.radar_id].update(f.b_plots.index.tolist())
+    counts = {rid: len(used[rid]) for rid in radars}
+    if problem.target_state is not None:
+        counts.update({
+            rid: n for rid, n in problem.target_state.plots_per_radar().items() if rid in counts
+        })
+    return counts
+
+
+def _downweighted(
+    problem: _Problem, values: dict[str, FloatArray], radars: list[str], result
+) -> dict[str, dict[str, int]]:
+    """Measurements with a final robust weight below 0.5, per radar and factor type."""
+    out: dict[str, dict[str, int]] = {rid: {} for rid in radars}
+    for rid, f in problem.adsb.items():
+        if rid in out:
+            e, _ = f.whitened([values[rid]])
+            out[rid]["adsb_plots"] = int(f.kernel.downweighted(e).sum())
+    for f in problem.pairs:
+        ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
+        e, _ = f.whitened([values[ra], values[rb]])
+        n = int(f.kernel.downweighted(e).sum())
+        for rid in (ra, rb):
+            if rid in out:
+                out[rid]["pairs"] = out[rid].get("pairs", 0) + n
+    if problem.target_state is not None:
+        for rid, counts in problem.target_state.downweighted(values, result).items():
+            if rid in out:
+                out[rid].update(counts)
+    return out
