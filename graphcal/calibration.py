@@ -238,6 +238,9 @@ class Calibration:
         Plain-language warnings (weak observability, ...).
     info : dict
         Estimator-specific details (rank, singular values, iterations, ...).
+    fixed : dict
+        ``{(radar_id, parameter name): value SI}``: terms held at a known value,
+        not estimated (no sigma); :meth:`bias` and :meth:`value` include them.
     """
 
     method: str
@@ -251,6 +254,7 @@ class Calibration:
     residuals: dict[str, ResidualStats] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
+    fixed: dict[tuple[str, str], float] = field(default_factory=dict)
 
     # ----------------------------------------------------------------- queries
     def _position(self, radar_id: str, name: str) -> int | None:
@@ -272,6 +276,9 @@ class Calibration:
         """The estimated biases of one radar (zero where not estimated), SI units."""
         self._check_radar(radar_id)
         values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset")}
+        for (rid, name), value in self.fixed.items():
+            if rid == radar_id:
+                values[name] = float(value)
         for i, (rid, name) in enumerate(self.labels):
             if rid == radar_id:
                 values[name] = float(self.estimate[i])
@@ -281,7 +288,7 @@ class Calibration:
         )
 
     def value(self, radar_id: str, key: str) -> float | None:
-        """Estimate in contract units for a contract key; ``None`` if not estimated.
+        """Estimate (or fixed value) in contract units for a contract key; ``None`` if neither.
 
         Parameters
         ----------
@@ -295,7 +302,10 @@ class Calibration:
         self._check_radar(radar_id)
         name = _parameter_name(key)
         i = self._position(radar_id, name)
-        return None if i is None else float(self.estimate[i] * CONTRACT_KEYS[name][1])
+        if i is None:
+            fixed = self.fixed.get((radar_id, name))
+            return None if fixed is None else float(fixed * CONTRACT_KEYS[name][1])
+        return float(self.estimate[i] * CONTRACT_KEYS[name][1])
 
     def sigma(self, radar_id: str, key: str) -> float | None:
         """1-sigma in contract units for a contract key; ``None`` if not estimated.

@@ -503,6 +503,7 @@ def graph(
         observability=obs,
         warnings=warnings,
         info=info,
+        fixed={(rid, name): v for rid in radars for name, v in terms[rid].fixed.items()},
     )
     for rid, al in problem.alignments.items():
         if rid in radars:
