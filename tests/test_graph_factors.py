@@ -6,6 +6,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
+from synthetic import Track, make_dataset, site_at
 
 from graphcal.align import align_adsb, pair_plots
 from graphcal.bias import RadarBias
@@ -13,7 +14,6 @@ from graphcal.estimators.adsb_reference import _reference_polar_cov
 from graphcal.estimators.factors import RadarTerms, adsb_factor, pairwise_factor
 from graphcal.estimators.robust import RobustKernel, default_threshold
 from graphcal.estimators.target_state import build_target_state, motion_blocks
-from synthetic import Track, make_dataset, site_at
 
 BIAS_2D = RadarBias(120.0, 0.002, 0.004)
 BIAS_3D = RadarBias(-80.0, -0.001, -0.003, 0.002)
