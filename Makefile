@@ -2,12 +2,13 @@
 #   make demo   create .venv, install graphcal, calibrate the bundled demo network
 #               (graph method, with ADS-B and from cross-radar observations alone)
 #   make test   same set-up, then the whole test suite
+#   make bench  same set-up, then benchmarks/bench_graph.py (graph vs scipy, 10-radar network)
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint install clean
+.PHONY: demo test lint bench install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -23,6 +24,9 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/bench_graph.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check graphcal tests benchmarks
