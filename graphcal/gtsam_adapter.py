@@ -83,14 +83,9 @@ class FactorGraph:
         for key, block in zip(keys, blocks, strict=True):
             args.extend([int(key), np.asarray(block, dtype=float)])
             point.insert(int(key), np.zeros(block.shape[1]))
-        if len(keys) == 1:
-            factor = gtsam.JacobianFactor(args[0], args[1], rhs, noise)
-        elif len(keys) == 2:
-            factor = gtsam.JacobianFactor(args[0], args[1], args[2], args[3], rhs, noise)
-        elif len(keys) == 3:
-            factor = gtsam.JacobianFactor(*args, rhs, noise)
-        else:
-            raise ValueError("linear factors on more than three variables are not supported")
+        if not 1 <= len(keys) <= 3:
+            raise ValueError("linear factors on one to three variables only")
+        factor = gtsam.JacobianFactor(*args, rhs, noise)
         self._graph.add(gtsam.LinearContainerFactor(factor, point))
 
     def add_prior(self, key: int, mean: FloatArray, sigmas: FloatArray) -> None:

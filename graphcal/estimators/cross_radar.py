@@ -267,13 +267,36 @@ def shared_noise_middle(obs: CrossObservations) -> FloatArray:
     p = obs.h.shape[2]
     if len(obs) == 0:
         return np.zeros((p, p))
-    labels = np.unique(obs.plot_rows)
-    position = np.searchsorted(labels, obs.plot_rows)
     ht_q = np.swapaxes(obs.h, 1, 2) @ np.linalg.inv(obs.cov)  # (m, p, 3)
+    return gradient_noise_middle(ht_q, obs.plot_rows, obs.plot_coefficients, obs.plot_cov)
+
+
+def gradient_noise_middle(
+    ht_q: FloatArray,
+    plot_rows: NDArray[np.int64],
+    coefficients: FloatArray,
+    plot_cov: dict[int, FloatArray],
+) -> FloatArray:
+    """``sum_plots G_p Sigma_p G_p^T`` with ``G_p = sum_k c_kp (H_k^T Q_k)``.
+
+    Parameters
+    ----------
+    ht_q : ndarray (m, p, 3)
+        Each observation's ``H_k^T Q_k`` (times its weight, for a re-weighted fit).
+    plot_rows : ndarray (m, j) of int
+        Plot-table row labels of the plots behind each observation.
+    coefficients : ndarray (m, j)
+        Observation ``k``'s noise is ``sum_j coefficients[k, j] e[plot_rows[k, j]]``.
+    plot_cov : dict
+        ECEF noise covariance [m^2] of each plot row label.
+    """
+    p = ht_q.shape[1]
+    labels, position = np.unique(plot_rows, return_inverse=True)
+    position = position.reshape(plot_rows.shape)
     g = np.zeros((len(labels), p, 3))
-    for j in range(3):
-        np.add.at(g, position[:, j], obs.plot_coefficients[:, j, None, None] * ht_q)
-    cov = np.stack([obs.plot_cov[int(label)] for label in labels])
+    for j in range(plot_rows.shape[1]):
+        np.add.at(g, position[:, j], coefficients[:, j, None, None] * ht_q)
+    cov = np.stack([plot_cov[int(label)] for label in labels])
     return np.einsum("npi,nij,nqj->pq", g, cov, g)
 
 

@@ -51,6 +51,7 @@ from graphcal.calibration import Calibration
 from graphcal.dataset import Dataset, Site
 from graphcal.errors import EstimationError
 from graphcal.estimators.adsb_reference import _reference_polar_cov, residual_stats
+from graphcal.estimators.cross_radar import gradient_noise_middle
 from graphcal.estimators.factors import (
     AdsbFactor,
     PairwiseFactor,
@@ -237,56 +238,35 @@ def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) 
 def _pairwise_sandwich_terms(
     problem: _Problem, values: dict[str, FloatArray], columns: dict[str, list[int]], p: int
 ) -> tuple[FloatArray, FloatArray]:
-    """``A_pair = sum J^T J`` and ``M_pair = sum_plots G C G^T`` over the pairwise factors.
+    """``A_pair = sum w J^T J`` and the shared-noise ``M_pair`` over the pairwise factors.
 
-    ``G_plot = sum_k c_k,plot w_k J_k^T W_k`` collects, for every plot, its
-    share of the gradient noise across all the pairs it enters (paper 001's
-    observations share plots), with the robust weights ``w_k`` at the solution.
-    Accumulated one radar at a time to bound memory.
+    ``M_pair`` is :func:`~graphcal.estimators.cross_radar.gradient_noise_middle` of
+    ``w_k J_k^T W_k = w_k H_k^T Q_k`` (``J = W H`` whitened, ``Q = W^T W``): every
+    plot's share of the gradient noise across all the pairs it enters (paper
+    001's observations share plots), with the robust weights ``w_k`` at the solution.
     """
     information = np.zeros((p, p))
-    # Per factor: (w J^T W) per pair (n, p, 3), the plots behind each pair, their covariances.
-    shares = []
+    ht_q, plot_rows, coefficients = [], [], []
+    plot_cov: dict[int, FloatArray] = {}
     for f in problem.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
         e, (ja, jb) = f.whitened([values[ra], values[rb]])
         w = f.kernel.weight(np.linalg.norm(e, axis=1), 3)
-        jac = np.zeros((len(f), 3, p))
-        jac[:, :, columns[ra] + columns[rb]] = np.concatenate([ja, jb], axis=2)
-        information += np.einsum("nip,niq,n->pq", jac, jac, w)
-        shares.append((f, w[:, None, None] * np.swapaxes(jac, 1, 2) @ f.whitening))
-    middle = np.zeros((p, p))
-    for rid in problem.terms:
-        labels_parts, cov_parts = [], []
-        for f, _ in shares:
-            for plots, cov, radar in ((f.a_plots, f.a_cov_m2, f.terms_a.radar_id),
-                                      (f.b_plots, f.b_cov_m2, f.terms_b.radar_id)):
-                if radar == rid:
-                    labels_parts.append(plots.index)
-                    cov_parts.append(cov)
-        if not labels_parts:
-            continue
-        all_labels = np.concatenate(labels_parts)
-        labels, first = np.unique(all_labels, return_index=True)
-        cov = np.concatenate(cov_parts)[first]
-        g = np.zeros((len(labels), p, 3))
-        for f, share in shares:
-            positions, coefficients = f.plot_noise()
-            na = len(f.a_plots)
-            for j in range(3):
-                pos = positions[:, j]
-                from_a = pos < na
-                radar = np.where(from_a, f.terms_a.radar_id, f.terms_b.radar_id)
-                mine = radar == rid
-                if not np.any(mine):
-                    continue
-                plot_labels = np.where(
-                    from_a[mine], f.a_plots.index[np.minimum(pos[mine], na - 1)],
-                    f.b_plots.index[np.maximum(pos[mine] - na, 0)],
-                )
-                rows = np.searchsorted(labels, plot_labels)
-                np.add.at(g, rows, coefficients[mine, j, None, None] * share[mine])
-        middle += np.einsum("npi,nij,nqj->pq", g, cov, g)
+        cols = columns[ra] + columns[rb]
+        jac = np.concatenate([ja, jb], axis=2)  # (n, 3, k): this pair's own columns
+        information[np.ix_(cols, cols)] += np.einsum("nip,niq,n->pq", jac, jac, w)
+        share = np.zeros((len(f), p, 3))
+        share[:, cols, :] = w[:, None, None] * np.swapaxes(jac, 1, 2) @ f.whitening
+        positions, coefficient = f.plot_noise()
+        labels = np.concatenate([f.a_plots.index, f.b_plots.index])
+        ht_q.append(share)
+        plot_rows.append(labels[positions])
+        coefficients.append(coefficient)
+        plot_cov.update(zip(labels.tolist(), np.concatenate([f.a_cov_m2, f.b_cov_m2]),
+                            strict=True))
+    middle = gradient_noise_middle(
+        np.concatenate(ht_q), np.concatenate(plot_rows), np.concatenate(coefficients), plot_cov
+    )
     return information, middle
 
 
