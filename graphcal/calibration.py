@@ -500,6 +500,12 @@ class Calibration:
                         int(res.get("n", 0)), dict(res.get("before", {})),
                         dict(res.get("after", {})), res.get("chi2_per_dof"),
                     )
+            fixed: dict[tuple[str, str], float] = {}
+            for rid in radar_ids:
+                where = f"radars.{rid}.fixed"
+                for key, value in dict(radars[rid].get("fixed") or {}).items():
+                    name = NAME_FROM_KEY[key]
+                    fixed[(rid, name)] = float(value) / CONTRACT_KEYS[name][1]
             where = "observability"
             obs = data.get("observability")
             if isinstance(obs, Mapping):
@@ -515,7 +521,7 @@ class Calibration:
             warnings = [str(w) for w in data.get("warnings") or []]
             where = "info"
             info = dict(data.get("info") or {})
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, KeyError) as exc:
             if isinstance(exc, ResultError):
                 raise
             raise fail(f"malformed ({exc})", where) from None
@@ -531,6 +537,7 @@ class Calibration:
             residuals=residuals,
             warnings=warnings,
             info=info,
+            fixed=fixed,
         )
 
     @classmethod
@@ -566,9 +573,14 @@ class Calibration:
         for rid in self.radar_ids:
             entry: dict[str, Any] = {}
             sigma: dict[str, float] = {}
+            fixed: dict[str, float] = {}
             for name in PARAMETER_NAMES:
                 key = CONTRACT_KEYS[name][0]
-                entry[key] = self.value(rid, key)
+                i = self._position(rid, name)
+                # The contract: null where not estimated; known (fixed) values go to "fixed".
+                entry[key] = None if i is None else self.value(rid, key)
+                if i is None and (rid, name) in self.fixed:
+                    fixed[key] = self.value(rid, key)
                 s = self.sigma(rid, key)
                 if s is not None:
                     sigma[key] = s
@@ -576,6 +588,8 @@ class Calibration:
                 entry["time_offset_s"] = self.value(rid, "time_offset_s")
                 sigma["time_offset_s"] = self.sigma(rid, "time_offset_s")
             entry["sigma"] = sigma
+            if fixed:
+                entry["fixed"] = fixed
             entry["n_plots"] = int(self.n_plots.get(rid, 0))
             if rid in self.residuals:
                 entry["residuals"] = self.residuals[rid].to_dict()

@@ -146,7 +146,11 @@ def test_fixed_term_is_held_and_reported_without_sigma(demo_runs) -> None:
     assert cal.value("NORD", "range_gain") == pytest.approx(true_gain)
     assert cal.bias("NORD").range_gain == pytest.approx(true_gain)
     entry = cal.to_dict()["radars"]["NORD"]
-    assert "range_gain" not in entry["sigma"] and entry["range_gain"] == pytest.approx(true_gain)
+    # The contract: null where not estimated; the known value in the "fixed" extension key.
+    assert "range_gain" not in entry["sigma"] and entry["range_gain"] is None
+    assert entry["fixed"]["range_gain"] == pytest.approx(true_gain)
+    reloaded = Calibration.from_dict(cal.to_dict())
+    assert reloaded.bias("NORD").range_gain == pytest.approx(true_gain)
     assert np.max(np.abs(z_scores(cal, run.biases))) < 3.0
 
 
