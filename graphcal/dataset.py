@@ -111,11 +111,13 @@ class Site:
     alt_m : float
         Antenna height above the ellipsoid [m].
     sigma_range_m : float
-        1-sigma random range error [m].
+        1-sigma random range error [m]; NaN when ``sites.toml`` does not give it
+        (see :attr:`missing_sigmas`).
     sigma_azimuth_rad : float
-        1-sigma random azimuth error [rad].
+        1-sigma random azimuth error [rad]; NaN when not given.
     sigma_elevation_rad : float or None
-        1-sigma random elevation error [rad]; ``None`` for a 2-D radar.
+        1-sigma random elevation error [rad]; ``None`` for a 2-D radar, NaN for a
+        3-D radar whose ``sites.toml`` table gives no sigma at all.
     scan_period_s : float or None
         Antenna rotation period [s], when known.
     model : str or None
@@ -145,6 +147,22 @@ class Site:
     def is_3d(self) -> bool:
         """True when the radar measures elevation."""
         return self.sigma_elevation_rad is not None
+
+    @property
+    def missing_sigmas(self) -> tuple[str, ...]:
+        """``sites.toml`` keys of the random-error sigmas not given (NaN), in file order.
+
+        They are estimated from the data (:func:`graphcal.variance.fill_missing_sigmas`)
+        before a calibration.
+        """
+        values = {
+            "sigma_range_m": self.sigma_range_m,
+            "sigma_azimuth_mrad": self.sigma_azimuth_rad,
+            "sigma_elevation_mrad": self.sigma_elevation_rad,
+        }
+        return tuple(
+            key for key, value in values.items() if value is not None and math.isnan(value)
+        )
 
     @cached_property
     def ecef_m(self) -> NDArray[np.float64]:
@@ -330,8 +348,8 @@ def _parse_site(entry: Any, where: _Where) -> Site:
         lat_rad=math.radians(_required(lat_deg, "lat_deg", where)),
         lon_rad=math.radians(_required(lon_deg, "lon_deg", where)),
         alt_m=_required(alt_m, "alt_m", where),
-        sigma_range_m=_required(sigma_range_m, "sigma_range_m", where),
-        sigma_azimuth_rad=_required(sigma_az, "sigma_azimuth_mrad", where),
+        sigma_range_m=math.nan if sigma_range_m is None else sigma_range_m,
+        sigma_azimuth_rad=math.nan if sigma_az is None else sigma_az,
         sigma_elevation_rad=sigma_el,
         scan_period_s=scan_period_s,
         model=None if model is None else model.name,
@@ -346,9 +364,12 @@ def load_sites(path: str | Path) -> dict[str, Site]:
     ----------
     path : str or Path
         The ``sites.toml`` file: one ``[[radar]]`` table per radar with ``id``,
-        ``lat_deg``, ``lon_deg`` [deg], ``alt_m`` [m], ``sigma_range_m`` [m],
-        ``sigma_azimuth_mrad`` [mrad], and optionally ``sigma_elevation_mrad``
-        [mrad] (absent: a 2-D radar), ``scan_period_s`` [s], ``model`` (a sensor
+        ``lat_deg``, ``lon_deg`` [deg], ``alt_m`` [m], and optionally
+        ``sigma_range_m`` [m], ``sigma_azimuth_mrad`` [mrad] (absent: NaN, to be
+        estimated from the data, see :attr:`Site.missing_sigmas`),
+        ``sigma_elevation_mrad`` [mrad] (absent: a 2-D radar; a table with no
+        sigma at all is made 3-D by :func:`load_dataset` when all its plots carry
+        an elevation), ``scan_period_s`` [s], ``model`` (a sensor
         model from :mod:`graphcal.sensor_models` that supplies the sigmas, scan
         period and ``estimate`` the table does not give) and ``estimate`` (the
         bias parameters to estimate, names from
@@ -427,19 +448,23 @@ def _mrad(angle_rad: float) -> float:
 def _site_to_toml(site: Site) -> dict[str, Any]:
     """One ``[[radar]]`` table for ``site``, in contract units.
 
-    The sigmas are always written, so the file does not depend on the sensor
-    model; ``estimate`` is written when it differs from the radar's default or
-    when a model is named (whose own ``estimate`` would otherwise apply).
+    The sigmas are always written (except those not known, NaN), so the file
+    does not depend on the sensor model; ``estimate`` is written when it differs
+    from the radar's default or when a model is named (whose own ``estimate``
+    would otherwise apply).
     """
     entry: dict[str, Any] = {
         "id": site.id,
         "lat_deg": _deg(site.lat_rad),
         "lon_deg": _deg(site.lon_rad),
         "alt_m": float(site.alt_m),
-        "sigma_range_m": float(site.sigma_range_m),
-        "sigma_azimuth_mrad": _mrad(site.sigma_azimuth_rad),
     }
-    if site.sigma_elevation_rad is not None:
+    missing = site.missing_sigmas
+    if "sigma_range_m" not in missing:
+        entry["sigma_range_m"] = float(site.sigma_range_m)
+    if "sigma_azimuth_mrad" not in missing:
+        entry["sigma_azimuth_mrad"] = _mrad(site.sigma_azimuth_rad)
+    if site.sigma_elevation_rad is not None and "sigma_elevation_mrad" not in missing:
         entry["sigma_elevation_mrad"] = _mrad(site.sigma_elevation_rad)
     if site.scan_period_s is not None:
         entry["scan_period_s"] = float(site.scan_period_s)
@@ -811,9 +836,30 @@ def load_dataset(folder: str | Path) -> Dataset:
     if plots_path is None:
         raise DatasetError("missing plots.csv or plots.parquet", path=folder, field="plots")
     plots = _load_plots(plots_path, sites)
+    sites = _three_d_without_sigmas(sites, plots)
     adsb_path = _find_table(folder, "adsb")
     adsb = None if adsb_path is None else _load_adsb(adsb_path)
     return Dataset(sites=sites, plots=plots, adsb=adsb, path=folder)
+
+
+def _three_d_without_sigmas(sites: dict[str, Site], plots: pd.DataFrame) -> dict[str, Site]:
+    """Sites whose table gives no sigma at all, made 3-D when all their plots have elevation.
+
+    ``sites.toml`` says a radar is 3-D by giving ``sigma_elevation_mrad``; a
+    table without any sigma cannot say it, so the plots do.  The elevation
+    sigma is then NaN (to be estimated); ``estimate`` gains ``elevation_bias``
+    when the table left it to the default.
+    """
+    updated = dict(sites)
+    for radar_id, site in sites.items():
+        if site.missing_sigmas != ("sigma_range_m", "sigma_azimuth_mrad") or site.model:
+            continue
+        elevation = plots.loc[plots["radar_id"] == radar_id, "elevation_deg"].to_numpy()
+        if len(elevation) and np.isfinite(elevation).all():
+            default_2d = replace(site, estimate=()).estimate
+            estimate = () if site.estimate == default_2d else site.estimate
+            updated[radar_id] = replace(site, sigma_elevation_rad=math.nan, estimate=estimate)
+    return updated
 
 
 def atomic_write_text(path: str | Path, text: str, *, encoding: str = "utf-8") -> None:

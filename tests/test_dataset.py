@@ -328,7 +328,6 @@ SITE_CASES = [
     ("sigma_range_m = 40.0", "sigma_range_m = 0.0", 1, "sigma_range_m"),
     ("sigma_azimuth_mrad = 2.0", "sigma_azimuth_mrad = -1.0", 2, "sigma_azimuth_mrad"),
     ("sigma_elevation_mrad = 3.0", "sigma_elevation_mrad = 0", 2, "sigma_elevation_mrad"),
-    ("sigma_range_m = 100.0\n", "", 2, "sigma_range_m"),
     ("scan_period_s = 4.0", "scan_period_s = 0.0", 1, "scan_period_s"),
     ("scan_period_s = 4.0", "scan_period_s = 4.0\nmodel = 'no-such-radar'", 1, "model"),
     ("scan_period_s = 4.0", "scan_period_s = 4.0\nestimate = ['elevation_bias']", 1, "estimate"),
@@ -344,6 +343,29 @@ def test_bad_site(tmp_path: Path, old: str, new: str, row: int, field: str) -> N
     assert old in SITES
     folder = make_dataset(tmp_path / "ds", sites=SITES.replace(old, new, 1))
     assert_error(folder, "sites.toml", row, field)
+
+
+def test_sites_without_sigmas_load_as_missing(tmp_path: Path) -> None:
+    # A: range sigma only; B: no sigma at all, and every plot of B has an elevation.
+    text = SITES.replace("sigma_azimuth_mrad = 1.0\n", "").replace(
+        "sigma_range_m = 100.0\nsigma_azimuth_mrad = 2.0\nsigma_elevation_mrad = 3.0\n", "")
+    dataset = load_dataset(make_dataset(tmp_path / "ds", sites=text))
+    a, b = dataset.sites["A"], dataset.sites["B"]
+    assert a.missing_sigmas == ("sigma_azimuth_mrad",)
+    assert a.sigma_range_m == 40.0 and not a.is_3d
+    assert b.missing_sigmas == ("sigma_range_m", "sigma_azimuth_mrad", "sigma_elevation_mrad")
+    assert b.is_3d and "elevation_bias" in b.estimate
+    write_sites(dataset.sites, tmp_path / "out.toml")
+    written = (tmp_path / "out.toml").read_text()
+    assert "nan" not in written and written.count("sigma_") == 1
+    assert load_sites(tmp_path / "out.toml")["A"].missing_sigmas == ("sigma_azimuth_mrad",)
+
+
+def test_site_without_sigmas_stays_2d_when_a_plot_lacks_elevation(tmp_path: Path) -> None:
+    text = SITES.replace("sigma_range_m = 40.0\nsigma_azimuth_mrad = 1.0\n", "")
+    dataset = load_dataset(make_dataset(tmp_path / "ds", sites=text))
+    assert not dataset.sites["A"].is_3d
+    assert dataset.sites["A"].missing_sigmas == ("sigma_range_m", "sigma_azimuth_mrad")
 
 
 def test_sites_file_that_is_not_toml(tmp_path: Path) -> None:
