@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from graphcal import frames
 from graphcal.align import PlotArrays, PlotPairs, pair_plots
 from graphcal.bias import measurement_bias_jacobian
+from graphcal.covariance import convert_covariance
 from graphcal.dataset import Dataset, Site
 from graphcal.estimators.linear import ParameterLayout
 
@@ -152,7 +153,7 @@ def _plot_geometry(
     rot = site.ecef_to_enu.T  # d ecef / d enu
     ecef_jac = rot @ enu_jac
     ecef = site.ecef_from_polar(r, az, el)
-    cov = ecef_jac @ cov_polar @ np.swapaxes(ecef_jac, 1, 2)
+    cov = convert_covariance(cov_polar, ecef_jac)
     return _Geometry(ecef, ecef_jac, cov, usable)
 
 
