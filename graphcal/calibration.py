@@ -654,3 +654,48 @@ def load_result(path: str | Path) -> dict[str, Any]:
     """Read a result JSON (e.g. ``truth.json`` or ``calibrate --out``) as a dict."""
     with open(path, encoding="utf-8") as handle:
         return json.load(handle)
+
+
+def read_biases(path: str | Path) -> dict[str, RadarBias]:
+    """Per-radar biases from a result JSON: a calibration or a simulation's ``truth.json``.
+
+    :meth:`graphcal.calibration.Calibration.read_json` needs a ``covariance``
+    entry, which ``truth.json`` does not have; this reads only the values
+    (``radars.RADAR.<contract key>`` and ``radars.RADAR.fixed``), in contract
+    units, so it takes both.  Missing or ``null`` values are zero.
+
+    Raises
+    ------
+    ResultError
+        The file is missing, not JSON or has no ``radars`` object.
+    """
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ResultError("no such file", path=path) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ResultError(f"cannot read as JSON: {exc}", path=path) from None
+    radars = data.get("radars") if isinstance(data, Mapping) else None
+    if not isinstance(radars, Mapping):
+        raise ResultError("missing or not an object", path=path, field="radars")
+    out: dict[str, RadarBias] = {}
+    for rid, entry in radars.items():
+        if not isinstance(entry, Mapping):
+            raise ResultError("not an object", path=path, field=f"radars.{rid}")
+        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset")}
+        fixed = entry.get("fixed") or {}
+        items = list(fixed.items()) if isinstance(fixed, Mapping) else []
+        items += [(k, v) for k, v in entry.items() if k in NAME_FROM_KEY]
+        for key, value in items:
+            if key not in NAME_FROM_KEY or value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ResultError(f"{value!r} is not a number", path=path,
+                                  field=f"radars.{rid}.{key}")
+            name = NAME_FROM_KEY[key]
+            values[name] = float(value) / CONTRACT_KEYS[name][1]
+        out[str(rid)] = RadarBias(
+            values["range_offset"], values["range_gain"], values["azimuth_bias"],
+            values["elevation_bias"], values["time_offset"],
+        )
+    return out
