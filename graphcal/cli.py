@@ -228,6 +228,156 @@ def _parse_fixed(items: list[str], sites) -> dict[tuple[str, str], float]:
 
 
 @app.command()
+def noise(
+    dataset_dir: Annotated[Path, typer.Argument(metavar="DIR", help="Dataset folder.")],
+    method: Annotated[
+        str, typer.Option(help="auto (ADS-B where a radar has enough, else line fits), "
+                          "adsb, or line-fit (paper 000's straight legs; no ADS-B needed).")
+    ] = "auto",
+    sites_out: Annotated[
+        Path | None,
+        typer.Option("--write-sites", metavar="SITES.toml",
+                     help="Write the sites with the estimated sigmas."),
+    ] = None,
+    only_missing: Annotated[
+        bool, typer.Option("--only-missing/--all",
+                           help="--write-sites: fill only the sigmas sites.toml lacks, or "
+                           "replace all of them (default).")
+    ] = False,
+    table: Annotated[
+        Path | None,
+        typer.Option(metavar="TABLE.csv|.parquet",
+                     help="Write paper 000's variance lookup table (range x azimuth bins)."),
+    ] = None,
+    range_bin_km: Annotated[float, typer.Option(help="--table: range bin [km].")] = 50.0,
+    azimuth_bin_deg: Annotated[float, typer.Option(help="--table: azimuth bin [deg].")] = 45.0,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace existing --write-sites / --table files.")
+    ] = False,
+) -> None:
+    """Estimate every radar's random-error sigmas (range, azimuth, elevation) from its data."""
+    import pandas as pd
+
+    from graphcal.dataset import atomic_write_table, load_dataset, write_sites
+    from graphcal.report_table import noise_table
+    from graphcal.variance import estimate_noise, sites_with_estimated_sigmas, variance_table
+
+    modes = {"auto": "auto", "adsb": True, "line-fit": False}
+    if method not in modes:
+        _fail(f"--method must be auto, adsb or line-fit, not '{method}'", EXIT_BAD_INPUT)
+    for path in (sites_out, table):
+        if path is not None and path.exists() and not overwrite:
+            _fail(f"{path} exists; pass --overwrite to replace it", EXIT_BAD_INPUT)
+    if table is not None and table.suffix not in (".csv", ".parquet"):
+        _fail(f"--table {table}: the suffix must be .csv or .parquet", EXIT_BAD_INPUT)
+    if not (range_bin_km > 0 and 0 < azimuth_bin_deg <= 360):
+        _fail("--range-bin-km must be > 0 and --azimuth-bin-deg in (0, 360]", EXIT_BAD_INPUT)
+    with _errors_to_exit():
+        dataset = load_dataset(dataset_dir)
+        try:
+            estimates = estimate_noise(dataset, use_adsb=modes[method])
+        except ValueError as exc:
+            _fail(f"{dataset_dir}: {exc}", EXIT_BAD_INPUT)
+    console.print(noise_table(dataset.sites, estimates))
+    for est in estimates.values():
+        if not est.estimated:
+            console.print(f"[yellow]warning:[/yellow] {est.radar_id}: not estimated: {est.reason}")
+    if sites_out is not None:
+        rounded = {rid: _rounded_sigmas(est) for rid, est in estimates.items()}
+        sites = sites_with_estimated_sigmas(dataset.sites, rounded, only_missing=only_missing)
+        still = [f"{rid} ({', '.join(site.missing_sigmas)})"
+                 for rid, site in sites.items() if site.missing_sigmas]
+        write_sites(sites, sites_out)
+        err_console.print(f"wrote {sites_out}", highlight=False)
+        if still:
+            console.print(f"[yellow]warning:[/yellow] still missing in {sites_out}: "
+                          f"{', '.join(still)}")
+    if table is not None:
+        frames = []
+        for rid in dataset.sites:
+            try:
+                frames.append(variance_table(dataset, rid, range_bin_m=range_bin_km * 1e3,
+                                             azimuth_bin_deg=azimuth_bin_deg))
+            except ValueError as exc:
+                console.print(f"[yellow]warning:[/yellow] {rid}: no lookup table: {exc}")
+        if frames:
+            atomic_write_table(pd.concat(frames, ignore_index=True), table)
+            err_console.print(f"wrote {table}", highlight=False)
+
+
+def _rounded_sigmas(est):
+    """A noise estimate with sigmas rounded for a sites file (0.1 m, 0.001 mrad)."""
+    from dataclasses import replace
+
+    el = est.sigma_elevation_mrad
+    return replace(est, sigma_range_m=round(est.sigma_range_m, 1),
+                   sigma_azimuth_mrad=round(est.sigma_azimuth_mrad, 3),
+                   sigma_elevation_mrad=None if el is None else round(el, 3))
+
+
+@app.command()
+def fuse(
+    dataset_dir: Annotated[Path, typer.Argument(metavar="DIR", help="Dataset folder.")],
+    calibration: Annotated[
+        Path | None,
+        typer.Option(metavar="RESULT.json",
+                     help="Correct the plots with these biases (a calibrate --out result or a "
+                     "truth.json) and compare with the raw plots."),
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", help="Write the fused tracks (.csv or .parquet); corrected "
+                     "ones when --calibration is given."),
+    ] = None,
+    q_m2_s3: Annotated[
+        float | None,
+        typer.Option("--q-m2-s3", help="Tracker acceleration noise density [m^2/s^3] "
+                     "(default 100: manoeuvring civil traffic)."),
+    ] = None,
+    grid_s: Annotated[float, typer.Option(help="Fusion time step [s].")] = 1.0,
+) -> None:
+    """Track every aircraft with every radar, fuse the tracks, score them against ADS-B."""
+    from graphcal.dataset import atomic_write_table, load_dataset
+    from graphcal.fusion import DEFAULT_Q_M2_S3, fuse_dataset, fusion_comparison
+    from graphcal.report_table import fusion_table
+
+    q = DEFAULT_Q_M2_S3 if q_m2_s3 is None else q_m2_s3
+    if not (q >= 0.0 and grid_s > 0.0):
+        _fail("--q-m2-s3 must be >= 0 and --grid-s > 0", EXIT_BAD_INPUT)
+    if out is not None and out.suffix not in (".csv", ".parquet"):
+        _fail(f"--out {out}: the suffix must be .csv or .parquet", EXIT_BAD_INPUT)
+    with _errors_to_exit():
+        dataset = load_dataset(dataset_dir)
+        with progress_bar("fusing raw plots") as callback:
+            raw = fuse_dataset(dataset, None, q_m2_s3=q, grid_s=grid_s, progress=callback)
+        corrected = None
+        if calibration is not None:
+            with progress_bar("fusing corrected plots") as callback:
+                corrected = fuse_dataset(dataset, calibration, q_m2_s3=q, grid_s=grid_s,
+                                         progress=callback)
+    counts = raw.counts
+    console.print(
+        f"{dataset_dir}: {counts.get('targets', 0)} aircraft, "
+        f"{counts.get('grid_points', 0)} fused points every {grid_s:g} s "
+        f"({counts.get('grid_points_multi', 0)} from two radars or more); tracker q {q:g} m²/s³",
+        highlight=False,
+    )
+    if dataset.adsb is None:
+        console.print("no ADS-B table: the tracks cannot be scored", highlight=False)
+    elif corrected is None:
+        console.print(fusion_table(raw.summary))
+    else:
+        console.print(fusion_table(raw.summary, fusion_comparison(raw, corrected)))
+        missing = sorted(set(dataset.sites) - set(corrected.calibrated_radars))
+        if missing:
+            console.print(f"[yellow]warning:[/yellow] {calibration} has no biases for "
+                          f"{', '.join(missing)}: their plots stay raw")
+    if out is not None:
+        atomic_write_table((corrected or raw).tracks, out)
+        err_console.print(f"wrote {out}", highlight=False)
+
+
+@app.command()
 def methods() -> None:
     """List the available estimators."""
     from graphcal.estimators import METHODS

@@ -341,7 +341,8 @@ def _parse_site(entry: Any, where: _Where) -> Site:
         sigma_el = model.sigma_elevation_rad if sigma_el is None else sigma_el
         scan_period_s = model.scan_period_s if scan_period_s is None else scan_period_s
         estimate = model.estimate if estimate is None else estimate
-    if estimate is not None and "elevation_bias" in estimate and sigma_el is None:
+    no_sigma = sigma_range_m is None and sigma_az is None and sigma_el is None
+    if estimate is not None and "elevation_bias" in estimate and sigma_el is None and not no_sigma:
         raise where.error("estimate", "elevation_bias needs a 3-D radar (sigma_elevation_mrad)")
     return Site(
         id=site_id,
@@ -836,13 +837,15 @@ def load_dataset(folder: str | Path) -> Dataset:
     if plots_path is None:
         raise DatasetError("missing plots.csv or plots.parquet", path=folder, field="plots")
     plots = _load_plots(plots_path, sites)
-    sites = _three_d_without_sigmas(sites, plots)
+    sites = _three_d_without_sigmas(sites, plots, folder / SITES_FILE)
     adsb_path = _find_table(folder, "adsb")
     adsb = None if adsb_path is None else _load_adsb(adsb_path)
     return Dataset(sites=sites, plots=plots, adsb=adsb, path=folder)
 
 
-def _three_d_without_sigmas(sites: dict[str, Site], plots: pd.DataFrame) -> dict[str, Site]:
+def _three_d_without_sigmas(
+    sites: dict[str, Site], plots: pd.DataFrame, sites_path: Path
+) -> dict[str, Site]:
     """Sites whose table gives no sigma at all, made 3-D when all their plots have elevation.
 
     ``sites.toml`` says a radar is 3-D by giving ``sigma_elevation_mrad``; a
@@ -859,6 +862,10 @@ def _three_d_without_sigmas(sites: dict[str, Site], plots: pd.DataFrame) -> dict
             default_2d = replace(site, estimate=()).estimate
             estimate = () if site.estimate == default_2d else site.estimate
             updated[radar_id] = replace(site, sigma_elevation_rad=math.nan, estimate=estimate)
+        elif "elevation_bias" in site.estimate:
+            raise DatasetError(
+                f"radar {radar_id!r}: elevation_bias needs a 3-D radar, and not all of its "
+                "plots carry an elevation", path=sites_path, field="estimate")
     return updated
 
 
@@ -885,6 +892,31 @@ def atomic_write_text(path: str | Path, text: str, *, encoding: str = "utf-8") -
             stream.write(text)
             stream.flush()
             os.fsync(stream.fileno())
+        os.chmod(temporary, 0o644)
+        os.replace(temporary, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary)
+        raise
+
+
+def atomic_write_table(frame: pd.DataFrame, path: str | Path) -> None:
+    """Write one table atomically, CSV or Parquet by the suffix of ``path``.
+
+    Raises
+    ------
+    ValueError
+        If the suffix is neither ``.csv`` nor ``.parquet``.
+    """
+    path = Path(path)
+    if path.suffix not in (".csv", ".parquet"):
+        raise ValueError(f"{path}: the table format comes from the suffix: .csv or .parquet")
+    handle, temporary = tempfile.mkstemp(
+        prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent
+    )
+    os.close(handle)
+    try:
+        _write_table(frame, Path(temporary))
         os.chmod(temporary, 0o644)
         os.replace(temporary, path)
     except BaseException:

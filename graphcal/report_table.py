@@ -184,3 +184,73 @@ def strong_correlations_table(pairs: list[tuple[str, str, float]], title: str) -
     for a, b, r in pairs:
         table.add_row(a, b, f"{r:+.3f}")
     return table
+
+
+def fusion_table(summary: Any, comparison: Any | None = None) -> Table:
+    """Track and fused RMSE against the reference, optionally before and after calibration.
+
+    Parameters
+    ----------
+    summary : pandas.DataFrame
+        :attr:`graphcal.fusion.FusionResult.summary` (without calibration).
+    comparison : pandas.DataFrame, optional
+        :func:`graphcal.fusion.fusion_comparison` of the runs before and after.
+    """
+    from graphcal.fusion import FUSED_COV, FUSED_EQUAL
+
+    names = {FUSED_COV: "fused, covariance weights", FUSED_EQUAL: "fused, equal weights"}
+    table = Table(title="track accuracy against ADS-B" if comparison is None
+                  else "track accuracy against ADS-B, before and after calibration")
+    table.add_column("track")
+    if comparison is None:
+        table.add_column("RMSE \\[m]", justify="right")
+        table.add_column("points", justify="right")
+        table.add_column("aircraft", justify="right")
+        for label, row in summary.iterrows():
+            table.add_row(names.get(label, str(label)), _number(row["rmse_m"], "{:.1f}"),
+                          str(int(row["n_points"])), str(int(row["n_targets"])))
+        return table
+    for column in ("RMSE before \\[m]", "RMSE after \\[m]", "improvement", "points"):
+        table.add_column(column, justify="right")
+    for label, row in comparison.iterrows():
+        table.add_row(names.get(label, str(label)), _number(row["rmse_before_m"], "{:.1f}"),
+                      _number(row["rmse_after_m"], "{:.1f}"),
+                      _number(row["improvement_pct"], "{:+.1f} %"), str(int(row["n_points"])))
+    return table
+
+
+def noise_table(sites: Any, estimates: Any) -> Table:
+    """Estimated random-error sigmas ``value ± standard error`` beside the site file's.
+
+    Parameters
+    ----------
+    sites : mapping of str to Site
+    estimates : mapping of str to graphcal.variance.NoiseEstimate
+    """
+    table = Table(title="random-error sigmas: estimated ± standard error (sites.toml)")
+    for column in ("radar", "method", "plots", "range \\[m]", "azimuth \\[mrad]",
+                   "elevation \\[mrad]"):
+        table.add_column(column, justify="left" if column in ("radar", "method") else "right")
+
+    def cell(value: float | None, se: float | None, given: float | None, scale: float,
+             fmt: str) -> str:
+        if value is None:
+            return "-"
+        text = "not estimated" if value != value else (
+            f"{fmt.format(value)} ± {fmt.format(se)}" if se == se and se is not None
+            else fmt.format(value))
+        if given is not None and given == given:
+            text += f" ({fmt.format(given * scale)})"
+        return text
+
+    for rid, est in estimates.items():
+        site = sites[rid]
+        table.add_row(
+            rid, est.method, str(est.n_plots_used),
+            cell(est.sigma_range_m, est.se_range_m, site.sigma_range_m, 1.0, "{:.1f}"),
+            cell(est.sigma_azimuth_mrad, est.se_azimuth_mrad, site.sigma_azimuth_rad, 1e3,
+                 "{:.3f}"),
+            cell(est.sigma_elevation_mrad, est.se_elevation_mrad, site.sigma_elevation_rad, 1e3,
+                 "{:.3f}"),
+        )
+    return table

@@ -57,6 +57,7 @@ from graphcal.estimators.linear import (
     observability,
     solve_normal_equations,
 )
+from graphcal.variance import fills_missing_sigmas
 
 #: Plots per FL window.
 FL_WINDOW_PLOTS = 30
@@ -258,6 +259,7 @@ def _run_ls(
     return _assemble(method, dataset, per_radar, alignments, info)
 
 
+@fills_missing_sigmas
 def ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
     """Paper 003 LS (eq. 11-19) against ADS-B, every radar on its own."""
     return _run_ls("ls", dataset, max_gap_s, None)
@@ -327,6 +329,7 @@ def fl_azimuth(site: Site, al: AdsbAlignment, max_gap_s: float = 60.0) -> tuple[
     return mean, variance, detail
 
 
+@fills_missing_sigmas
 def fl(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
     """Paper 003 FL: line-fit azimuth bias, mean range (and elevation) difference."""
     alignments = _alignments(dataset, max_gap_s)
@@ -363,6 +366,7 @@ def fl(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibr
     return _assemble("fl", dataset, per_radar, alignments, info)
 
 
+@fills_missing_sigmas
 def fl_ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
     """Paper 003 FL-LS: FL azimuth compensation (eq. 10, sign corrected), then LS."""
 

@@ -63,6 +63,7 @@ from graphcal.estimators.linear import describe_weak_directions, observability
 from graphcal.estimators.robust import RobustKernel
 from graphcal.gtsam_adapter import FactorGraph, symbol
 from graphcal.sensor_models import load_sensor_model
+from graphcal.variance import fills_missing_sigmas
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[..., None]
@@ -271,6 +272,7 @@ def _pairwise_sandwich_terms(
 
 
 # --------------------------------------------------------------------------- the estimator
+@fills_missing_sigmas
 def graph(
     dataset: Dataset,
     *,

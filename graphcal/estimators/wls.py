@@ -46,6 +46,7 @@ from graphcal.estimators.linear import (
     jacobi_scale,
     solve_normal_equations,
 )
+from graphcal.variance import fills_missing_sigmas
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[[int, int], None]
@@ -215,6 +216,7 @@ def _adsb_residuals(cal: Calibration, dataset: Dataset) -> None:
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, cal.bias(rid))
 
 
+@fills_missing_sigmas
 def wls(
     dataset: Dataset,
     *,
@@ -226,6 +228,7 @@ def wls(
     return _run_wls("wls", dataset, False, iterations, max_gap_s, progress)
 
 
+@fills_missing_sigmas
 def wls_pruned(
     dataset: Dataset,
     *,
