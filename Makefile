@@ -3,12 +3,13 @@
 #               (graph method, with ADS-B and from cross-radar observations alone)
 #   make test   same set-up, then the whole test suite
 #   make bench  same set-up, then benchmarks/bench_graph.py (graph vs scipy, 10-radar network)
+#   make papers same set-up, then the paper 000/002 reproductions (covariance, fusion, noise)
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench install clean
+.PHONY: demo test lint bench papers install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +28,11 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_graph.py
+
+papers: $(STAMP)
+	$(BIN)/python benchmarks/paper002_covariance.py
+	$(BIN)/python benchmarks/paper002_fusion.py
+	$(BIN)/python benchmarks/noise_estimation.py --seeds 8
 
 lint: $(STAMP)
 	$(BIN)/ruff check graphcal tests benchmarks

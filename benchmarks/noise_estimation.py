@@ -1,4 +1,4 @@
-"""Benchmark of the random-error estimators of :mod:`graphcal.variance` (paper 000).
+"""Benchmark of the random-error estimators of :mod:`graphcal.noise` (paper 000).
 
 Run from the repository root::
 
@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+from graphcal.noise import estimate_noise
 from graphcal.scenario import load_scenario, parse_scenario
 from graphcal.simulate import simulate
-from graphcal.variance import estimate_noise
 
 SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "demo_network.toml"
 

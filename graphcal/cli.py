@@ -259,8 +259,8 @@ def noise(
     import pandas as pd
 
     from graphcal.dataset import atomic_write_table, load_dataset, write_sites
+    from graphcal.noise import estimate_noise, sites_with_estimated_sigmas, variance_table
     from graphcal.report_table import noise_table
-    from graphcal.variance import estimate_noise, sites_with_estimated_sigmas, variance_table
 
     modes = {"auto": "auto", "adsb": True, "line-fit": False}
     if method not in modes:

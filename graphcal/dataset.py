@@ -152,7 +152,7 @@ class Site:
     def missing_sigmas(self) -> tuple[str, ...]:
         """``sites.toml`` keys of the random-error sigmas not given (NaN), in file order.
 
-        They are estimated from the data (:func:`graphcal.variance.fill_missing_sigmas`)
+        They are estimated from the data (:func:`graphcal.noise.fill_missing_sigmas`)
         before a calibration.
         """
         values = {

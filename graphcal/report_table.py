@@ -225,7 +225,7 @@ def noise_table(sites: Any, estimates: Any) -> Table:
     Parameters
     ----------
     sites : mapping of str to Site
-    estimates : mapping of str to graphcal.variance.NoiseEstimate
+    estimates : mapping of str to graphcal.noise.NoiseEstimate
     """
     table = Table(title="random-error sigmas: estimated ± standard error (sites.toml)")
     for column in ("radar", "method", "plots", "range \\[m]", "azimuth \\[mrad]",

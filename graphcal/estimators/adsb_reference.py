@@ -57,7 +57,7 @@ from graphcal.estimators.linear import (
     observability,
     solve_normal_equations,
 )
-from graphcal.variance import fills_missing_sigmas
+from graphcal.noise import fills_missing_sigmas
 
 #: Plots per FL window.
 FL_WINDOW_PLOTS = 30

@@ -62,8 +62,8 @@ from graphcal.estimators.factors import (
 from graphcal.estimators.linear import describe_weak_directions, observability
 from graphcal.estimators.robust import RobustKernel
 from graphcal.gtsam_adapter import FactorGraph, symbol
+from graphcal.noise import fills_missing_sigmas
 from graphcal.sensor_models import load_sensor_model
-from graphcal.variance import fills_missing_sigmas
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[..., None]

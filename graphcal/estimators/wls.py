@@ -46,7 +46,7 @@ from graphcal.estimators.linear import (
     jacobi_scale,
     solve_normal_equations,
 )
-from graphcal.variance import fills_missing_sigmas
+from graphcal.noise import fills_missing_sigmas
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[[int, int], None]

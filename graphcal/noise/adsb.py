@@ -1,0 +1,177 @@
+"""Random-error sigmas of a radar from its residuals against ADS-B.
+
+Each plot minus the ADS-B position of its aircraft interpolated to its time
+(:func:`graphcal.align.align_adsb`), in polar: range [m], azimuth and
+elevation [rad].  The radar's biases are removed by robust (L1) fits (range
+residual ``= offset + gain * range``, :func:`graphcal.variance.fit_line_irls`;
+azimuth and elevation residuals constant), and the ADS-B error mapped into
+polar (horizontal ``sigma_m``, vertical
+:data:`graphcal.align.ADSB_VERTICAL_SIGMA_RATIO` times it; the interpolation
+weights included) is removed in quadrature, plot by plot.  Linear
+interpolation between reports 1 s apart adds at most ``a dt^2 / 8`` (about
+1 m in a 3 deg/s turn at 250 m/s), negligible against radar noise.  A
+time-stamping bias is not removed and would inflate the sigmas.
+
+This is independent of paper 000, whose method is :mod:`graphcal.noise.line_fit`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graphcal import frames
+from graphcal.align import AdsbAlignment, align_adsb
+from graphcal.dataset import Dataset
+from graphcal.noise.result import MAD_SE_FACTOR, NoiseEstimate, not_estimated
+from graphcal.variance import MAD_TO_SIGMA, fit_line_irls
+
+FloatArray = NDArray[np.float64]
+
+#: Below this many usable plots (ADS-B method) a radar is not estimated.
+MIN_ADSB_PLOTS = 30
+
+
+def _scale_with_known_variance(
+    e: FloatArray, v: FloatArray, n_params: int, robust: bool
+) -> tuple[float, float]:
+    """Sigma ``s >= 0`` of ``e_i ~ N(0, s^2 + v_i)``; also the total sigma ``sqrt(s^2 + mean v)``.
+
+    Robust: ``1.4826 median(|e_i| / sqrt(s^2 + v_i)) sqrt(n / (n - p)) = 1`` solved
+    by bisection (the left side decreases with ``s``).  Otherwise
+    ``s^2 = sum e^2 / (n - p) - mean v``.
+    """
+    n = e.size
+    dof_factor = math.sqrt(n / (n - n_params))
+    if not robust:
+        s2 = np.sum(e**2) / (n - n_params) - np.mean(v)
+        s = math.sqrt(max(s2, 0.0))
+        return s, math.sqrt(s**2 + float(np.mean(v)))
+
+    def g(s: float) -> float:
+        return MAD_TO_SIGMA * float(np.median(np.abs(e) / np.sqrt(s**2 + v))) * dof_factor
+
+    if g(0.0) <= 1.0:
+        return 0.0, math.sqrt(float(np.mean(v)))
+    lo, hi = 0.0, MAD_TO_SIGMA * float(np.median(np.abs(e))) * dof_factor * 2.0 + 1e-12
+    while g(hi) > 1.0:
+        hi *= 2.0
+    while hi - lo > 1e-7 * hi:
+        mid = 0.5 * (lo + hi)
+        if g(mid) > 1.0:
+            lo = mid
+        else:
+            hi = mid
+    s = 0.5 * (lo + hi)
+    return s, math.sqrt(s**2 + float(np.mean(v)))
+
+
+def estimate_noise_adsb(
+    dataset: Dataset,
+    radar_id: str,
+    *,
+    robust: bool = True,
+    min_plots: int = MIN_ADSB_PLOTS,
+    aligned: AdsbAlignment | None = None,
+) -> NoiseEstimate:
+    """Polar sigmas of one radar from its residuals against interpolated ADS-B.
+
+    For every plot matched to ADS-B (:func:`graphcal.align.align_adsb`):
+    ``e = (range, azimuth, elevation)_measured - polar(ADS-B at the plot time)``.
+    The biases are removed by L1 fits (range: ``offset + gain * range``,
+    :func:`graphcal.variance.fit_line_irls`; azimuth, elevation: the median).  The ADS-B error
+    variance in polar, ``v_i = diag(Jp C_i Jp^T)`` with ``Jp``
+    (:func:`graphcal.frames.enu_to_polar_jacobian`) at the ADS-B position and
+    ``C_i`` the interpolated ADS-B covariance, is removed plot by plot:
+    ``e_ik ~ N(0, sigma_k^2 + v_ik)`` is solved for ``sigma_k``
+    (:func:`_scale_with_known_variance`; dof: 2 for range, 1 for the angles).
+    The standard error follows by the delta method,
+    ``se(sigma) = (sigma_total / sigma) se(sigma_total)``.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Must have ADS-B.
+    radar_id : str
+    robust : bool
+        MAD-based (default) or root-mean-square.
+    min_plots : int
+        Fewer matched plots: not estimated.
+    aligned : AdsbAlignment, optional
+        The radar's :func:`graphcal.align.align_adsb` result, when already computed.
+
+    Returns
+    -------
+    NoiseEstimate
+        ``method="adsb"``.  A sigma that the ADS-B error fully explains is 0
+        (``details["unresolved_<component>"] = 1``).
+
+    Raises
+    ------
+    ValueError
+        If the dataset has no ADS-B or the radar is unknown.
+    """
+    site = dataset.sites.get(radar_id)
+    if site is None:
+        raise ValueError(f"unknown radar {radar_id!r}; radars: {', '.join(dataset.sites)}")
+    if dataset.adsb is None:
+        raise ValueError("the dataset has no ADS-B table: use the line-fit method")
+    if aligned is None:
+        aligned = align_adsb(dataset, radar_id)
+    plots = aligned.plots
+    ok = np.isfinite(plots.range_m) & np.isfinite(plots.azimuth_rad)
+    if site.is_3d:
+        ok &= np.isfinite(plots.elevation_rad)
+    n = int(ok.sum())
+    if n < min_plots:
+        return not_estimated(radar_id, "adsb", site.is_3d,
+                              f"{n} plots matched to ADS-B; need {min_plots}")
+    ref = aligned.reference_polar[ok]
+    enu = site.enu_from_ecef(aligned.reference_ecef_m[ok])
+    jp = frames.enu_to_polar_jacobian(enu)
+    cov = jp @ aligned.reference_enu_cov_m2[ok] @ np.swapaxes(jp, 1, 2)
+    v = np.einsum("ikk->ik", cov)
+    e_r = plots.range_m[ok] - ref[:, 0]
+    e_a = frames.wrap_to_pi(plots.azimuth_rad[ok] - ref[:, 1])
+    line = fit_line_irls(ref[:, 0], e_r)
+    details = {"range_offset_m": float(line.intercept), "range_gain": float(line.slope)}
+    e_r = line.residuals
+    az_bias = float(np.median(e_a))
+    e_a = frames.wrap_to_pi(e_a - az_bias)
+    details["azimuth_bias_mrad"] = az_bias * 1e3
+    comps = [(e_r, v[:, 0], 2), (e_a, v[:, 1], 1)]
+    if site.is_3d:
+        e_e = plots.elevation_rad[ok] - ref[:, 2]
+        el_bias = float(np.median(e_e))
+        details["elevation_bias_mrad"] = el_bias * 1e3
+        comps.append((e_e - el_bias, v[:, 2], 1))
+    names = ("range", "azimuth", "elevation")
+    rms_keys = ("sigma_range_m_rms", "sigma_azimuth_mrad_rms", "sigma_elevation_mrad_rms")
+    sig, se = [], []
+    for k, (e, var, p) in enumerate(comps):
+        s, total = _scale_with_known_variance(e, var, p, robust)
+        s_rms, _ = _scale_with_known_variance(e, var, p, robust=False)
+        details[rms_keys[k]] = s_rms * (1.0 if k == 0 else 1e3)
+        factor = MAD_SE_FACTOR if robust else math.sqrt(0.5)
+        se_total = factor * total / math.sqrt(n - p)
+        if s > 0:
+            se.append(total / s * se_total)
+        else:
+            se.append(math.nan)
+            details[f"unresolved_{names[k]}"] = 1.0
+        sig.append(s)
+    return NoiseEstimate(
+        radar_id=radar_id,
+        sigma_range_m=sig[0],
+        sigma_azimuth_mrad=sig[1] * 1e3,
+        sigma_elevation_mrad=sig[2] * 1e3 if site.is_3d else None,
+        n_plots_used=n,
+        n_legs=0,
+        method="adsb",
+        se_range_m=se[0],
+        se_azimuth_mrad=se[1] * 1e3,
+        se_elevation_mrad=se[2] * 1e3 if site.is_3d else None,
+        details=details,
+    )
