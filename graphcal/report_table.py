@@ -38,6 +38,9 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
     table.add_column("radar")
     table.add_column("parameter", no_wrap=True)
     table.add_column("estimate ± 1σ", justify="right", no_wrap=True)
+    efficiency = cal.info.get("efficiency") or {}
+    if efficiency:
+        table.add_column("σ/CRLB", justify="right")
     if truth is not None:
         table.add_column("truth", justify="right")
         table.add_column("error/σ", justify="right")
@@ -53,6 +56,9 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
             if f"{rid}.{key}" in cal.info.get("undetermined", []):
                 shown = f"not determined (prior ± {_FORMATS.get(key, '{:.4g}').format(sigma)})"
             row = [rid if first else "", key, shown]
+            if efficiency:
+                ratio = efficiency.get(f"{rid}.{key}")
+                row.append("" if ratio is None else f"{ratio:.2f}")
             if truth is not None:
                 true = truth.get("radars", {}).get(rid, {}).get(key)
                 row.append(format_value(key, true))
