@@ -17,6 +17,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from graphcal.calibration import load_result
+from graphcal.commands_report import correct_command, report_command
 from graphcal.errors import EstimationError, GraphcalInputError
 
 app = typer.Typer(
@@ -153,6 +154,10 @@ def calibrate(
     max_iterations: Annotated[
         int, typer.Option(help="graph: Levenberg-Marquardt iteration limit.")
     ] = 100,
+    report: Annotated[
+        Path | None,
+        typer.Option("--report", metavar="REPORT.html", help="Also write an HTML report here."),
+    ] = None,
 ) -> None:
     """Estimate every radar's biases from a dataset folder."""
     from graphcal.dataset import load_dataset
@@ -187,6 +192,13 @@ def calibrate(
                 _fail(str(exc), EXIT_BAD_INPUT)
         else:
             cal = estimator(dataset, **options)
+        if report is not None:
+            from graphcal.report import write_report_for
+
+            if report.suffix != ".html":
+                _fail(f"--report {report}: the file must end in .html", EXIT_BAD_INPUT)
+            write_report_for(cal, dataset, report, truth_path=truth)
+            err_console.print(f"wrote {report}", highlight=False)
         if out is not None:
             cal.write_json(out)
             err_console.print(f"wrote {out}", highlight=False)
@@ -446,6 +458,10 @@ def marginals(
         console.print(strong_correlations_table(pairs, f"correlations {what}, |ρ| > {min_rho:g}"))
     else:
         console.print(f"no correlations {what} with |ρ| > {min_rho:g}", highlight=False)
+
+
+app.command(name="report")(report_command)
+app.command(name="correct")(correct_command)
 
 
 def main() -> None:  # pragma: no cover - console entry point
