@@ -17,6 +17,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from graphcal.calibration import load_result
+from graphcal.commands_compare import compare_command
 from graphcal.commands_report import correct_command, report_command
 from graphcal.errors import EstimationError, GraphcalInputError
 
@@ -460,6 +461,7 @@ def marginals(
         console.print(f"no correlations {what} with |ρ| > {min_rho:g}", highlight=False)
 
 
+app.command(name="compare")(compare_command)
 app.command(name="report")(report_command)
 app.command(name="correct")(correct_command)
 
