@@ -103,25 +103,35 @@ class AdsbAlignment:
         return len(self.plots)
 
 
-def _adsb_tracks(adsb: pd.DataFrame) -> dict[str, tuple[FloatArray, FloatArray, FloatArray]]:
+def tracks_by_target(
+    time_s: FloatArray, target_id: pd.Series, *columns: FloatArray, skip_empty: bool = True
+) -> dict[str, tuple[FloatArray, ...]]:
+    """Rows grouped per aircraft: ``(time_s, *columns)``, time-sorted, repeated times dropped.
+
+    Rows with an empty ``target_id`` are left out when ``skip_empty``.
+    """
+    tracks: dict[str, tuple[FloatArray, ...]] = {}
+    for target, rows in target_id.groupby(target_id, sort=False).indices.items():
+        if skip_empty and not target:
+            continue
+        order = rows[np.argsort(time_s[rows], kind="stable")]
+        keep = np.concatenate([[True], np.diff(time_s[order]) > 0])
+        order = order[keep]
+        tracks[str(target)] = (time_s[order], *(c[order] for c in columns))
+    return tracks
+
+
+def adsb_tracks(adsb: pd.DataFrame) -> dict[str, tuple[FloatArray, FloatArray, FloatArray]]:
     """ADS-B per aircraft: (time_s, ecef_m, sigma_m), time-sorted, duplicate times removed."""
-    tracks: dict[str, tuple[FloatArray, FloatArray, FloatArray]] = {}
     ecef = frames.geodetic_to_ecef(
         np.deg2rad(adsb["lat_deg"].to_numpy(float)),
         np.deg2rad(adsb["lon_deg"].to_numpy(float)),
         adsb["alt_m"].to_numpy(float),
     )
-    times = adsb["time_s"].to_numpy(float)
-    sigmas = adsb["sigma_m"].to_numpy(float)
-    for target, rows in adsb.groupby("target_id", sort=False).indices.items():
-        if not target:
-            continue
-        order = rows[np.argsort(times[rows], kind="stable")]
-        t = times[order]
-        keep = np.concatenate([[True], np.diff(t) > 0])
-        order = order[keep]
-        tracks[str(target)] = (times[order], ecef[order], sigmas[order])
-    return tracks
+    return tracks_by_target(  # type: ignore[return-value]
+        adsb["time_s"].to_numpy(float), adsb["target_id"], ecef,
+        adsb["sigma_m"].to_numpy(float),
+    )
 
 
 def bracket(
@@ -169,7 +179,7 @@ def align_adsb(
         raise ValueError("the dataset has no ADS-B table")
     site = dataset.sites[radar_id]
     plots = plot_arrays(dataset, radar_id)
-    tracks = _adsb_tracks(dataset.adsb)
+    tracks = adsb_tracks(dataset.adsb)
     n = len(plots)
     ref = np.full((n, 3), np.nan)
     var_h = np.full(n, np.nan)

@@ -38,7 +38,13 @@ import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
 from graphcal import frames
-from graphcal.align import DEFAULT_ADSB_MAX_GAP_S, bracket, plot_arrays
+from graphcal.align import (
+    DEFAULT_ADSB_MAX_GAP_S,
+    adsb_tracks,
+    bracket,
+    plot_arrays,
+    tracks_by_target,
+)
 from graphcal.bias import RadarBias
 from graphcal.calibration import Calibration, read_biases
 from graphcal.dataset import Dataset
@@ -185,44 +191,23 @@ def _adsb_reference(dataset: Dataset, max_gap_s: float) -> ReferenceFunction:
     """ADS-B positions interpolated linearly in ECEF (gaps above ``max_gap_s`` not bridged)."""
     if dataset.adsb is None or dataset.adsb.empty:
         return lambda target, t: np.full((len(t), 3), np.nan)
-    adsb = dataset.adsb
-    ecef = frames.geodetic_to_ecef(
-        np.deg2rad(adsb["lat_deg"].to_numpy(float)),
-        np.deg2rad(adsb["lon_deg"].to_numpy(float)),
-        adsb["alt_m"].to_numpy(float),
-    )
-    times = adsb["time_s"].to_numpy(float)
-    tracks: dict[str, tuple[FloatArray, FloatArray]] = {}
-    for target, rows in adsb.groupby("target_id", sort=False).indices.items():
-        if not target:
-            continue
-        rows = rows[np.argsort(times[rows], kind="stable")]
-        keep = np.concatenate([[True], np.diff(times[rows]) > 0])
-        tracks[str(target)] = (times[rows[keep]], ecef[rows[keep]])
-
-    def reference(target: str, t: FloatArray) -> FloatArray:
-        out = np.full((len(t), 3), np.nan)
-        if target not in tracks:
-            return out
-        tt, pos = tracks[target]
-        j, w, ok = bracket(tt, t, max_gap_s)
-        out[ok] = (1.0 - w[ok])[:, None] * pos[j[ok]] + w[ok][:, None] * pos[j[ok] + 1]
-        return out
-
-    return reference
+    tracks = {k: (t, pos) for k, (t, pos, _) in adsb_tracks(dataset.adsb).items()}
+    return _interpolating_reference(tracks, max_gap_s)
 
 
 def _table_reference(table: pd.DataFrame, max_gap_s: float) -> ReferenceFunction:
     missing = {"time_s", "target_id", "x_m", "y_m", "z_m"} - set(table.columns)
     if missing:
         raise ValueError(f"reference table lacks columns {sorted(missing)}")
-    times = table["time_s"].to_numpy(float)
-    xyz = table[["x_m", "y_m", "z_m"]].to_numpy(float)
-    tracks = {}
-    for target, rows in table.groupby("target_id", sort=False).indices.items():
-        rows = rows[np.argsort(times[rows], kind="stable")]
-        keep = np.concatenate([[True], np.diff(times[rows]) > 0])
-        tracks[str(target)] = (times[rows[keep]], xyz[rows[keep]])
+    tracks = tracks_by_target(table["time_s"].to_numpy(float), table["target_id"],
+                              table[["x_m", "y_m", "z_m"]].to_numpy(float), skip_empty=False)
+    return _interpolating_reference(tracks, max_gap_s)
+
+
+def _interpolating_reference(
+    tracks: Mapping[str, tuple[FloatArray, ...]], max_gap_s: float
+) -> ReferenceFunction:
+    """``f(target, t)``: each track's ECEF positions interpolated linearly, NaN where unknown."""
 
     def reference(target: str, t: FloatArray) -> FloatArray:
         out = np.full((len(t), 3), np.nan)
