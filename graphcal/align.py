@@ -90,6 +90,13 @@ class AdsbAlignment:
         Covariance of the interpolated ADS-B position in the radar's ENU [m^2].
     n_unmatched : int
         Plots with no ADS-B of their aircraft within the gap limit.
+    reference_velocity_ecef_m_s : ndarray, shape (n, 3)
+        Velocity of the ADS-B track at each plot time: the slope of the bracketing
+        segment [m/s].
+    time_offset_s : float
+        The radar's time-stamping bias assumed in the alignment: ADS-B is
+        interpolated at ``time_s - time_offset_s`` (CONTRACT.md:
+        ``time_reported = time_true + time_offset_s``).
     """
 
     radar_id: str
@@ -98,6 +105,8 @@ class AdsbAlignment:
     reference_polar: FloatArray
     reference_enu_cov_m2: FloatArray
     n_unmatched: int
+    reference_velocity_ecef_m_s: FloatArray | None = None
+    time_offset_s: float = 0.0
 
     def __len__(self) -> int:
         return len(self.plots)
@@ -158,7 +167,10 @@ def bracket(
 
 
 def align_adsb(
-    dataset: Dataset, radar_id: str, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S
+    dataset: Dataset,
+    radar_id: str,
+    max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
+    time_offset_s: float = 0.0,
 ) -> AdsbAlignment:
     """Associate one radar's plots with ADS-B and interpolate ADS-B to the plot times.
 
@@ -170,6 +182,9 @@ def align_adsb(
         The radar.
     max_gap_s : float
         Longest gap between two ADS-B reports that is bridged [s].
+    time_offset_s : float
+        The radar's time-stamping bias [s]: ADS-B is interpolated at the true plot
+        times ``time_s - time_offset_s``.
 
     Returns
     -------
@@ -182,28 +197,33 @@ def align_adsb(
     tracks = adsb_tracks(dataset.adsb)
     n = len(plots)
     ref = np.full((n, 3), np.nan)
+    vel = np.full((n, 3), np.nan)
     var_h = np.full(n, np.nan)
     matched = np.zeros(n, dtype=bool)
+    true_time_s = plots.time_s - time_offset_s
     for target in pd.unique(plots.target_id):
         if target not in tracks:
             continue
         rows = np.flatnonzero(plots.target_id == target)
         t, ecef, sigma = tracks[target]
-        j, w, ok = bracket(t, plots.time_s[rows], max_gap_s)
+        j, w, ok = bracket(t, true_time_s[rows], max_gap_s)
         rows, j, w = rows[ok], j[ok], w[ok]
         ref[rows] = (1.0 - w)[:, None] * ecef[j] + w[:, None] * ecef[j + 1]
+        vel[rows] = (ecef[j + 1] - ecef[j]) / (t[j + 1] - t[j])[:, None]
         # Independent reports: the interpolated variance is w0^2 s0^2 + w1^2 s1^2.
         var_h[rows] = (1.0 - w) ** 2 * sigma[j] ** 2 + w**2 * sigma[j + 1] ** 2
         matched[rows] = True
     plots = plots.subset(matched)
     ref = ref[matched]
+    vel = vel[matched]
     var_h = var_h[matched]
     cov = np.zeros((len(plots), 3, 3))
     cov[:, 0, 0] = var_h
     cov[:, 1, 1] = var_h
     cov[:, 2, 2] = ADSB_VERTICAL_SIGMA_RATIO**2 * var_h
     polar = np.stack(site.polar_from_ecef(ref), axis=-1) if len(plots) else np.zeros((0, 3))
-    return AdsbAlignment(radar_id, plots, ref, polar, cov, int(n - matched.sum()))
+    return AdsbAlignment(radar_id, plots, ref, polar, cov, int(n - matched.sum()), vel,
+                         float(time_offset_s))
 
 
 @dataclass
@@ -235,12 +255,19 @@ def pair_max_gap_s(site: Site) -> float:
 
 
 def pair_plots(
-    dataset: Dataset, radar_a: str, radar_b: str, max_gap_s: float | None = None
+    dataset: Dataset,
+    radar_a: str,
+    radar_b: str,
+    max_gap_s: float | None = None,
+    shift_s: float = 0.0,
 ) -> PlotPairs:
     """Match radar ``b``'s plots to radar ``a``'s plots of the same target and time.
 
     Plots with an empty ``target_id`` are not paired.  Positions within a
     track of radar ``a`` are ordered by time; ``a_index0`` indexes that order.
+    ``shift_s`` is added to ``b``'s times before they are looked up in ``a``'s
+    track: with time-stamping biases it is ``time_offset_a - time_offset_b``,
+    so that both plots of a pair refer to the same true time.
     """
     if max_gap_s is None:
         max_gap_s = pair_max_gap_s(dataset.sites[radar_a])
@@ -263,7 +290,7 @@ def pair_plots(
             continue
         lo, hi = starts[target]
         rows_b = np.flatnonzero(b_targets == target)
-        j, w, ok = bracket(a.time_s[lo:hi], b.time_s[rows_b], max_gap_s)
+        j, w, ok = bracket(a.time_s[lo:hi], b.time_s[rows_b] + shift_s, max_gap_s)
         a_index0.append(j[ok] + lo)
         weights.append(w[ok])
         b_index.append(rows_b[ok])

@@ -108,6 +108,10 @@ def simulate(
     )
 
 
+#: ``--time-offset`` values and graph's ``time_offset`` argument.
+TIME_OFFSET_CHOICES: dict[str, bool | None] = {"auto": None, "on": True, "off": False}
+
+
 @app.command()
 def calibrate(
     dataset_dir: Annotated[Path, typer.Argument(metavar="DIR", help="Dataset folder.")],
@@ -155,6 +159,13 @@ def calibrate(
     max_iterations: Annotated[
         int, typer.Option(help="graph: Levenberg-Marquardt iteration limit.")
     ] = 100,
+    time_offset: Annotated[
+        str,
+        typer.Option(
+            help="graph: estimate each radar's time-stamping bias: auto (with ADS-B, where "
+            "the traffic determines it), on, off."
+        ),
+    ] = "auto",
     report: Annotated[
         Path | None,
         typer.Option("--report", metavar="REPORT.html", help="Also write an HTML report here."),
@@ -182,10 +193,14 @@ def calibrate(
                 cal = estimator(dataset, progress=callback, **options)
         elif method == "graph":
             try:
+                if time_offset not in TIME_OFFSET_CHOICES:
+                    raise ValueError(
+                        f"--time-offset must be auto, on or off, not '{time_offset}'"
+                    )
                 options.update(
                     cross=cross, robust=robust, robust_scale=robust_scale, use_adsb=adsb,
                     init=init, fixed=_parse_fixed(fix or [], dataset.sites),
-                    max_iterations=max_iterations,
+                    max_iterations=max_iterations, time_offset=TIME_OFFSET_CHOICES[time_offset],
                 )
                 with progress_bar("graph") as callback:
                     cal = estimator(dataset, progress=callback, **options)

@@ -59,10 +59,11 @@ from numpy.typing import NDArray
 
 from graphcal import frames
 from graphcal.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb, plot_arrays
-from graphcal.bias import CONTRACT_KEYS, NAME_FROM_KEY, PARAMETER_NAMES, measurement_bias_jacobian
+from graphcal.bias import CONTRACT_KEYS, NAME_FROM_KEY, measurement_bias_jacobian
 from graphcal.calibration import Calibration
 from graphcal.dataset import Dataset, Site
 from graphcal.estimators.cross_radar import ALTITUDE_SIGMA_M, MAX_2D_ELEVATION_RAD
+from graphcal.estimators.factors import TERM_NAMES
 
 FloatArray = NDArray[np.float64]
 Label = tuple[str, str]
@@ -168,10 +169,10 @@ class CrlbResult:
 
 
 # --------------------------------------------------------------------------- helpers
-def _free_terms(site: Site) -> tuple[str, ...]:
+def _free_terms(site: Site, time_offset: bool = False) -> tuple[str, ...]:
     from graphcal.estimators.graph import radar_terms
 
-    return radar_terms(site, {}).free
+    return radar_terms(site, {}, time_offset).free
 
 
 def _polar_jacobian_ecef(site: Site, ecef_m: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -237,7 +238,11 @@ def _adsb_information(
         cov = cov[:, :m, :m]
         cov[:, np.arange(m), np.arange(m)] += site.measurement_sigmas()[:m] ** 2
         pos, glob = zip(*columns[rid], strict=True)
-        jac = measurement_bias_jacobian(polar[:, 0])[:, :m, :][:, :, list(pos)]
+        jac = np.zeros((len(polar), m, len(TERM_NAMES)))
+        jac[:, :, :4] = measurement_bias_jacobian(polar[:, 0])[:, :m, :]
+        # Time offset: the plot was made at t - tau, so d h / d tau = -(d polar/dt).
+        jac[:, :, 4] = -np.einsum("nij,nj->ni", d_polar, al.reference_velocity_ecef_m_s)[:, :m]
+        jac = jac[:, :, list(pos)]
         info = np.einsum("nip,nij,njq->pq", jac, np.linalg.inv(cov), jac)
         fisher[np.ix_(glob, glob)] += info
     return fisher, matched, counts
@@ -281,7 +286,9 @@ def _cross_information(
         hx = np.zeros((n, rows, 3))
         hb = np.zeros((n, rows, p))
         hx[:, :m, :] = d_polar[:, :m, :] / sig[None, :, None]
-        bias_jac = measurement_bias_jacobian(r)[:, :m, :] / sig[None, :, None]
+        # The time offsets are taken as known in the cross-radar events (zero column).
+        bias_jac = np.zeros((n, m, len(TERM_NAMES)))
+        bias_jac[:, :, :4] = measurement_bias_jacobian(r)[:, :m, :] / sig[None, :, None]
         for pos, glob in columns.get(rid, []):
             hb[:, :m, glob] = bias_jac[:, :, pos]
         if not site.is_3d:
@@ -345,6 +352,7 @@ def crlb(
     priors: Mapping[Label, float] | str | None = None,
     max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
     event_s: float | None = None,
+    time_offset: bool = False,
 ) -> CrlbResult:
     """Cramér-Rao lower bound of the bias parameters (see the module docstring).
 
@@ -372,6 +380,11 @@ def crlb(
     event_s : float, optional
         Cross-radar event window [s]; default :data:`EVENT_SCANS` scans of the
         slowest radar (:data:`DEFAULT_EVENT_S` without scan periods).
+    time_offset : bool
+        With the default labels, also bound each radar's time-stamping bias
+        (``graph(..., time_offset=True)``'s labels).  A time offset is informed
+        by the ADS-B-matched plots (``d h / d tau = -d polar / dt`` along the ADS-B
+        track); the cross-radar events take it as known.
 
     Returns
     -------
@@ -383,17 +396,23 @@ def crlb(
     have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
     for site in dataset.sites.values():
         _check_sigmas(site)
+    with_time = set()
+    if time_offset and have_adsb:
+        from graphcal.estimators.graph import _radars_with_adsb
+
+        with_time = _radars_with_adsb(dataset)
     all_labels = [
-        (rid, name) for rid, site in dataset.sites.items() for name in _free_terms(site)
+        (rid, name) for rid, site in dataset.sites.items()
+        for name in _free_terms(site, rid in with_time)
     ]
     candidate = list(labels) if labels is not None else all_labels
     for rid, name in candidate:
-        if rid not in dataset.sites or name not in PARAMETER_NAMES:
+        if rid not in dataset.sites or name not in TERM_NAMES:
             raise ValueError(f"unknown parameter label ({rid!r}, {name!r})")
     p = len(candidate)
     columns: dict[str, list[tuple[int, int]]] = {}
     for i, (rid, name) in enumerate(candidate):
-        columns.setdefault(rid, []).append((PARAMETER_NAMES.index(name), i))
+        columns.setdefault(rid, []).append((TERM_NAMES.index(name), i))
     fisher = np.zeros((p, p))
     info: dict[str, Any] = {}
     matched: set[int] = set()

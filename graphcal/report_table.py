@@ -47,10 +47,10 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
     table.add_column("plots", justify="right")
     for rid in cal.radar_ids:
         first = True
-        for name in PARAMETER_NAMES:
+        for name in (*PARAMETER_NAMES, "time_offset"):
             key = CONTRACT_KEYS[name][0]
             value, sigma = cal.value(rid, key), cal.sigma(rid, key)
-            if value is None:
+            if value is None or (name == "time_offset" and not sigma):
                 continue
             shown = format_value(key, value, sigma)
             if f"{rid}.{key}" in cal.info.get("undetermined", []):
@@ -61,6 +61,8 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
                 row.append("" if ratio is None else f"{ratio:.2f}")
             if truth is not None:
                 true = truth.get("radars", {}).get(rid, {}).get(key)
+                if true is None and name == "time_offset" and rid in truth.get("radars", {}):
+                    true = 0.0  # truth.json leaves out a zero time offset
                 row.append(format_value(key, true))
                 if true is not None and sigma and sigma == sigma and sigma != float("inf"):
                     row.append(f"{(value - true) / sigma:+.1f}")

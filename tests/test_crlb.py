@@ -72,13 +72,20 @@ def test_azimuth_bias_only_matches_hand_formula() -> None:
 
 
 # --------------------------------------------------------------------------- plain loop
-def _network(seed: int = 0, *, adsb: bool = True, duration: float = 300.0, noise: bool = True):
+def _network(
+    seed: int = 0,
+    *,
+    adsb: bool = True,
+    duration: float = 300.0,
+    noise: bool = True,
+    time_offsets_s: tuple[float, float] = (0.0, 0.0),
+):
     radars = [
         (site_at("A", -30e3, 0.0, sigma_range_m=30.0, sigma_azimuth_mrad=1.0),
-         RadarBias(50.0, 0.001, 0.002)),
+         RadarBias(50.0, 0.001, 0.002, time_offset_s=time_offsets_s[0])),
         (site_at("B", 30e3, 10e3, sigma_range_m=20.0, sigma_azimuth_mrad=0.8,
                  sigma_elevation_mrad=2.0),
-         RadarBias(-40.0, -0.0005, -0.001, 0.0015)),
+         RadarBias(-40.0, -0.0005, -0.001, 0.0015, time_offsets_s[1])),
     ]
     tracks = [
         Track("a1", (0.0, -60e3, 8000.0), (0.0, 220.0, 0.0), 0.0, duration),
@@ -236,15 +243,15 @@ def test_graph_monte_carlo_rmse_reaches_the_crlb() -> None:
     200 seeds (0.04 s each, robust="none": the bound is for the Gaussian model; Huber
     gives the same within noise, mean ratio 1.02).  The relative sd of one parameter's
     RMSE over N seeds is ~1/sqrt(2N) = 5 %, so each parameter within 20 % is a 4-sigma
-    band; the mean over the 7 parameters (correlated, sd <= 5 %) within 10 %.
-    Measured: 1.06 1.03 0.99 1.00 0.96 1.00 1.06, mean 1.01.
+    band; the mean over the 9 parameters (7 biases and 2 time offsets; correlated,
+    sd <= 5 %) within 10 %.
     """
     errors, bounds = [], []
     labels = None
     for seed in range(200):
-        ds, truth = _network(seed)
-        cal = graph(ds, robust="none")
-        res = crlb(ds)
+        ds, truth = _network(seed, time_offsets_s=(0.8, -1.2))
+        cal = graph(ds, robust="none", time_offset=True)
+        res = crlb(ds, time_offset=True)
         assert res.labels == cal.labels
         labels = cal.labels
         errors.append([cal.estimate[i] - truth[rid].value(name)

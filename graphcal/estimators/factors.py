@@ -15,7 +15,11 @@ exposes
 
 A radar's variable holds only its *free* bias terms; :class:`RadarTerms`
 expands it to the full ``(range_offset_m, range_gain, azimuth_bias_rad,
-elevation_bias_rad)`` vector with fixed terms at their known values.
+elevation_bias_rad)`` vector with fixed terms at their known values, and gives
+the radar's time-stamping bias ``time_offset_s`` (a fifth term, free only when
+time offsets are estimated).  Jacobians are ``(..., 5)`` over
+:data:`TERM_NAMES` (factors that do not depend on the time offset may return
+``(..., 4)``).
 """
 
 from __future__ import annotations
@@ -34,6 +38,9 @@ from graphcal.estimators.robust import RobustKernel
 
 FloatArray = NDArray[np.float64]
 
+#: Every term a radar variable can hold: the four biases, then the time-stamping bias.
+TERM_NAMES: tuple[str, ...] = (*PARAMETER_NAMES, "time_offset")
+
 
 @dataclass(frozen=True)
 class RadarTerms:
@@ -43,7 +50,7 @@ class RadarTerms:
     ----------
     radar_id : str
     free : tuple of str
-        Estimated terms, in :data:`graphcal.bias.PARAMETER_NAMES` order.
+        Estimated terms, in :data:`TERM_NAMES` order.
     fixed : dict of str to float
         Terms held at a known value (SI); terms neither free nor fixed are 0.
     """
@@ -54,19 +61,32 @@ class RadarTerms:
 
     @property
     def positions(self) -> list[int]:
-        """Positions of the free terms in the full 4-vector."""
-        return [PARAMETER_NAMES.index(name) for name in self.free]
+        """Positions of the free terms in the full 5-vector of :data:`TERM_NAMES`."""
+        return [TERM_NAMES.index(name) for name in self.free]
 
-    def full(self, free_values: FloatArray) -> FloatArray:
-        """The full bias 4-vector from the free values (SI)."""
-        values = np.zeros(4)
+    def _full5(self, free_values: FloatArray) -> FloatArray:
+        values = np.zeros(len(TERM_NAMES))
         for name, value in self.fixed.items():
-            values[PARAMETER_NAMES.index(name)] = value
+            values[TERM_NAMES.index(name)] = value
         values[self.positions] = free_values
         return values
 
+    def full(self, free_values: FloatArray) -> FloatArray:
+        """The full bias 4-vector from the free values (SI)."""
+        return self._full5(free_values)[:4]
+
+    def time_offset(self, free_values: FloatArray) -> float:
+        """The time-stamping bias [s]: free, fixed, or 0."""
+        return float(self._full5(free_values)[4])
+
     def select(self, jacobian_full: FloatArray) -> FloatArray:
-        """Columns of a ``(..., 4)`` Jacobian that belong to the free terms."""
+        """Columns of a ``(..., 4)`` or ``(..., 5)`` Jacobian that belong to the free terms.
+
+        A 4-column Jacobian does not depend on the time offset (zero column).
+        """
+        if jacobian_full.shape[-1] == len(PARAMETER_NAMES):
+            pad = np.zeros((*jacobian_full.shape[:-1], 1))
+            jacobian_full = np.concatenate([jacobian_full, pad], axis=-1)
         return jacobian_full[..., self.positions]
 
 
@@ -99,6 +119,12 @@ class AdsbFactor:
     polar Jacobian (paper 002's first-order conversion, eq. 17-19), fixed at
     the ADS-B geometry.
 
+    With a time-stamping bias ``tau`` the plot reported at ``t`` was made at
+    ``t - tau``; the ADS-B reference, interpolated at ``t - tau0``, moves to
+    ``reference + rate (tau0 - tau)`` (first order in ``tau - tau0``, which the
+    graph keeps small by re-aligning ADS-B at its latest ``tau``), so
+    ``d e / d tau = ((1 + g) dr/dt, daz/dt, del/dt)``.
+
     Attributes
     ----------
     measured, reference : ndarray (n, 3)
@@ -107,6 +133,10 @@ class AdsbFactor:
         :func:`whitening_matrices` of the ``(n, m, m)`` noise covariance.
     plot_rows : ndarray (n,)
         Row labels of the plots in the dataset's plot table.
+    rate : ndarray (n, 3) or None
+        Time derivative of the reference in polar coordinates [m/s, rad/s].
+    tau0 : float
+        Time offset [s] at which the reference was interpolated.
     """
 
     terms: RadarTerms
@@ -116,6 +146,8 @@ class AdsbFactor:
     whitening: FloatArray
     kernel: RobustKernel
     plot_rows: NDArray[np.int64]
+    rate: FloatArray | None = None
+    tau0: float = 0.0
 
     @property
     def keys(self) -> list[int]:
@@ -130,20 +162,30 @@ class AdsbFactor:
     def dimension(self) -> int:
         return len(self.measured) * self.rows
 
-    def residual(self, bias: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Unwhitened residual ``(n, m)`` and ``d residual / d bias`` ``(n, m, 4)``."""
+    def residual(
+        self, bias: FloatArray, time_offset_s: float = 0.0
+    ) -> tuple[FloatArray, FloatArray]:
+        """Unwhitened residual ``(n, m)`` and its Jacobian ``(n, m, 5)`` (:data:`TERM_NAMES`)."""
         offset, gain, az_bias, el_bias = bias
         m = self.rows
-        r_true, az_true, el_true = self.reference.T
+        reference = self.reference
+        if self.rate is not None:
+            reference = reference + self.rate * (self.tau0 - time_offset_s)
+        r_true, az_true, el_true = reference.T
         res = np.empty((len(r_true), m))
         res[:, 0] = self.measured[:, 0] - ((1.0 + gain) * r_true + offset)
         res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - (az_true + az_bias))
         if m == 3:
             res[:, 2] = self.measured[:, 2] - (el_true + el_bias)
-        return res, -measurement_bias_jacobian(r_true)[:, :m, :]
+        jac = np.zeros((len(r_true), m, len(TERM_NAMES)))
+        jac[:, :, :4] = -measurement_bias_jacobian(r_true)[:, :m, :]
+        if self.rate is not None:
+            jac[:, :, 4] = self.rate[:, :m]
+            jac[:, 0, 4] *= 1.0 + gain
+        return res, jac
 
     def whitened(self, values: list[FloatArray]) -> tuple[FloatArray, list[FloatArray]]:
-        res, jac = self.residual(self.terms.full(values[0]))
+        res, jac = self.residual(self.terms.full(values[0]), self.terms.time_offset(values[0]))
         e = np.einsum("nij,nj->ni", self.whitening, res)
         j = self.whitening @ self.terms.select(jac)
         return e, [j]
@@ -163,11 +205,15 @@ def adsb_factor(
     reference_polar: FloatArray,
     reference_polar_cov: FloatArray,
     kernel: RobustKernel,
+    reference_rate: FloatArray | None = None,
+    tau0: float = 0.0,
 ) -> AdsbFactor:
     """Build the ADS-B factor of one radar.
 
     ``reference_polar_cov`` is the ADS-B position covariance mapped to the
-    radar's polar coordinates ``(n, 3, 3)``.
+    radar's polar coordinates ``(n, 3, 3)``; ``reference_rate`` the reference's
+    time derivative in polar coordinates (needed when the time offset is free),
+    interpolated at time offset ``tau0``.
     """
     m = 3 if site.is_3d else 2
     measured = np.stack([plots.range_m, plots.azimuth_rad, plots.elevation_rad], axis=-1)
@@ -176,7 +222,7 @@ def adsb_factor(
     cov[:, np.arange(m), np.arange(m)] += sigmas**2
     return AdsbFactor(
         terms, key, measured, reference_polar, whitening_matrices(cov), kernel,
-        plots.index.copy(),
+        plots.index.copy(), reference_rate, float(tau0),
     )
 
 
@@ -195,6 +241,12 @@ class PairwiseFactor:
     evaluated exactly at every iteration rather than linearised at zero bias.
     The noise is both plots' converted covariance (paper 002), fixed at the
     measured values.
+
+    Time-stamping biases ``tau_a``, ``tau_b``: the pairs were formed with
+    ``b``'s times shifted by ``tau0_a - tau0_b``; a change of that difference
+    moves ``a``'s interpolated position along its track,
+    ``- v_a [(tau_a - tau_b) - (tau0_a - tau0_b)]`` with ``v_a`` the slope of
+    ``a``'s bracketing segment.
     """
 
     terms_a: RadarTerms
@@ -212,6 +264,8 @@ class PairwiseFactor:
     a_cov_m2: FloatArray
     b_cov_m2: FloatArray
     kernel: RobustKernel
+    tau0_a: float = 0.0
+    tau0_b: float = 0.0
 
     @property
     def keys(self) -> list[int]:
@@ -225,20 +279,37 @@ class PairwiseFactor:
         return len(self.ib)
 
     def residual(
-        self, bias_a: FloatArray, bias_b: FloatArray
+        self, bias_a: FloatArray, bias_b: FloatArray, tau_a: float = 0.0, tau_b: float = 0.0
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Unwhitened residual ``(n, 3)`` [m] and its Jacobians ``(n, 3, 4)`` for a and b."""
+        """Unwhitened residual ``(n, 3)`` [m] and its Jacobians ``(n, 3, 5)`` for a and b."""
         ecef_a, jac_a, _ = corrected_ecef(self.site_a, self.a_plots, bias_a)
         ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b)
         w1 = self.weight[:, None]
         w0 = 1.0 - w1
         i0, i1 = self.i0, self.i0 + 1
         res = ecef_b[self.ib] - (w0 * ecef_a[i0] + w1 * ecef_a[i1])
-        d_a = -(w0[:, :, None] * jac_a[i0] + w1[:, :, None] * jac_a[i1])
-        return res, d_a, jac_b[self.ib]
+        n = len(self.ib)
+        d_a = np.zeros((n, 3, len(TERM_NAMES)))
+        d_b = np.zeros((n, 3, len(TERM_NAMES)))
+        d_a[:, :, :4] = -(w0[:, :, None] * jac_a[i0] + w1[:, :, None] * jac_a[i1])
+        d_b[:, :, :4] = jac_b[self.ib]
+        dt = (self.a_plots.time_s[i1] - self.a_plots.time_s[i0])[:, None]
+        dt = np.where(dt > 0.0, dt, np.inf)  # two plots at one time: no velocity
+        velocity = (ecef_a[i1] - ecef_a[i0]) / dt
+        shift = (tau_a - tau_b) - (self.tau0_a - self.tau0_b)
+        if shift != 0.0:
+            res = res - velocity * shift
+            d_a[:, :, :4] -= shift * (jac_a[i1] - jac_a[i0]) / dt[:, :, None]
+        d_a[:, :, 4] = -velocity
+        d_b[:, :, 4] = velocity
+        return res, d_a, d_b
 
     def whitened(self, values: list[FloatArray]) -> tuple[FloatArray, list[FloatArray]]:
-        res, d_a, d_b = self.residual(self.terms_a.full(values[0]), self.terms_b.full(values[1]))
+        ta, tb = self.terms_a, self.terms_b
+        res, d_a, d_b = self.residual(
+            ta.full(values[0]), tb.full(values[1]),
+            ta.time_offset(values[0]), tb.time_offset(values[1]),
+        )
         e = np.einsum("nij,nj->ni", self.whitening, res)
         jac_a = self.whitening @ self.terms_a.select(d_a)
         return e, [jac_a, self.whitening @ self.terms_b.select(d_b)]
@@ -276,11 +347,14 @@ def pairwise_factor(
     weight: FloatArray,
     ib: NDArray[np.int64],
     kernel: RobustKernel,
+    tau0_a: float = 0.0,
+    tau0_b: float = 0.0,
 ) -> PairwiseFactor | None:
     """Build the pairwise factor from :func:`graphcal.align.pair_plots` indices.
 
     Only the plots that enter a pair are kept; pairs with an unusable plot (a
     2-D plot without reported height) are dropped.  ``None`` when nothing is left.
+    ``tau0_a``, ``tau0_b``: the time offsets [s] the pairs were formed with.
     """
     used_a = np.unique(np.concatenate([i0, i0 + 1]))
     used_b = np.unique(ib)
@@ -300,5 +374,6 @@ def pairwise_factor(
     cov = conv_b.cov_m2[ib] + w0**2 * conv_a.cov_m2[i0] + w1**2 * conv_a.cov_m2[i0 + 1]
     return PairwiseFactor(
         terms_a, terms_b, key_a, key_b, site_a, site_b, a_sub, b_sub, i0, weight, ib,
-        whitening_matrices(cov), conv_a.cov_m2, conv_b.cov_m2, kernel,
+        whitening_matrices(cov), conv_a.cov_m2, conv_b.cov_m2, kernel, float(tau0_a),
+        float(tau0_b),
     )

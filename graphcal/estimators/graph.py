@@ -37,6 +37,7 @@ joint covariance of all biases comes from GTSAM's marginals.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -45,6 +46,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from graphcal import frames
 from graphcal.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_adsb, pair_plots
 from graphcal.bias import CONTRACT_KEYS, PARAMETER_NAMES, RadarBias, from_contract_units
 from graphcal.calibration import Calibration
@@ -53,6 +55,7 @@ from graphcal.errors import EstimationError
 from graphcal.estimators.adsb_reference import _reference_polar_cov, residual_stats
 from graphcal.estimators.cross_radar import gradient_noise_middle
 from graphcal.estimators.factors import (
+    TERM_NAMES,
     AdsbFactor,
     PairwiseFactor,
     RadarTerms,
@@ -76,17 +79,35 @@ DEFAULT_PRIOR_SIGMA: dict[str, float] = {
     "range_gain": 0.02,
     "azimuth_bias": 0.05,
     "elevation_bias": 0.02,
+    "time_offset": 10.0,
 }
 #: With a sensor model, the prior sigma is at least this multiple of its typical bias.
 PRIOR_TYPICAL_MULTIPLE = 25.0
 #: A term whose posterior variance exceeds this fraction of its prior variance is
 #: reported as not determined by the data.
 UNDETERMINED_VARIANCE_RATIO = 0.25
+#: ``time_offset=None`` (auto) keeps a radar's time offset only if its sigma is at most
+#: this [s] ...
+AUTO_TIME_OFFSET_MAX_SIGMA_S = 0.5
+#: ... and it inflates no other parameter's sigma by more than this factor.
+AUTO_TIME_OFFSET_MAX_INFLATION = 1.5
+#: The ADS-B alignment is redone at the latest time offsets until they move less than
+#: this [s] (the factors are first order in the change), at most
+#: :data:`TIME_OFFSET_MAX_REALIGNMENTS` times.
+TIME_OFFSET_REALIGN_TOLERANCE_S = 0.01
+TIME_OFFSET_MAX_REALIGNMENTS = 5
+#: Fastest plausible aircraft ground speed [m/s]; a faster ADS-B segment holds an outlier.
+ADSB_MAX_SPEED_M_S = 600.0
 
 
 # --------------------------------------------------------------------------- set-up
-def radar_terms(site: Site, fixed: dict[tuple[str, str], float]) -> RadarTerms:
-    """Free and fixed terms of one radar: its ``estimate`` list minus the fixed ones."""
+def radar_terms(
+    site: Site, fixed: dict[tuple[str, str], float], time_offset: bool = False
+) -> RadarTerms:
+    """Free and fixed terms of one radar: its ``estimate`` list minus the fixed ones.
+
+    ``time_offset``: also estimate its time-stamping bias (unless fixed).
+    """
     own_fixed = {name: value for (rid, name), value in fixed.items() if rid == site.id}
     for name in own_fixed:
         if name == "elevation_bias" and not site.is_3d:
@@ -96,6 +117,8 @@ def radar_terms(site: Site, fixed: dict[tuple[str, str], float]) -> RadarTerms:
         if name in site.estimate and name not in own_fixed
         and (site.is_3d or name != "elevation_bias")
     )
+    if time_offset and "time_offset" not in own_fixed:
+        free = (*free, "time_offset")
     return RadarTerms(site.id, free, own_fixed)
 
 
@@ -146,6 +169,20 @@ def _reduced(dataset: Dataset, exclude_rows: NDArray[np.int64]) -> Dataset:
     return Dataset(dataset.sites, plots, dataset.adsb, dataset.path)
 
 
+def _polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
+    """Time derivative of the aligned ADS-B reference in the radar's polar frame ``(n, 3)``.
+
+    A bracketing ADS-B segment faster than :data:`ADSB_MAX_SPEED_M_S` holds an
+    outlier report; its plots get a zero rate (they do not inform the time offset),
+    so that the outlier cannot lever the time offset through its Jacobian.
+    """
+    enu = site.enu_from_ecef(al.reference_ecef_m)
+    velocity = al.reference_velocity_ecef_m_s
+    plausible = np.linalg.norm(velocity, axis=1) <= ADSB_MAX_SPEED_M_S
+    velocity_enu = np.where(plausible[:, None], velocity, 0.0) @ site.ecef_to_enu.T
+    return np.einsum("nij,nj->ni", frames.enu_to_polar_jacobian(enu), velocity_enu)
+
+
 def _build_factors(
     dataset: Dataset,
     problem: _Problem,
@@ -155,20 +192,28 @@ def _build_factors(
     adsb_max_gap_s: float,
     pair_max_gap_s: float | None,
     progress: Progress | None,
+    tau0: dict[str, float] | None = None,
 ) -> None:
+    """ADS-B and pairwise factors, aligned at the time offsets ``tau0`` [s] (default 0)."""
     radar_ids = list(dataset.radar_ids)
+    tau0 = {rid: (tau0 or {}).get(rid, 0.0) for rid in radar_ids}
+    problem.adsb.clear()
+    problem.alignments.clear()
+    problem.pairs.clear()
     matched: list[NDArray[np.int64]] = []
     if use_adsb:
         for i, rid in enumerate(radar_ids):
-            al = align_adsb(dataset, rid, adsb_max_gap_s)
+            al = align_adsb(dataset, rid, adsb_max_gap_s, time_offset_s=tau0[rid])
             if progress is not None:
                 progress("ADS-B association", i + 1, len(radar_ids))
             if len(al) == 0:
                 continue
             problem.alignments[rid] = al
+            site = dataset.sites[rid]
+            rate = _polar_rate(site, al) if "time_offset" in problem.terms[rid].free else None
             problem.adsb[rid] = adsb_factor(
-                dataset.sites[rid], problem.terms[rid], problem.keys[rid], al.plots,
-                al.reference_polar, _reference_polar_cov(al), kernel,
+                site, problem.terms[rid], problem.keys[rid], al.plots,
+                al.reference_polar, _reference_polar_cov(al), kernel, rate, tau0[rid],
             )
             matched.append(al.plots.index)
     if cross != "pairwise":
@@ -176,7 +221,7 @@ def _build_factors(
     rest = _reduced(dataset, np.concatenate(matched) if matched else np.zeros(0, np.int64))
     todo = [(a, b) for i, a in enumerate(radar_ids) for b in radar_ids[i + 1:]]
     for n, (ra, rb) in enumerate(todo):
-        pairs = pair_plots(rest, ra, rb, pair_max_gap_s)
+        pairs = pair_plots(rest, ra, rb, pair_max_gap_s, shift_s=tau0[ra] - tau0[rb])
         if progress is not None:
             progress("cross-radar pairs", n + 1, len(todo))
         if len(pairs) == 0:
@@ -184,7 +229,7 @@ def _build_factors(
         factor = pairwise_factor(
             dataset.sites[ra], dataset.sites[rb], problem.terms[ra], problem.terms[rb],
             problem.keys[ra], problem.keys[rb], pairs.a_plots, pairs.b_plots,
-            pairs.a_index0, pairs.weight, pairs.b_index, kernel,
+            pairs.a_index0, pairs.weight, pairs.b_index, kernel, tau0[ra], tau0[rb],
         )
         if factor is not None:
             problem.pairs.append(factor)
@@ -230,7 +275,7 @@ def initial_biases(
 def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) -> FloatArray:
     if bias is None:
         return np.zeros(len(terms.free))
-    values = bias.as_vector()[terms.positions]
+    values = np.append(bias.as_vector(), bias.time_offset_s)[terms.positions]
     # A closed-form estimate far outside the prior is not a useful start.
     return np.where(np.abs(values) <= 3.0 * prior, values, 0.0)
 
@@ -271,6 +316,166 @@ def _pairwise_sandwich_terms(
     return information, middle
 
 
+# --------------------------------------------------------------------------- solving
+@dataclass
+class _Settings:
+    """Options of one solve, passed unchanged to every (re-)solve."""
+
+    have_adsb: bool
+    cross: str
+    kernel: RobustKernel
+    max_gap_s: float
+    pair_max_gap_s: float | None
+    process_noise_m2_s3: float | None
+    max_iterations: int
+    progress: Progress | None
+
+
+@dataclass
+class _Solved:
+    """One Levenberg-Marquardt solution with its factors."""
+
+    terms: dict[str, RadarTerms]
+    problem: _Problem
+    fg: FactorGraph
+    result: Any
+    radars: list[str]
+    values: dict[str, FloatArray]
+    priors: dict[str, FloatArray]
+    variable: set[str]
+    realignments: int
+
+
+def _radars_with_adsb(dataset: Dataset) -> set[str]:
+    """Radars with at least one plot whose ``target_id`` has ADS-B reports."""
+    if dataset.adsb is None or len(dataset.adsb) == 0:
+        return set()
+    targets = set(dataset.adsb["target_id"].astype(str)) - {""}
+    plots = dataset.plots
+    seen = plots.loc[plots["target_id"].astype(str).isin(targets), "radar_id"]
+    return set(seen.astype(str))
+
+
+def _solve(
+    dataset: Dataset,
+    fixed: dict[tuple[str, str], float],
+    tau_radars: set[str],
+    keys: dict[str, int],
+    init_biases: dict[str, RadarBias],
+    settings: _Settings,
+    timing: dict[str, float],
+) -> _Solved:
+    """Build the factors and solve; with time offsets, re-align ADS-B at the estimates.
+
+    The ADS-B reference and the cross-radar pairs are interpolated at the current
+    time offsets ``tau0`` and the factors are first order in ``tau - tau0``, so
+    the alignment is redone at the new estimates until they move less than
+    :data:`TIME_OFFSET_REALIGN_TOLERANCE_S` (usually once or twice).
+    """
+    s = settings
+    radar_ids = list(dataset.radar_ids)
+    terms = {
+        rid: radar_terms(dataset.sites[rid], fixed, rid in tau_radars) for rid in radar_ids
+    }
+    problem = _Problem(terms, keys)
+    tau0 = {rid: terms[rid].time_offset(np.zeros(len(terms[rid].free))) for rid in radar_ids}
+    start_values: dict[str, FloatArray] = {}
+    iterations = realignments = 0
+    for _ in range(TIME_OFFSET_MAX_REALIGNMENTS + 1):
+        t0 = time.perf_counter()
+        if s.cross == "target-state":
+            from graphcal.estimators.target_state import build_target_state
+
+            problem.target_state = build_target_state(
+                dataset, terms, keys, s.kernel, use_adsb=s.have_adsb,
+                adsb_max_gap_s=s.max_gap_s, process_noise_m2_s3=s.process_noise_m2_s3,
+                progress=s.progress,
+            )
+            if s.have_adsb:
+                # Residual statistics against ADS-B, for the report only.
+                for rid in radar_ids:
+                    al = align_adsb(dataset, rid, s.max_gap_s)
+                    if len(al):
+                        problem.alignments[rid] = al
+        else:
+            _build_factors(dataset, problem, s.have_adsb, s.cross, s.kernel, s.max_gap_s,
+                           s.pair_max_gap_s, s.progress, tau0)
+        timing["factors_s"] = timing.get("factors_s", 0.0) + time.perf_counter() - t0
+        radars = problem.variable_radars()
+        if not radars:
+            raise EstimationError(
+                "nothing to calibrate: no plot matched ADS-B and no two radars saw the same "
+                "target_id within the time-gap limit"
+            )
+        priors = {rid: prior_sigmas(dataset.sites[rid], terms[rid]) for rid in radars}
+        fg = FactorGraph()
+        initial_free: dict[str, FloatArray] = {}
+        for rid in radars:
+            start = start_values.get(rid)
+            if start is None:
+                start = _initial_free(terms[rid], init_biases.get(rid), priors[rid])
+            initial_free[rid] = start
+            fg.add_variable(keys[rid], start)
+            fg.add_prior(keys[rid], np.zeros(len(terms[rid].free)), priors[rid])
+        variable = set(radars)
+        for factor in [*problem.adsb.values(), *problem.pairs]:
+            _add_factor(fg, factor, variable)
+        if problem.target_state is not None:
+            problem.target_state.add_to(fg, variable, initial_free)
+        t0 = time.perf_counter()
+        if s.progress is not None:
+            s.progress("optimising", 0, 1)
+        result = fg.optimize(max_iterations=s.max_iterations)
+        iterations += result.iterations
+        timing["optimisation_s"] = timing.get("optimisation_s", 0.0) + time.perf_counter() - t0
+        values = {rid: result.vector(keys[rid]) for rid in radars}
+        moved = [
+            abs(terms[rid].time_offset(values[rid]) - tau0[rid])
+            for rid in radars if "time_offset" in terms[rid].free
+        ]
+        if not moved or max(moved) < TIME_OFFSET_REALIGN_TOLERANCE_S:
+            break
+        tau0.update({rid: terms[rid].time_offset(values[rid]) for rid in radars})
+        start_values = values
+        realignments += 1
+    result = dataclasses.replace(result, iterations=iterations)
+    return _Solved(terms, problem, fg, result, radars, values, priors, variable, realignments)
+
+
+def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
+    """Radars whose time offset the data do not determine well, with the reason.
+
+    A time offset is kept when its sigma is at most
+    :data:`AUTO_TIME_OFFSET_MAX_SIGMA_S` and estimating it inflates no other
+    parameter's sigma by more than :data:`AUTO_TIME_OFFSET_MAX_INFLATION`
+    (e.g. one straight flight: a time offset then looks like a range offset
+    and an azimuth bias).
+    """
+    keys = [solved.problem.keys[rid] for rid in solved.radars]
+    marginal = solved.fg.joint_covariance(solved.result.values, keys)
+    labels = [(rid, name) for rid in solved.radars for name in solved.terms[rid].free]
+    information = np.linalg.inv(marginal)
+    sigma = np.sqrt(np.diag(marginal))
+    poor: dict[str, str] = {}
+    for i, (rid, name) in enumerate(labels):
+        if name != "time_offset":
+            continue
+        if sigma[i] > AUTO_TIME_OFFSET_MAX_SIGMA_S:
+            poor[rid] = f"its sigma would be {sigma[i]:.2f} s"
+            continue
+        others = [j for j in range(len(labels)) if j != i]
+        fixed_sigma = np.sqrt(np.diag(np.linalg.inv(information[np.ix_(others, others)])))
+        inflation = sigma[others] / fixed_sigma
+        worst = int(np.argmax(inflation))
+        if inflation[worst] > AUTO_TIME_OFFSET_MAX_INFLATION:
+            other_rid, other_name = labels[others[worst]]
+            poor[rid] = (
+                f"this traffic cannot tell it from {other_rid} {other_name.replace('_', ' ')} "
+                f"(whose sigma it would multiply by {inflation[worst]:.1f})"
+            )
+    return poor
+
+
 # --------------------------------------------------------------------------- the estimator
 @fills_missing_sigmas
 def graph(
@@ -286,6 +491,7 @@ def graph(
     max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
     pair_max_gap_s: float | None = None,
     process_noise_m2_s3: float | None = None,
+    time_offset: bool | None = None,
     bound: bool = True,
     progress: Progress | None = None,
 ) -> Calibration:
@@ -315,6 +521,15 @@ def graph(
     process_noise_m2_s3 : float, optional
         Target-state mode: white-acceleration spectral density of the
         constant-velocity motion factors.
+    time_offset : bool or None
+        Estimate each radar's time-stamping bias ``time_offset_s`` (CONTRACT.md:
+        ``time_reported = time_true + time_offset_s``) for the radars with ADS-B.
+        ``None`` (default): yes when ADS-B is used and ``cross`` is not
+        ``target-state``, but a radar whose time offset the traffic does not
+        determine (sigma above :data:`AUTO_TIME_OFFSET_MAX_SIGMA_S`, or it would
+        inflate another parameter's sigma more than
+        :data:`AUTO_TIME_OFFSET_MAX_INFLATION` times) keeps 0, with a warning.
+        ``True``: always (needs ADS-B, not in target-state mode); ``False``: never.
     bound : bool
         Also compute the Cramér-Rao lower bound of the same parameters
         (:func:`graphcal.crlb.crlb`, with the same priors) and record, per
@@ -340,63 +555,41 @@ def graph(
     for rid, name in fixed:
         if rid not in dataset.sites:
             raise ValueError(f"cannot fix a term of unknown radar '{rid}'")
-        if name not in PARAMETER_NAMES:
+        if name not in TERM_NAMES:
             raise ValueError(f"cannot fix unknown parameter '{name}'")
     timing: dict[str, float] = {}
     start = time.perf_counter()
     have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
     radar_ids = list(dataset.radar_ids)
-    terms = {rid: radar_terms(dataset.sites[rid], fixed) for rid in radar_ids}
+    auto_time = time_offset is None
+    if time_offset and not have_adsb:
+        raise ValueError("time offsets need ADS-B: the dataset has none (or use_adsb=False)")
+    if time_offset and cross == "target-state":
+        raise ValueError("time offsets are not estimated in target-state mode; use pairwise")
+    want_time = have_adsb and cross != "target-state" if auto_time else bool(time_offset)
+    tau_radars = _radars_with_adsb(dataset) if want_time else set()
     keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
-    problem = _Problem(terms, keys)
-    if cross == "target-state":
-        from graphcal.estimators.target_state import build_target_state
-
-        problem.target_state = build_target_state(
-            dataset, terms, keys, kernel, use_adsb=have_adsb, adsb_max_gap_s=max_gap_s,
-            process_noise_m2_s3=process_noise_m2_s3, progress=progress,
-        )
-        if have_adsb:
-            # Residual statistics against ADS-B, for the report only.
-            for rid in radar_ids:
-                al = align_adsb(dataset, rid, max_gap_s)
-                if len(al):
-                    problem.alignments[rid] = al
-    else:
-        _build_factors(dataset, problem, have_adsb, cross, kernel, max_gap_s, pair_max_gap_s,
-                       progress)
-    timing["factors_s"] = time.perf_counter() - start
-    radars = problem.variable_radars()
-    if not radars:
-        raise EstimationError(
-            "nothing to calibrate: no plot matched ADS-B and no two radars saw the same "
-            "target_id within the time-gap limit"
-        )
     # ---------------------------------------------------------------- initial values
     t0 = time.perf_counter()
     init_biases, init_method, init_notes = initial_biases(
         dataset, have_adsb, "none" if cross == "none" else cross, init
     )
     timing["initialisation_s"] = time.perf_counter() - t0
-    priors = {rid: prior_sigmas(dataset.sites[rid], terms[rid]) for rid in radars}
-    fg = FactorGraph()
-    initial_free: dict[str, FloatArray] = {}
-    for rid in radars:
-        initial_free[rid] = _initial_free(terms[rid], init_biases.get(rid), priors[rid])
-        fg.add_variable(keys[rid], initial_free[rid])
-        fg.add_prior(keys[rid], np.zeros(len(terms[rid].free)), priors[rid])
-    variable = set(radars)
-    for factor in [*problem.adsb.values(), *problem.pairs]:
-        _add_factor(fg, factor, variable)
-    if problem.target_state is not None:
-        problem.target_state.add_to(fg, variable, initial_free)
-    # ---------------------------------------------------------------- solve
-    t0 = time.perf_counter()
-    if progress is not None:
-        progress("optimising", 0, 1)
-    result = fg.optimize(max_iterations=max_iterations)
-    timing["optimisation_s"] = time.perf_counter() - t0
-    values = {rid: result.vector(keys[rid]) for rid in radars}
+    settings = _Settings(have_adsb, cross, kernel, max_gap_s, pair_max_gap_s,
+                         process_noise_m2_s3, max_iterations, progress)
+    solved = _solve(dataset, fixed, tau_radars, keys, init_biases, settings, timing)
+    time_notes: list[str] = []
+    if auto_time and tau_radars:
+        poor = _poorly_determined_time_offsets(solved)
+        if poor:
+            time_notes = [
+                f"{rid} time offset not estimated: {why}; assumed 0 s"
+                for rid, why in poor.items()
+            ]
+            tau_radars = tau_radars - set(poor)
+            solved = _solve(dataset, fixed, tau_radars, keys, init_biases, settings, timing)
+    terms, problem, fg, result = solved.terms, solved.problem, solved.fg, solved.result
+    radars, values, priors, variable = solved.radars, solved.values, solved.priors, solved.variable
     full_values = {
         rid: values[rid] if rid in values else np.zeros(0) for rid in radar_ids
     }
@@ -428,7 +621,7 @@ def graph(
     prior_vector = np.concatenate([priors[rid] for rid in radars])
     ratio = np.diag(covariance) / prior_vector**2
     undetermined = [labels[i] for i in np.flatnonzero(ratio > UNDETERMINED_VARIANCE_RATIO)]
-    warnings = list(init_notes)
+    warnings = list(init_notes) + time_notes
     for rid, name in undetermined:
         warnings.append(
             f"{rid} {name.replace('_', ' ')} is not determined by the data: its estimate "
@@ -474,6 +667,11 @@ def graph(
             for rid in radar_ids if terms[rid].fixed
         },
         "undetermined": [f"{rid}.{CONTRACT_KEYS[name][0]}" for rid, name in undetermined],
+        "time_offset": {
+            "estimated": [rid for rid in radars if "time_offset" in terms[rid].free],
+            "not_estimated": time_notes,
+            "realignments": solved.realignments,
+        },
         "downweighted": _downweighted(problem, full_values, radars, result),
     }
     if problem.target_state is not None:
