@@ -91,8 +91,10 @@ class AdsbAlignment:
     n_unmatched : int
         Plots with no ADS-B of their aircraft within the gap limit.
     reference_velocity_ecef_m_s : ndarray, shape (n, 3)
-        Velocity of the ADS-B track at each plot time: the slope of the bracketing
-        segment [m/s].
+        Velocity of the ADS-B track at each plot time [m/s]: the slope between the
+        reports just outside the bracketing pair (``j - 1`` and ``j + 2``), whose noise
+        is independent of the interpolated position; the bracketing segment's slope
+        where those do not exist.
     time_offset_s : float
         The radar's time-stamping bias assumed in the alignment: ADS-B is
         interpolated at ``time_s - time_offset_s`` (CONTRACT.md:
@@ -209,7 +211,15 @@ def align_adsb(
         j, w, ok = bracket(t, true_time_s[rows], max_gap_s)
         rows, j, w = rows[ok], j[ok], w[ok]
         ref[rows] = (1.0 - w)[:, None] * ecef[j] + w[:, None] * ecef[j + 1]
-        vel[rows] = (ecef[j + 1] - ecef[j]) / (t[j + 1] - t[j])[:, None]
+        # Velocity from the reports around the bracketing pair, not from the pair itself:
+        # the pair's noise is in the interpolated position, and a velocity sharing it
+        # would correlate the time-offset Jacobian with the residual.
+        lo = np.clip(j - 1, 0, len(t) - 1)
+        hi = np.clip(j + 2, 0, len(t) - 1)
+        outer = (hi - lo >= 3) & (t[hi] - t[lo] <= 3.0 * max_gap_s)
+        lo = np.where(outer, lo, j)
+        hi = np.where(outer, hi, j + 1)
+        vel[rows] = (ecef[hi] - ecef[lo]) / (t[hi] - t[lo])[:, None]
         # Independent reports: the interpolated variance is w0^2 s0^2 + w1^2 s1^2.
         var_h[rows] = (1.0 - w) ** 2 * sigma[j] ** 2 + w**2 * sigma[j + 1] ** 2
         matched[rows] = True
