@@ -17,6 +17,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from graphcal.calibration import load_result
+from graphcal.commands_asterix import import_asterix_command
 from graphcal.commands_compare import compare_command
 from graphcal.commands_report import correct_command, report_command
 from graphcal.errors import EstimationError, GraphcalInputError
@@ -170,6 +171,15 @@ def calibrate(
         Path | None,
         typer.Option("--report", metavar="REPORT.html", help="Also write an HTML report here."),
     ] = None,
+    cat063: Annotated[
+        Path | None,
+        typer.Option(
+            "--cat063", metavar="FILE",
+            help="Also export the biases in ASTERIX CAT063 terms: .json, .csv, or a binary "
+            "CAT063 block (.ast/.bin). Radars are identified by SAC/SIC (ids like "
+            "SAC025_SIC201, or sac/sic keys in sites.toml).",
+        ),
+    ] = None,
 ) -> None:
     """Estimate every radar's biases from a dataset folder."""
     from graphcal.dataset import load_dataset
@@ -208,6 +218,15 @@ def calibrate(
                 _fail(str(exc), EXIT_BAD_INPUT)
         else:
             cal = estimator(dataset, **options)
+        if cat063 is not None:
+            from graphcal.cat063 import radar_kinds_from_sites, write_cat063
+
+            try:
+                write_cat063(cat063, cal, _radar_codes(dataset.sites),
+                             radar_kinds_from_sites(dataset.sites))
+            except ValueError as exc:
+                _fail(f"--cat063 {cat063}: {exc}", EXIT_BAD_INPUT)
+            err_console.print(f"wrote {cat063}", highlight=False)
         if report is not None:
             from graphcal.report import write_report_for
 
@@ -229,6 +248,14 @@ def calibrate(
         )
         for warning in cal.warnings:
             console.print(f"[yellow]warning:[/yellow] {warning}")
+
+
+def _radar_codes(sites) -> dict[str, tuple[int, int]]:
+    """SAC/SIC per radar from its ``sac``/``sic`` site keys, when given."""
+    return {
+        rid: (int(site.sac), int(site.sic)) for rid, site in sites.items()
+        if getattr(site, "sac", None) is not None and getattr(site, "sic", None) is not None
+    }
 
 
 def _parse_fixed(items: list[str], sites) -> dict[tuple[str, str], float]:
@@ -477,6 +504,7 @@ def marginals(
 
 
 app.command(name="compare")(compare_command)
+app.command(name="import-asterix")(import_asterix_command)
 app.command(name="report")(report_command)
 app.command(name="correct")(correct_command)
 
