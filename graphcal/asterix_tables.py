@@ -57,7 +57,7 @@ import math
 import tomllib
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -487,6 +487,8 @@ def build_tables(
             stats.site_origin[radar_id] = "CAT034"
         else:
             raise AsterixError(_position_help(*sac_sic, radar_id), path=source)
+        # The radar keeps its SAC/SIC (sites.toml sac/sic keys) for the CAT063 export.
+        sites[radar_id] = replace(sites[radar_id], sac=int(sac_sic[0]), sic=int(sac_sic[1]))
         stats.sources[radar_id] = sac_sic
         stats.plots_by_radar[radar_id] = int(counts[radar_id])
 

@@ -171,6 +171,14 @@ def calibrate(
         Path | None,
         typer.Option("--report", metavar="REPORT.html", help="Also write an HTML report here."),
     ] = None,
+    clean: Annotated[
+        bool,
+        typer.Option(
+            "--clean/--no-clean",
+            help="Drop duplicate, non-finite, stale and jumping ADS-B records and clear "
+            "mislabelled aircraft before estimating (the files are not changed).",
+        ),
+    ] = True,
     cat063: Annotated[
         Path | None,
         typer.Option(
@@ -187,7 +195,10 @@ def calibrate(
     from graphcal.report_table import calibration_table
 
     with _errors_to_exit():
-        dataset = load_dataset(dataset_dir)
+        dataset = load_dataset(dataset_dir, clean=clean)
+        if dataset.cleaning is not None:
+            for line in dataset.cleaning.summary():
+                err_console.print(f"cleaning: {line}", highlight=False)
         if method is None:
             method = "graph"
         try:
@@ -246,8 +257,11 @@ def calibrate(
             f"observability degree {obs.degree:.3g}, rank {obs.rank} of {obs.n_parameters}",
             highlight=False,
         )
-        for warning in cal.warnings:
-            console.print(f"[yellow]warning:[/yellow] {warning}")
+        warnings = list(cal.warnings)
+        if dataset.cleaning is not None and method != "graph":
+            warnings = [w for w in dataset.cleaning.warnings if w not in warnings] + warnings
+        for warning in warnings:
+            console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
 
 
 def _radar_codes(sites) -> dict[str, tuple[int, int]]:

@@ -52,7 +52,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -63,6 +63,9 @@ from graphcal import frames
 from graphcal.bias import PARAMETER_NAMES
 from graphcal.errors import DatasetError, SensorModelError
 from graphcal.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
+
+if TYPE_CHECKING:
+    from graphcal.cleaning import CleaningReport
 
 #: Required plot columns, in contract order.
 PLOT_COLUMNS: tuple[str, ...] = (
@@ -88,7 +91,7 @@ TABLE_FORMATS: tuple[str, ...] = ("csv", "parquet")
 #: Keys of a ``[[radar]]`` table in ``sites.toml``.
 SITE_KEYS: tuple[str, ...] = (
     "id", "lat_deg", "lon_deg", "alt_m", "sigma_range_m", "sigma_azimuth_mrad",
-    "sigma_elevation_mrad", "scan_period_s", "model", "estimate",
+    "sigma_elevation_mrad", "scan_period_s", "model", "estimate", "sac", "sic",
 )
 
 #: Text read as "no value" in a numeric column (compared after removing blanks).
@@ -125,6 +128,10 @@ class Site:
     estimate : tuple of str
         Bias parameters (names from :data:`graphcal.bias.PARAMETER_NAMES`) to
         estimate; the others are held at zero.
+    sac, sic : int or None
+        ASTERIX System Area Code and System Identification Code of the radar
+        (optional ``sites.toml`` keys, 0..255, both or neither), used to name it
+        in ASTERIX imports and in the CAT063 export.
     """
 
     id: str
@@ -137,6 +144,8 @@ class Site:
     scan_period_s: float | None = None
     model: str | None = None
     estimate: tuple[str, ...] = field(default=())
+    sac: int | None = None
+    sic: int | None = None
 
     def __post_init__(self) -> None:
         if not self.estimate:
@@ -203,12 +212,15 @@ class Dataset:
     ``plots`` has the contract columns (``elevation_deg`` NaN for 2-D radars,
     ``target_id`` an empty string when unknown, ``altitude_m`` NaN when absent);
     ``adsb`` has the contract columns with ``sigma_m`` always filled in.
+    ``cleaning`` is the report of :func:`graphcal.cleaning.clean_dataset` when
+    the tables were cleaned (by :func:`load_dataset`), else ``None``.
     """
 
     sites: dict[str, Site]
     plots: pd.DataFrame
     adsb: pd.DataFrame | None = None
     path: Path | None = None
+    cleaning: CleaningReport | None = None
 
     @property
     def radar_ids(self) -> list[str]:
@@ -344,6 +356,9 @@ def _parse_site(entry: Any, where: _Where) -> Site:
     no_sigma = sigma_range_m is None and sigma_az is None and sigma_el is None
     if estimate is not None and "elevation_bias" in estimate and sigma_el is None and not no_sigma:
         raise where.error("estimate", "elevation_bias needs a 3-D radar (sigma_elevation_mrad)")
+    sac, sic = _site_code(entry, "sac", where), _site_code(entry, "sic", where)
+    if (sac is None) != (sic is None):
+        raise where.error("sac" if sac is None else "sic", "give both sac and sic, or neither")
     return Site(
         id=site_id,
         lat_rad=math.radians(_required(lat_deg, "lat_deg", where)),
@@ -355,7 +370,19 @@ def _parse_site(entry: Any, where: _Where) -> Site:
         scan_period_s=scan_period_s,
         model=None if model is None else model.name,
         estimate=() if estimate is None else estimate,
+        sac=sac,
+        sic=sic,
     )
+
+
+def _site_code(entry: Mapping[str, Any], key: str, where: _Where) -> int | None:
+    """An optional ASTERIX SAC or SIC: an integer in 0..255."""
+    value = entry.get(key)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 255:
+        raise where.error(key, f"must be an integer in 0..255, got {value!r}")
+    return int(value)
 
 
 def load_sites(path: str | Path) -> dict[str, Site]:
@@ -474,6 +501,8 @@ def _site_to_toml(site: Site) -> dict[str, Any]:
     default_estimate = replace(site, estimate=()).estimate
     if site.model is not None or tuple(site.estimate) != default_estimate:
         entry["estimate"] = list(site.estimate)
+    if site.sac is not None and site.sic is not None:
+        entry["sac"], entry["sic"] = int(site.sac), int(site.sic)
     return entry
 
 
@@ -806,7 +835,7 @@ def _load_adsb(path: Path) -> pd.DataFrame:
 # --------------------------------------------------------------------------- dataset
 
 
-def load_dataset(folder: str | Path) -> Dataset:
+def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
     """Read and validate a dataset folder.
 
     Parameters
@@ -815,12 +844,18 @@ def load_dataset(folder: str | Path) -> Dataset:
         Folder with ``sites.toml``, ``plots.csv`` or ``plots.parquet`` and
         optionally ``adsb.csv`` or ``adsb.parquet`` (not both formats of one
         table).
+    clean : bool, optional
+        After validation, remove bad data (duplicates, stale and impossible
+        ADS-B reports, mislabelled aircraft, see :mod:`graphcal.cleaning`) from
+        the tables in memory; the files are not touched.  The report is kept in
+        :attr:`Dataset.cleaning`.
 
     Returns
     -------
     Dataset
         Validated and normalised (see the module docstring); ``adsb`` is
-        ``None`` when the folder has no ADS-B table.
+        ``None`` when the folder has no ADS-B table.  When cleaned, the tables
+        have a fresh ``RangeIndex`` (row labels no longer follow the file).
 
     Raises
     ------
@@ -840,7 +875,12 @@ def load_dataset(folder: str | Path) -> Dataset:
     sites = _three_d_without_sigmas(sites, plots, folder / SITES_FILE)
     adsb_path = _find_table(folder, "adsb")
     adsb = None if adsb_path is None else _load_adsb(adsb_path)
-    return Dataset(sites=sites, plots=plots, adsb=adsb, path=folder)
+    dataset = Dataset(sites=sites, plots=plots, adsb=adsb, path=folder)
+    if clean:
+        from graphcal.cleaning import clean_dataset
+
+        dataset, _ = clean_dataset(dataset)
+    return dataset
 
 
 def _three_d_without_sigmas(

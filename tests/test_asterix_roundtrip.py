@@ -107,3 +107,34 @@ def test_calibration_survives_the_roundtrip(simulated, tmp_path: Path) -> None:
         assert abs(after.value("R2D", key) - before.value("R2D", key)) < 0.1 * sigma, key
         true = {"range_offset_m": 297.0, "azimuth_bias_mrad": 161.7}[key]
         assert abs(after.value("R2D", key) - true) < 3 * after.sigma("R2D", key)
+
+
+def test_import_then_calibrate_with_cat063_export(simulated, tmp_path: Path) -> None:
+    """The engineer's path: import-asterix, calibrate --cat063; SAC/SIC kept in sites.toml."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from graphcal.cli import app
+
+    _, ds = simulated
+    recording = tmp_path / "recording.pcap"
+    write_pcap(ds, recording, {"R2D": (25, 201)}, epoch_s=EPOCH_UNIX_S,
+               day_start_s=-SECONDS_AFTER_MIDNIGHT)
+    runner = CliRunner()
+    folder = tmp_path / "ds"
+    sites = _sites_file(ds, tmp_path)
+    result = runner.invoke(app, ["import-asterix", str(recording), "--out", str(folder),
+                                 "--sites", str(sites)])
+    assert result.exit_code == 0, result.output
+    assert "sac = 25" in (folder / "sites.toml").read_text()
+    export = tmp_path / "biases.json"
+    result = runner.invoke(app, ["calibrate", str(folder), "--cat063", str(export)])
+    assert result.exit_code == 0, result.output
+    record = json.loads(export.read_text())
+    records = record["records"] if isinstance(record, dict) else record
+    assert (records[0]["sac"], records[0]["sic"]) == (25, 201)
+    binary = tmp_path / "biases.ast"
+    result = runner.invoke(app, ["calibrate", str(folder), "--cat063", str(binary)])
+    assert result.exit_code == 0, result.output
+    assert binary.read_bytes()[0] == 63

@@ -405,7 +405,7 @@ def _solve(
         if not radars:
             raise EstimationError(
                 "nothing to calibrate: no plot matched ADS-B and no two radars saw the same "
-                "target_id within the time-gap limit"
+                "target_id within the time-gap limit (2-D plots need an altitude to be paired)"
             )
         priors = {rid: prior_sigmas(dataset.sites[rid], terms[rid]) for rid in radars}
         fg = FactorGraph()
@@ -621,7 +621,8 @@ def graph(
     prior_vector = np.concatenate([priors[rid] for rid in radars])
     ratio = np.diag(covariance) / prior_vector**2
     undetermined = [labels[i] for i in np.flatnonzero(ratio > UNDETERMINED_VARIANCE_RATIO)]
-    warnings = list(init_notes) + time_notes
+    cleaning = getattr(dataset, "cleaning", None)
+    warnings = (list(cleaning.warnings) if cleaning is not None else []) + init_notes + time_notes
     for rid, name in undetermined:
         warnings.append(
             f"{rid} {name.replace('_', ' ')} is not determined by the data: its estimate "
@@ -667,6 +668,7 @@ def graph(
             for rid in radar_ids if terms[rid].fixed
         },
         "undetermined": [f"{rid}.{CONTRACT_KEYS[name][0]}" for rid, name in undetermined],
+        "cleaning": cleaning.to_dict() if cleaning is not None else None,
         "time_offset": {
             "estimated": [rid for rid in radars if "time_offset" in terms[rid].free],
             "not_estimated": time_notes,

@@ -44,6 +44,7 @@ from graphcal.estimators.linear import (
     ParameterLayout,
     describe_weak_directions,
     jacobi_scale,
+    observability,
     solve_normal_equations,
 )
 from graphcal.noise import fills_missing_sigmas
@@ -187,14 +188,17 @@ def _run_wls(
         observability=sol.observability,
         info=info,
     )
-    _drop_unseen(cal, layout)
+    _drop_unseen(cal, layout, information)
     cal.warnings.extend(describe_weak_directions(cal.labels, cal.observability))
     _adsb_residuals(cal, dataset)
     return cal
 
 
-def _drop_unseen(cal: Calibration, layout: ParameterLayout) -> None:
-    """Remove parameters of radars without any common observation."""
+def _drop_unseen(
+    cal: Calibration, layout: ParameterLayout, information: NDArray[np.float64]
+) -> None:
+    """Remove parameters of radars without any common observation (and from the
+    observability, which is recomputed from the information of the others)."""
     keep = [i for i, (rid, _) in enumerate(layout.labels) if rid in cal.radar_ids]
     dropped = sorted({rid for rid, _ in layout.labels} - set(cal.radar_ids))
     for rid in dropped:
@@ -204,6 +208,8 @@ def _drop_unseen(cal: Calibration, layout: ParameterLayout) -> None:
     cal.labels = [layout.labels[i] for i in keep]
     cal.estimate = cal.estimate[keep]
     cal.covariance = cal.covariance[np.ix_(keep, keep)]
+    if dropped:
+        cal.observability = observability(information[np.ix_(keep, keep)])
 
 
 def _adsb_residuals(cal: Calibration, dataset: Dataset) -> None:
