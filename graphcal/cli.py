@@ -19,6 +19,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from graphcal.calibration import load_result
 from graphcal.commands_asterix import import_asterix_command
 from graphcal.commands_compare import compare_command
+from graphcal.commands_observability import observability_command
 from graphcal.commands_report import correct_command, report_command
 from graphcal.errors import EstimationError, GraphcalInputError
 
@@ -519,6 +520,7 @@ def marginals(
 
 app.command(name="compare")(compare_command)
 app.command(name="import-asterix")(import_asterix_command)
+app.command(name="observability")(observability_command)
 app.command(name="report")(report_command)
 app.command(name="correct")(correct_command)
 

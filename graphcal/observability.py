@@ -1,0 +1,353 @@
+"""What a dataset's traffic tells about each bias: information matrix, Deg, excitation.
+
+Paper 001 measures how well the data determine the biases by the
+observability degree ``Deg = lambda_min / lambda_max`` of the (Jacobi-scaled)
+information matrix ``A = sum_k H_k^T W_k H_k`` (eq. 11).  This module builds
+``A`` from a dataset's observations, as one of two estimators sees them:
+
+* ``"graph"``: the graph calibrator's factors (:mod:`graphcal.estimators.graph`):
+  ADS-B-matched plots in the radar's measurement space, and the pairwise
+  cross-radar differences of the plots not matched to ADS-B;
+* ``"wls"``: paper 001's cross-radar observations only
+  (:func:`graphcal.estimators.cross_radar.cross_observations`).
+
+Jacobians are taken at zero bias (the biases move the geometry negligibly).
+From ``A``: the rank, the condition number and Deg; the weakest directions in
+parameter terms; per parameter its *excitation* - the sigma it would have if
+every other bias were known, ``1 / sqrt(A_ii)``, against its joint sigma
+``sqrt((A^-1)_ii)`` - whose squared ratio is the variance inflation factor (VIF):
+a VIF of 10 means the other biases take 90 % of what the traffic says about
+this one.  :func:`degree_curve` follows Deg as the observations arrive in time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graphcal.align import DEFAULT_ADSB_MAX_GAP_S
+from graphcal.bias import CONTRACT_KEYS
+from graphcal.dataset import Dataset
+from graphcal.estimators.linear import jacobi_scale
+
+FloatArray = NDArray[np.float64]
+Label = tuple[str, str]
+
+#: Observability methods.
+OBSERVABILITY_METHODS: tuple[str, ...] = ("graph", "wls")
+#: A parameter whose variance inflation factor exceeds this is reported as confounded.
+VIF_WARNING = 10.0
+#: Relative eigenvalue threshold for the rank.
+RANK_TOLERANCE = 1e-9
+
+
+@dataclass
+class ObservationBlocks:
+    """Whitened observation Jacobians of a dataset, grouped as they were built.
+
+    Attributes
+    ----------
+    labels : list of (radar_id, parameter name)
+        The parameters (global columns).
+    blocks : list of (time_s (n,), columns (k,), jacobian (n, m, k), kind)
+        Per group (one radar's ADS-B plots, one radar pair): observation times [s],
+        the global columns its Jacobian covers, the whitened Jacobian and its kind
+        (``"adsb"`` or ``"pair"``).
+    """
+
+    labels: list[Label]
+    blocks: list[tuple[FloatArray, list[int], FloatArray, str]] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return int(sum(len(t) for t, *_ in self.blocks))
+
+    def information(self, until_s: float | None = None) -> FloatArray:
+        """``A = sum_k J_k^T J_k`` over the observations (up to ``until_s`` if given)."""
+        p = len(self.labels)
+        a = np.zeros((p, p))
+        for time_s, cols, jac, _ in self.blocks:
+            rows = slice(None) if until_s is None else time_s <= until_s
+            j = jac[rows]
+            a[np.ix_(cols, cols)] += np.einsum("nip,niq->pq", j, j)
+        return a
+
+
+def observation_blocks(
+    dataset: Dataset,
+    method: str = "graph",
+    *,
+    use_adsb: bool = True,
+    max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
+) -> ObservationBlocks:
+    """The whitened observation Jacobians of ``dataset`` as ``method`` sees them.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Sites with their random-error sigmas (estimate missing ones first).
+    method : {"graph", "wls"}
+        Whose observations (module docstring).
+    use_adsb : bool
+        ``graph``: use the ADS-B table when there is one.
+    max_gap_s : float
+        Longest ADS-B gap bridged by interpolation [s].
+
+    Returns
+    -------
+    ObservationBlocks
+    """
+    if method not in OBSERVABILITY_METHODS:
+        raise ValueError(
+            f"unknown observability method '{method}'; use one of: "
+            f"{', '.join(OBSERVABILITY_METHODS)}"
+        )
+    for site in dataset.sites.values():
+        sig = site.measurement_sigmas()[: 3 if site.is_3d else 2]
+        if not np.all(np.isfinite(sig) & (sig > 0)):
+            raise ValueError(
+                f"radar {site.id}: its random-error sigmas are missing from sites.toml; "
+                "estimate them first (graphcal noise DIR --write-sites ...)"
+            )
+    if method == "wls":
+        return _wls_blocks(dataset)
+    return _graph_blocks(dataset, use_adsb, max_gap_s)
+
+
+def _graph_blocks(dataset: Dataset, use_adsb: bool, max_gap_s: float) -> ObservationBlocks:
+    from graphcal.estimators.graph import _build_factors, _Problem, radar_terms
+    from graphcal.estimators.robust import RobustKernel
+    from graphcal.gtsam_adapter import symbol
+
+    radar_ids = list(dataset.radar_ids)
+    terms = {rid: radar_terms(dataset.sites[rid], {}) for rid in radar_ids}
+    keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
+    problem = _Problem(terms, keys)
+    have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
+    _build_factors(dataset, problem, have_adsb, "pairwise", RobustKernel("none"), max_gap_s,
+                   None, None)
+    labels = [(rid, name) for rid in radar_ids for name in terms[rid].free]
+    column = {label: i for i, label in enumerate(labels)}
+    out = ObservationBlocks(labels)
+    plot_time = dataset.plots["time_s"]
+    for rid, f in problem.adsb.items():
+        zero = np.zeros(len(terms[rid].free))
+        _, (jac,) = f.whitened([zero])
+        cols = [column[(rid, name)] for name in terms[rid].free]
+        out.blocks.append((plot_time.loc[f.plot_rows].to_numpy(float), cols, jac, "adsb"))
+    for f in problem.pairs:
+        ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
+        zeros = [np.zeros(len(terms[ra].free)), np.zeros(len(terms[rb].free))]
+        _, (ja, jb) = f.whitened(zeros)
+        cols = ([column[(ra, n)] for n in terms[ra].free]
+                + [column[(rb, n)] for n in terms[rb].free])
+        out.blocks.append((f.b_plots.time_s[f.ib], cols, np.concatenate([ja, jb], axis=2),
+                           "pair"))
+    return out
+
+
+def _wls_blocks(dataset: Dataset) -> ObservationBlocks:
+    from graphcal.estimators.cross_radar import cross_observations
+    from graphcal.estimators.linear import ParameterLayout
+    from graphcal.estimators.wls import whiten
+
+    layout = ParameterLayout.for_sites(list(dataset.sites.values()))
+    obs = cross_observations(dataset, layout)
+    out = ObservationBlocks(list(layout.labels))
+    if len(obs):
+        h_white, _ = whiten(obs)
+        out.blocks.append((obs.time_s, list(range(len(layout))), h_white, "pair"))
+    return out
+
+
+# --------------------------------------------------------------------------- figures
+@dataclass
+class ObservabilityReport:
+    """Observability figures of one dataset (see the module docstring).
+
+    Attributes
+    ----------
+    labels : list of (radar_id, parameter name)
+    information : ndarray (p, p)
+        ``A`` in SI units (m, fraction, rad).
+    rank : int
+    condition : float
+        Condition number of the Jacobi-scaled ``A`` (inf when singular).
+    degree : float
+        ``Deg = 1 / condition`` (paper 001 eq. 11).
+    eigenvalues : ndarray (p,)
+        Of the scaled ``A``, ascending.
+    directions : ndarray (p, p)
+        The matching unit eigenvectors (columns), in scaled parameters.
+    sigma_alone : ndarray (p,)
+        ``1 / sqrt(A_ii)`` [SI]: the parameter's sigma were every other bias known.
+    sigma_joint : ndarray (p,)
+        ``sqrt((A^+)_ii)`` [SI]: its sigma with all of them estimated (inf if not
+        determined).
+    n_observations : int
+    """
+
+    labels: list[Label]
+    information: FloatArray
+    rank: int
+    condition: float
+    degree: float
+    eigenvalues: FloatArray
+    directions: FloatArray
+    sigma_alone: FloatArray
+    sigma_joint: FloatArray
+    n_observations: int
+
+    @property
+    def inflation(self) -> FloatArray:
+        """Variance inflation factor ``(sigma_joint / sigma_alone)^2`` per parameter."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (self.sigma_joint / self.sigma_alone) ** 2
+
+    def weak_directions(self, threshold: float = 1e-4, limit: int = 3) -> list[str]:
+        """Plain-language sentences for the directions the traffic hardly determines.
+
+        Every direction whose scaled eigenvalue is below ``threshold`` times the
+        largest (at most ``limit``, weakest first) names the parameters that
+        make up most of it.
+        """
+        top = self.eigenvalues[-1] if len(self.eigenvalues) else 0.0
+        out = []
+        for i in range(min(limit, len(self.eigenvalues))):
+            if top <= 0 or self.eigenvalues[i] >= threshold * top:
+                break
+            v = self.directions[:, i]
+            involved = [self._name(j) for j in np.argsort(-np.abs(v)) if abs(v[j]) > 0.3]
+            ratio = max(self.eigenvalues[i], 0.0) / top
+            if len(involved) == 1:
+                out.append(f"{involved[0]} is not determined by this traffic "
+                           f"(relative eigenvalue {ratio:.2g})")
+            else:
+                out.append(f"{' and '.join([', '.join(involved[:-1]), involved[-1]])} "
+                           f"cannot be told apart with this traffic "
+                           f"(relative eigenvalue {ratio:.2g})")
+        return out
+
+    def confounded(self, threshold: float = VIF_WARNING) -> list[str]:
+        """Parameters whose variance inflation exceeds ``threshold``, with their main partner."""
+        out = []
+        covariance = _pinv(self.information)
+        d = np.sqrt(np.clip(np.diag(covariance), 1e-300, None))
+        correlation = covariance / np.outer(d, d)
+        for i, vif in enumerate(self.inflation):
+            if not np.isfinite(vif) or vif <= threshold:
+                continue
+            rho = correlation[i].copy()
+            rho[i] = 0.0
+            j = int(np.argmax(np.abs(rho)))
+            out.append(
+                f"{self._name(i)} is poorly excited: estimating the other biases multiplies "
+                f"its sigma by {np.sqrt(vif):.1f} (mostly {self._name(j)}, correlation "
+                f"{rho[j]:+.2f})"
+            )
+        return out
+
+    def _name(self, i: int) -> str:
+        rid, name = self.labels[i]
+        return f"{rid} {name.replace('_', ' ')}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready figures in contract units."""
+        per = {}
+        for i, (rid, name) in enumerate(self.labels):
+            key, scale = CONTRACT_KEYS[name]
+            per[f"{rid}.{key}"] = {
+                "sigma_alone": _finite(self.sigma_alone[i] * scale),
+                "sigma_joint": _finite(self.sigma_joint[i] * scale),
+                "inflation": _finite(self.inflation[i]),
+            }
+        return {
+            "rank": self.rank,
+            "n_parameters": len(self.labels),
+            "condition": _finite(self.condition),
+            "degree": self.degree,
+            "n_observations": self.n_observations,
+            "parameters": per,
+            "weak_directions": self.weak_directions(),
+            "confounded": self.confounded(),
+        }
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
+
+
+def _pinv(information: FloatArray) -> FloatArray:
+    """Pseudo-inverse through the Jacobi scaling; undetermined diagonal entries are inf."""
+    s = jacobi_scale(information)
+    scaled = information * np.outer(s, s)
+    w, v = np.linalg.eigh(0.5 * (scaled + scaled.T))
+    top = max(float(w[-1]), 0.0) if len(w) else 0.0
+    good = w > RANK_TOLERANCE * top if top > 0 else np.zeros(len(w), dtype=bool)
+    inv = (v[:, good] / w[good]) @ v[:, good].T
+    covariance = inv * np.outer(s, s)
+    null = v[:, ~good]
+    undetermined = np.sqrt(np.sum(null**2, axis=1)) > 1e-6 if null.size else np.zeros(len(w), bool)
+    diag = np.diag(covariance).copy()
+    diag[undetermined | (np.diag(information) <= 0)] = np.inf
+    np.fill_diagonal(covariance, diag)
+    return covariance
+
+
+def analyse(blocks: ObservationBlocks) -> ObservabilityReport:
+    """:class:`ObservabilityReport` of all the observations in ``blocks``."""
+    a = blocks.information()
+    p = len(blocks.labels)
+    if p == 0:
+        raise ValueError("no parameters: the dataset has no usable observation")
+    s = jacobi_scale(a)
+    scaled = a * np.outer(s, s)
+    w, v = np.linalg.eigh(0.5 * (scaled + scaled.T))
+    top = max(float(w[-1]), 0.0)
+    rank = int(np.sum(w > RANK_TOLERANCE * top)) if top > 0 else 0
+    # Rank-deficient: the smallest eigenvalue is round-off, so Deg is 0 and cond inf.
+    low = max(float(w[0]), 0.0) if rank == p else 0.0
+    condition = top / low if low > 0 else np.inf
+    diag = np.diag(a)
+    with np.errstate(divide="ignore"):
+        alone = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), np.inf)
+    joint = np.sqrt(np.diag(_pinv(a)))
+    return ObservabilityReport(
+        labels=list(blocks.labels), information=a, rank=rank, condition=condition,
+        degree=low / top if top > 0 else 0.0, eigenvalues=w, directions=v,
+        sigma_alone=alone, sigma_joint=joint, n_observations=len(blocks),
+    )
+
+
+def degree_curve(
+    blocks: ObservationBlocks, points: int = 60
+) -> tuple[FloatArray, NDArray[np.int64], FloatArray]:
+    """Deg as the observations arrive in time order.
+
+    Returns ``(time_s, n_observations, degree)`` at ``points`` times evenly spread
+    over the observations' time span (each point: all observations up to then).
+    The information is accumulated per time bin, not recomputed from scratch.
+    """
+    times = np.concatenate([t for t, *_ in blocks.blocks]) if blocks.blocks else np.zeros(0)
+    if len(times) == 0:
+        return np.zeros(0), np.zeros(0, np.int64), np.zeros(0)
+    edges = np.linspace(times.min(), times.max(), points + 1)[1:]
+    p = len(blocks.labels)
+    increments = np.zeros((points, p, p))
+    counts = np.zeros(points, dtype=np.int64)
+    for time_s, cols, jac, _ in blocks.blocks:
+        bin_of = np.minimum(np.searchsorted(edges, time_s, side="left"), points - 1)
+        per_bin = np.zeros((points, len(cols), len(cols)))
+        np.add.at(per_bin, bin_of, np.einsum("nip,niq->npq", jac, jac))
+        idx = np.ix_(np.arange(points), cols, cols)
+        increments[idx] += per_bin
+        np.add.at(counts, bin_of, 1)
+    a = np.cumsum(increments, axis=0)
+    degree = np.zeros(points)
+    for k in range(points):
+        s = jacobi_scale(a[k])
+        w = np.linalg.eigvalsh(a[k] * np.outer(s, s))
+        degree[k] = max(float(w[0]), 0.0) / w[-1] if w[-1] > 0 else 0.0
+    return edges, np.cumsum(counts), degree
