@@ -298,8 +298,14 @@ def _pinv(information: FloatArray) -> FloatArray:
 
 def analyse(blocks: ObservationBlocks) -> ObservabilityReport:
     """:class:`ObservabilityReport` of all the observations in ``blocks``."""
-    a = blocks.information()
-    p = len(blocks.labels)
+    return report_from_information(list(blocks.labels), blocks.information(), len(blocks))
+
+
+def report_from_information(
+    labels: list[Label], a: FloatArray, n_observations: int = 0
+) -> ObservabilityReport:
+    """:class:`ObservabilityReport` of an information matrix ``a`` [SI] over ``labels``."""
+    p = len(labels)
     if p == 0:
         raise ValueError("no parameters: the dataset has no usable observation")
     s = jacobi_scale(a)
@@ -315,9 +321,9 @@ def analyse(blocks: ObservationBlocks) -> ObservabilityReport:
         alone = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), np.inf)
     joint = np.sqrt(np.diag(_pinv(a)))
     return ObservabilityReport(
-        labels=list(blocks.labels), information=a, rank=rank, condition=condition,
+        labels=list(labels), information=a, rank=rank, condition=condition,
         degree=low / top if top > 0 else 0.0, eigenvalues=w, directions=v,
-        sigma_alone=alone, sigma_joint=joint, n_observations=len(blocks),
+        sigma_alone=alone, sigma_joint=joint, n_observations=n_observations,
     )
 
 

@@ -629,6 +629,7 @@ def graph(
             "and sigma come from the weak prior"
         )
     warnings.extend(describe_weak_directions(labels, obs))
+    warnings.extend(_poorly_excited(labels, data_information))
     if not result.converged:
         warnings.append(
             f"Levenberg-Marquardt stopped at the iteration limit ({max_iterations}) "
@@ -704,6 +705,17 @@ def graph(
             bias = RadarBias.from_vector(terms[rid].full(values[rid]))
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, bias)
     return cal
+
+
+def _poorly_excited(labels: list[tuple[str, str]], data_information: FloatArray) -> list[str]:
+    """Plain-words warnings for parameters the traffic hardly excites on their own:
+    variance inflation above :data:`graphcal.observability.VIF_WARNING` (issue of
+    :meth:`graphcal.observability.ObservabilityReport.confounded`)."""
+    from graphcal.observability import report_from_information
+
+    if not labels or np.any(np.diag(data_information) <= 0):
+        return []
+    return report_from_information(labels, data_information).confounded()
 
 
 def _crlb_info(
