@@ -54,7 +54,6 @@ ADS-B (CAT021)
 from __future__ import annotations
 
 import math
-import tomllib
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -72,7 +71,7 @@ from graphcal.asterix_read import (
     Decoded,
     Report,
 )
-from graphcal.dataset import Dataset, Site, _parse_site, _Where
+from graphcal.dataset import Dataset, Site, load_sites
 from graphcal.errors import DatasetError
 
 #: Metres per nautical mile.
@@ -194,24 +193,15 @@ class UserSites:
     path: Path
 
 
-def _source_key(entry: dict[str, Any], key: str, where: _Where) -> int | None:
-    value = entry.pop(key, None)
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 255:
-        raise where.error(key, f"must be an integer in 0..255, got {value!r}")
-    return value
-
-
 def load_user_sites(path: str | Path) -> UserSites:
     """Read a ``sites.toml`` whose ``[[radar]]`` tables may carry ``sac`` and ``sic``.
 
     Parameters
     ----------
     path : str or Path
-        The file: contract ``[[radar]]`` tables (see
-        :func:`graphcal.dataset.load_sites`) plus optional integer keys ``sac``
-        and ``sic`` (both or neither) naming the radar's ASTERIX data source.
+        The file, as :func:`graphcal.dataset.load_sites` reads it (the optional
+        integer keys ``sac`` and ``sic``, both or neither, name the radar's ASTERIX
+        data source).
 
     Returns
     -------
@@ -224,36 +214,16 @@ def load_user_sites(path: str | Path) -> UserSites:
         ``sac`` without ``sic``, a value outside 0..255, or a SAC/SIC used twice).
     """
     path = Path(path)
-    try:
-        with path.open("rb") as handle:
-            document = tomllib.load(handle)
-    except FileNotFoundError:
-        raise DatasetError("file not found", path=path) from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise DatasetError(f"cannot read TOML: {exc}", path=path) from None
-    entries = document.get("radar")
-    if not isinstance(entries, list) or not entries:
-        raise DatasetError("no [[radar]] tables", path=path, field="radar")
-    sites: dict[str, Site] = {}
+    sites = load_sites(path)
     by_source: dict[tuple[int, int], str] = {}
-    for row, entry in enumerate(entries, start=1):
-        where = _Where(path, row, "radar")
-        if not isinstance(entry, dict):
-            raise where.error("radar", "each [[radar]] entry must be a table")
-        entry = dict(entry)
-        sac = _source_key(entry, "sac", where)
-        sic = _source_key(entry, "sic", where)
-        site = _parse_site(entry, where)
-        if site.id in sites:
-            raise where.error("id", f"duplicate radar id {site.id!r}")
-        if (sac is None) != (sic is None):
-            raise where.error("sac" if sac is None else "sic", "give both sac and sic, or neither")
-        if sac is not None and sic is not None:
-            if (sac, sic) in by_source:
-                raise where.error("sic", f"SAC {sac} / SIC {sic} already belongs to radar "
-                                  f"{by_source[(sac, sic)]!r}")
-            by_source[(sac, sic)] = site.id
-        sites[site.id] = site
+    for row, site in enumerate(sites.values(), start=1):
+        if site.sac is None or site.sic is None:
+            continue
+        source = (site.sac, site.sic)
+        if source in by_source:
+            raise DatasetError(f"SAC {site.sac} / SIC {site.sic} already belongs to radar "
+                               f"{by_source[source]!r}", path=path, row=row, field="sic")
+        by_source[source] = site.id
     return UserSites(sites, by_source, path)
 
 

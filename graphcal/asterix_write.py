@@ -46,11 +46,8 @@ its item raises :class:`AsterixEncodeError` naming the table row, or, with
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
 import re
-import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -61,7 +58,7 @@ import numpy as np
 import pandas as pd
 from asterix.base import Record
 
-from graphcal.dataset import Dataset
+from graphcal.dataset import Dataset, atomic_write_stream
 from graphcal.errors import DatasetError
 
 #: CAT048 edition used: Monoradar Target Reports, ed. 1.32.
@@ -615,22 +612,6 @@ def encode_dataset(
     return b"".join(blocks)
 
 
-def _atomic_write_bytes(path: Path, write: Any) -> None:
-    """Call ``write(stream)`` on a temporary file next to ``path``, then rename it."""
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            write(stream)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temporary)
-        raise
-
-
 def write_asterix(
     dataset: Dataset,
     path: str | Path,
@@ -655,7 +636,7 @@ def write_asterix(
     """
     summary = EncodeSummary()
     data = encode_dataset(dataset, radar_codes, summary=summary, **options)
-    _atomic_write_bytes(Path(path), lambda stream: stream.write(data))
+    atomic_write_stream(path, lambda stream: stream.write(data))
     return summary
 
 
@@ -736,7 +717,7 @@ def write_pcap(
                                          type=dpkt.ethernet.ETH_TYPE_IP, data=ip)
             writer.writepkt(bytes(eth), ts=epoch_s + time_s)
 
-    _atomic_write_bytes(Path(path), write)
+    atomic_write_stream(path, write)
     summary = _summary(records, skipped)
     summary.n_blocks = len(blocks)
     summary.n_bytes = sum(len(b) for _, b, _ in blocks)

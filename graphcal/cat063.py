@@ -452,7 +452,7 @@ def write_cat063(
     ``.ast`` or ``.bin``: one binary CAT063 data block (:func:`encode_cat063`).
     Written atomically.
     """
-    from graphcal.asterix_write import _atomic_write_bytes
+    from graphcal.dataset import atomic_write_stream
 
     path = Path(path)
     suffix = path.suffix.lower()
@@ -466,4 +466,4 @@ def write_cat063(
         write_cat063_csv(path, calibration, radar_codes, radar_kinds)
     else:
         data = encode_cat063(calibration, radar_codes, radar_kinds)
-        _atomic_write_bytes(path, lambda stream: stream.write(data))
+        atomic_write_stream(path, lambda stream: stream.write(data))

@@ -86,10 +86,9 @@ def observability_command(
 
 def _plot_degree(path: Path, time_s, n_obs, degree, title: str) -> None:
     """Deg against the number of observations (log scale), written atomically."""
-    import os
-    import tempfile
-
     import matplotlib
+
+    from graphcal.dataset import atomic_write_stream
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -100,14 +99,8 @@ def _plot_degree(path: Path, time_s, n_obs, degree, title: str) -> None:
     ax.set_ylabel("observability degree Deg")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png",
-                                         dir=path.parent or ".")
-    os.close(handle)
     try:
-        fig.savefig(temporary, dpi=100, bbox_inches="tight")
-        os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
+        atomic_write_stream(path, lambda stream: fig.savefig(stream, format="png", dpi=100,
+                                                             bbox_inches="tight"))
     finally:
         plt.close(fig)
-        if os.path.exists(temporary):
-            os.unlink(temporary)

@@ -909,12 +909,37 @@ def _three_d_without_sigmas(
     return updated
 
 
-def atomic_write_text(path: str | Path, text: str, *, encoding: str = "utf-8") -> None:
-    """Write a text file atomically.
+def atomic_write_stream(path: str | Path, write: Callable[[Any], None]) -> None:
+    """Write a file atomically through ``write(stream)`` (a binary stream).
 
-    The text goes to a temporary file in the same folder, which then replaces
-    ``path`` (``os.replace``): readers see the old file or the complete new one,
-    never a partial one.
+    ``write`` fills a temporary file in the same folder, which then replaces
+    ``path`` (``os.replace``), so a reader never sees a half-written file and an
+    error leaves any previous file untouched.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination file; its folder must exist.
+    write : callable
+        Called once with the open binary stream.
+    """
+    path = Path(path)
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(handle, "wb") as stream:
+            write(stream)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.chmod(temporary, 0o644)
+        os.replace(temporary, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary)
+        raise
+
+
+def atomic_write_text(path: str | Path, text: str, *, encoding: str = "utf-8") -> None:
+    """Write a text file atomically (:func:`atomic_write_stream`).
 
     Parameters
     ----------
@@ -925,19 +950,8 @@ def atomic_write_text(path: str | Path, text: str, *, encoding: str = "utf-8") -
     encoding : str, optional
         Text encoding, UTF-8 by default.
     """
-    path = Path(path)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(handle, "w", encoding=encoding) as stream:
-            stream.write(text)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temporary)
-        raise
+    data = text.encode(encoding)
+    atomic_write_stream(path, lambda stream: stream.write(data))
 
 
 def atomic_write_table(frame: pd.DataFrame, path: str | Path) -> None:
