@@ -40,7 +40,7 @@ EXIT_ESTIMATION_FAILED = 3
 
 
 def _fail(message: str, status: int) -> None:
-    err_console.print(f"error: {message}", highlight=False, soft_wrap=True)
+    err_console.print(f"error: {message}", highlight=False, soft_wrap=True, markup=False)
     raise typer.Exit(status)
 
 
