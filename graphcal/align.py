@@ -73,6 +73,62 @@ def plot_arrays(dataset: Dataset, radar_id: str) -> PlotArrays:
     )
 
 
+def neighbour_plots(plots: PlotArrays, skip: int = 1, half_width: int = 4) -> PlotArrays:
+    """Each plot replaced by the mean of its track neighbours, the plot itself left out.
+
+    For plot ``k`` of a target's time-ordered track, the mean of the plots
+    ``k +- (skip + 1) ... k +- (skip + half_width)`` of the same target (range,
+    altitude and elevation arithmetic, azimuth circular); a plot without such
+    neighbours keeps its own values.  Their noise is independent of the plots
+    ``k - skip ... k + skip``, which makes them instruments: a Jacobian evaluated
+    at them carries no noise correlated with an observation built from those
+    plots (the errors-in-variables bias of evaluating it at the plots themselves).
+    """
+    n = len(plots)
+    targets = plots.target_id.astype(str)
+    order = np.lexsort((plots.time_s, targets))
+    sorted_targets = targets[order]
+    values = {
+        "range_m": plots.range_m[order],
+        "elevation_rad": plots.elevation_rad[order],
+        "altitude_m": plots.altitude_m[order],
+    }
+    sums = {name: np.zeros(n) for name in values}
+    counts = {name: np.zeros(n) for name in values}
+    east = np.zeros(n)
+    north = np.zeros(n)
+    az = plots.azimuth_rad[order]
+    n_neighbours = np.zeros(n)
+    for step in range(skip + 1, skip + half_width + 1):
+        for shift in (step, -step):
+            src = np.arange(n) + shift
+            ok = (src >= 0) & (src < n)
+            ok[ok] &= sorted_targets[src[ok]] == sorted_targets[ok]
+            ok[ok] &= sorted_targets[ok] != ""
+            dst, src = np.flatnonzero(ok), src[ok]
+            for name, v in values.items():
+                finite = np.isfinite(v[src])
+                sums[name][dst[finite]] += v[src][finite]
+                counts[name][dst[finite]] += 1
+            east[dst] += np.sin(az[src])
+            north[dst] += np.cos(az[src])
+            n_neighbours[dst] += 1
+    out = {}
+    for name, v in values.items():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = sums[name] / counts[name]
+        out[name] = np.where(counts[name] > 0, mean, v)
+    out["azimuth_rad"] = np.where(n_neighbours > 0, np.mod(np.arctan2(east, north), 2 * np.pi),
+                                  az)
+    inverse = np.empty(n, dtype=np.int64)
+    inverse[order] = np.arange(n)
+    return PlotArrays(
+        index=plots.index, time_s=plots.time_s, range_m=out["range_m"][inverse],
+        azimuth_rad=out["azimuth_rad"][inverse], elevation_rad=out["elevation_rad"][inverse],
+        altitude_m=out["altitude_m"][inverse], target_id=plots.target_id,
+    )
+
+
 @dataclass
 class AdsbAlignment:
     """Plots of one radar with the ADS-B position of the same aircraft at each plot time.

@@ -180,6 +180,38 @@ def calibrate(
             "mislabelled aircraft before estimating (the files are not changed).",
         ),
     ] = True,
+    select: Annotated[
+        str | None,
+        typer.Option(
+            "--select", metavar="greedy|e-optimal|d-optimal|random",
+            help="Estimate on a selected part of the data: paper 001's greedy pruning, the "
+            "E-optimal (largest smallest eigenvalue) or D-optimal (largest log det) subset "
+            "of --budget observations, or a random one (see 'graphcal observability "
+            "--budget').",
+        ),
+    ] = None,
+    budget: Annotated[
+        int | None,
+        typer.Option(help="--select: observations to keep (greedy: optional cap)."),
+    ] = None,
+    select_unit: Annotated[
+        str,
+        typer.Option(help="--select: choose whole segments of one aircraft's track "
+                     "(every radar), whole tracks, or single observations."),
+    ] = "segment",
+    segment_s: Annotated[
+        float, typer.Option(help="--select: segment length [s].")
+    ] = 60.0,
+    select_seed: Annotated[
+        int, typer.Option(help="--select random: seed of the draw.")
+    ] = 0,
+    linearise: Annotated[
+        str,
+        typer.Option(
+            help="wls/wls-pruned: evaluate the Jacobians at the plots (the paper) or at "
+            "each plot's track neighbours (removes the errors-in-variables bias)."
+        ),
+    ] = "plots",
     cat063: Annotated[
         Path | None,
         typer.Option(
@@ -206,11 +238,16 @@ def calibrate(
             estimator = get_estimator(method)
         except ValueError as exc:
             _fail(str(exc), EXIT_BAD_INPUT)
+        selection = None
+        if select is not None:
+            dataset, selection = _select(dataset, method, select, budget, select_unit,
+                                         segment_s, adsb, select_seed)
         options: dict = {}
         if max_gap_s is not None:
             options["max_gap_s"] = max_gap_s
         if method.startswith("wls"):
             options["iterations"] = iterations
+            options["linearise"] = linearise
             with progress_bar("pruning" if method == "wls-pruned" else method) as callback:
                 cal = estimator(dataset, progress=callback, **options)
         elif method == "graph":
@@ -230,6 +267,8 @@ def calibrate(
                 _fail(str(exc), EXIT_BAD_INPUT)
         else:
             cal = estimator(dataset, **options)
+        if selection is not None:
+            cal.info["selection"] = selection.to_dict()
         if cat063 is not None:
             from graphcal.cat063 import radar_kinds_from_sites, write_cat063
 
@@ -263,6 +302,36 @@ def calibrate(
             warnings = [w for w in dataset.cleaning.warnings if w not in warnings] + warnings
         for warning in warnings:
             console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
+
+
+def _select(dataset, method: str, select: str, budget: int | None, unit: str,
+            segment_s: float, use_adsb: bool, seed: int):
+    """``calibrate --select``: the selected part of ``dataset`` and the selection."""
+    from graphcal.observability import report_from_information
+    from graphcal.selection import select_for_calibration
+
+    if method == "wls-pruned":
+        _fail("--select with wls-pruned would prune twice; use --method wls", EXIT_BAD_INPUT)
+    try:
+        with progress_bar(f"selecting ({select})") as callback:
+            subset, selection = select_for_calibration(
+                dataset, method, select, budget, unit=unit, segment_s=segment_s,
+                use_adsb=use_adsb, rng=np.random.default_rng(seed), progress=callback,
+            )
+    except ValueError as exc:
+        _fail(f"--select {select}: {exc}", EXIT_BAD_INPUT)
+    summary = selection.to_dict()
+    full = selection.units.information.sum(axis=0)
+    full_degree = report_from_information(selection.units.labels, full).degree
+    err_console.print(
+        f"selection {select}: kept {summary['observations_kept']} of "
+        f"{summary['observations_total']} observations ({summary['units_kept']} of "
+        f"{summary['units_total']} {unit}s), Deg {summary['degree']:.3g} (all: "
+        f"{full_degree:.3g}), {summary['seconds']:.1f} s", highlight=False,
+    )
+    for note in selection.units.notes:
+        err_console.print(f"selection: {note}", highlight=False)
+    return subset, selection
 
 
 def _radar_codes(sites) -> dict[str, tuple[int, int]]:

@@ -25,6 +25,20 @@ def observability_command(
     out: Annotated[
         Path | None, typer.Option("--out", metavar="FILE.json", help="Write the figures as JSON.")
     ] = None,
+    budget: Annotated[
+        int | None,
+        typer.Option(help="Compare the selections of this many observations: greedy (paper "
+                     "001 eq. 12), E-optimal, D-optimal and random subsets."),
+    ] = None,
+    unit: Annotated[
+        str, typer.Option(help="--budget: select single observations, segments of one "
+                          "aircraft's track, or whole tracks.")
+    ] = "segment",
+    segment_s: Annotated[float, typer.Option(help="--budget: segment length [s].")] = 60.0,
+    random_draws: Annotated[
+        int, typer.Option(help="--budget: random subsets drawn for the baseline.")
+    ] = 20,
+    seed: Annotated[int, typer.Option(help="--budget: seed of the random subsets.")] = 0,
 ) -> None:
     """How well the traffic determines each bias: rank, condition, Deg, weak directions."""
     import json
@@ -40,7 +54,7 @@ def observability_command(
         err_console,
     )
     from graphcal.dataset import atomic_write_text, load_dataset
-    from graphcal.noise import sites_with_estimated_sigmas
+    from graphcal.noise import fill_missing_sigmas
     from graphcal.observability import analyse, degree_curve, observation_blocks
 
     for path, suffix in ((plot, ".png"), (out, ".json")):
@@ -48,8 +62,7 @@ def observability_command(
             _fail(f"{path}: the file must end in {suffix}", EXIT_BAD_INPUT)
     with _errors_to_exit():
         dataset = load_dataset(dataset_dir)
-        if any(site.missing_sigmas for site in dataset.sites.values()):
-            dataset = sites_with_estimated_sigmas(dataset)
+        dataset, _ = fill_missing_sigmas(dataset)
         try:
             blocks = observation_blocks(dataset, method, use_adsb=adsb)
             report = analyse(blocks)
@@ -76,12 +89,65 @@ def observability_command(
     )
     for line in report.weak_directions() + report.confounded():
         console.print(f"[yellow]warning:[/yellow] {line}", highlight=False)
+    document = report.to_dict()
+    if budget is not None:
+        with _errors_to_exit():
+            try:
+                comparison = _compare(dataset, method, adsb, budget, unit, segment_s,
+                                      random_draws, seed)
+            except ValueError as exc:
+                _fail(str(exc), EXIT_BAD_INPUT)
+        console.print(_comparison_table(comparison, budget))
+        document["selection"] = [
+            {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+             for k, v in row.items() if not (isinstance(v, float) and np.isnan(v))}
+            for row in comparison.to_dict("records")
+        ]
     if out is not None:
-        atomic_write_text(out, json.dumps(report.to_dict(), indent=2) + "\n")
+        atomic_write_text(out, json.dumps(document, indent=2) + "\n")
         err_console.print(f"wrote {out}", highlight=False)
     if plot is not None:
         _plot_degree(plot, *degree_curve(blocks), title=f"{dataset_dir.name} ({method})")
         err_console.print(f"wrote {plot}", highlight=False)
+
+
+def _compare(dataset, method: str, adsb: bool, budget: int, unit: str, segment_s: float,
+             draws: int, seed: int):
+    """The selection comparison table (:func:`graphcal.selection.compare_selections`)."""
+    from graphcal.observability import observation_blocks
+    from graphcal.selection import MAX_CONVEX_UNITS, compare_selections, selection_units
+
+    blocks = observation_blocks(dataset, method, use_adsb=adsb, linearise="neighbours")
+    units = selection_units(blocks, unit, segment_s, MAX_CONVEX_UNITS)
+    return compare_selections(units, budget, np.random.default_rng(seed), n_random=draws)
+
+
+def _comparison_table(comparison, budget: int):
+    from rich.table import Table
+
+    table = Table(title=f"selections of {budget} observations")
+    columns = [("method", "method"), ("units", "units"), ("observations", "observations"),
+               ("degree_full_scaling", "Deg"), ("degree", "Deg, own scaling"),
+               ("lambda_min", "λmin"),
+               ("mean_sigma_ratio", "σ / σ(all), mean"), ("seconds", "time (s)")]
+    for _, title in columns:
+        table.add_column(title, justify="left" if title == "method" else "right")
+    for row in comparison.to_dict("records"):
+        cells = []
+        for key, _ in columns:
+            value = row.get(key)
+            if key == "method":
+                cells.append(str(value))
+            elif value is None or (isinstance(value, float) and np.isnan(value)):
+                cells.append("")
+            elif key in ("units", "observations"):
+                cells.append(f"{int(value)}")
+            elif key == "degree" and np.isfinite(row.get("degree_min", np.nan)):
+                cells.append(f"{value:.3g} ({row['degree_min']:.2g}-{row['degree_max']:.2g})")
+            else:
+                cells.append(f"{value:.3g}")
+        table.add_row(*cells)
+    return table
 
 
 def _plot_degree(path: Path, time_s, n_obs, degree, title: str) -> None:

@@ -45,6 +45,39 @@ RANK_TOLERANCE = 1e-9
 
 
 @dataclass
+class ObservationBlock:
+    """One group of observations (one radar's ADS-B-matched plots, or one radar pair).
+
+    Attributes
+    ----------
+    time_s : ndarray (n,)
+        Observation times [s].
+    columns : list of int
+        The global parameter columns its Jacobian covers.
+    jacobian : ndarray (n, m, k)
+        Whitened Jacobian of each observation (``m`` rows, ``k = len(columns)``).
+    kind : str
+        ``"adsb"`` or ``"pair"``.
+    plot_rows : ndarray (n, j) of int
+        Row labels in ``dataset.plots`` of the plots behind each observation
+        (the plot itself for ADS-B; radar b's plot and radar a's two bracketing
+        plots for a pair).
+    target_id : ndarray (n,) of str
+        The aircraft observed.
+    """
+
+    time_s: FloatArray
+    columns: list[int]
+    jacobian: FloatArray
+    kind: str
+    plot_rows: NDArray[np.int64]
+    target_id: NDArray[np.object_]
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+
+@dataclass
 class ObservationBlocks:
     """Whitened observation Jacobians of a dataset, grouped as they were built.
 
@@ -52,26 +85,23 @@ class ObservationBlocks:
     ----------
     labels : list of (radar_id, parameter name)
         The parameters (global columns).
-    blocks : list of (time_s (n,), columns (k,), jacobian (n, m, k), kind)
-        Per group (one radar's ADS-B plots, one radar pair): observation times [s],
-        the global columns its Jacobian covers, the whitened Jacobian and its kind
-        (``"adsb"`` or ``"pair"``).
+    blocks : list of ObservationBlock
     """
 
     labels: list[Label]
-    blocks: list[tuple[FloatArray, list[int], FloatArray, str]] = field(default_factory=list)
+    blocks: list[ObservationBlock] = field(default_factory=list)
 
     def __len__(self) -> int:
-        return int(sum(len(t) for t, *_ in self.blocks))
+        return int(sum(len(b) for b in self.blocks))
 
     def information(self, until_s: float | None = None) -> FloatArray:
         """``A = sum_k J_k^T J_k`` over the observations (up to ``until_s`` if given)."""
         p = len(self.labels)
         a = np.zeros((p, p))
-        for time_s, cols, jac, _ in self.blocks:
-            rows = slice(None) if until_s is None else time_s <= until_s
-            j = jac[rows]
-            a[np.ix_(cols, cols)] += np.einsum("nip,niq->pq", j, j)
+        for block in self.blocks:
+            rows = slice(None) if until_s is None else block.time_s <= until_s
+            j = block.jacobian[rows]
+            a[np.ix_(block.columns, block.columns)] += np.einsum("nip,niq->pq", j, j)
         return a
 
 
@@ -81,6 +111,7 @@ def observation_blocks(
     *,
     use_adsb: bool = True,
     max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
+    linearise: str = "plots",
 ) -> ObservationBlocks:
     """The whitened observation Jacobians of ``dataset`` as ``method`` sees them.
 
@@ -94,11 +125,19 @@ def observation_blocks(
         ``graph``: use the ADS-B table when there is one.
     max_gap_s : float
         Longest ADS-B gap bridged by interpolation [s].
+    linearise : {"plots", "neighbours"}
+        Where the cross-radar Jacobians are evaluated: at the plots, or at each
+        plot's track neighbours (:func:`graphcal.align.neighbour_plots`), whose
+        noise is independent of the observation's.  A selection made on the
+        latter does not prefer observations for their own noise (which would
+        bias the estimate on the selection).
 
     Returns
     -------
     ObservationBlocks
     """
+    if linearise not in ("plots", "neighbours"):
+        raise ValueError(f"linearise must be 'plots' or 'neighbours', not '{linearise}'")
     if method not in OBSERVABILITY_METHODS:
         raise ValueError(
             f"unknown observability method '{method}'; use one of: "
@@ -112,11 +151,16 @@ def observation_blocks(
                 "estimate them first (graphcal noise DIR --write-sites ...)"
             )
     if method == "wls":
-        return _wls_blocks(dataset)
-    return _graph_blocks(dataset, use_adsb, max_gap_s)
+        return _wls_blocks(dataset, linearise)
+    return _graph_blocks(dataset, use_adsb, max_gap_s, linearise)
 
 
-def _graph_blocks(dataset: Dataset, use_adsb: bool, max_gap_s: float) -> ObservationBlocks:
+def _graph_blocks(
+    dataset: Dataset, use_adsb: bool, max_gap_s: float, linearise: str
+) -> ObservationBlocks:
+    import dataclasses
+
+    from graphcal.align import neighbour_plots
     from graphcal.estimators.graph import _build_factors, _Problem, radar_terms
     from graphcal.estimators.robust import RobustKernel
     from graphcal.gtsam_adapter import symbol
@@ -132,33 +176,48 @@ def _graph_blocks(dataset: Dataset, use_adsb: bool, max_gap_s: float) -> Observa
     column = {label: i for i, label in enumerate(labels)}
     out = ObservationBlocks(labels)
     plot_time = dataset.plots["time_s"]
+    plot_target = dataset.plots["target_id"].astype(str)
     for rid, f in problem.adsb.items():
         zero = np.zeros(len(terms[rid].free))
         _, (jac,) = f.whitened([zero])
         cols = [column[(rid, name)] for name in terms[rid].free]
-        out.blocks.append((plot_time.loc[f.plot_rows].to_numpy(float), cols, jac, "adsb"))
+        rows = np.asarray(f.plot_rows, dtype=np.int64)
+        out.blocks.append(ObservationBlock(
+            plot_time.loc[rows].to_numpy(float), cols, jac, "adsb", rows[:, None],
+            plot_target.loc[rows].to_numpy(object),
+        ))
     for f in problem.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
         zeros = [np.zeros(len(terms[ra].free)), np.zeros(len(terms[rb].free))]
-        _, (ja, jb) = f.whitened(zeros)
+        at = f if linearise == "plots" else dataclasses.replace(
+            f, a_plots=neighbour_plots(f.a_plots), b_plots=neighbour_plots(f.b_plots))
+        _, (ja, jb) = at.whitened(zeros)
         cols = ([column[(ra, n)] for n in terms[ra].free]
                 + [column[(rb, n)] for n in terms[rb].free])
-        out.blocks.append((f.b_plots.time_s[f.ib], cols, np.concatenate([ja, jb], axis=2),
-                           "pair"))
+        rows = np.stack([f.b_plots.index[f.ib], f.a_plots.index[f.i0],
+                         f.a_plots.index[f.i0 + 1]], axis=1).astype(np.int64)
+        out.blocks.append(ObservationBlock(
+            f.b_plots.time_s[f.ib], cols, np.concatenate([ja, jb], axis=2), "pair", rows,
+            f.b_plots.target_id[f.ib].astype(str).astype(object),
+        ))
     return out
 
 
-def _wls_blocks(dataset: Dataset) -> ObservationBlocks:
+def _wls_blocks(dataset: Dataset, linearise: str) -> ObservationBlocks:
     from graphcal.estimators.cross_radar import cross_observations
     from graphcal.estimators.linear import ParameterLayout
     from graphcal.estimators.wls import whiten
 
     layout = ParameterLayout.for_sites(list(dataset.sites.values()))
-    obs = cross_observations(dataset, layout)
+    obs = cross_observations(dataset, layout, linearise=linearise)
     out = ObservationBlocks(list(layout.labels))
     if len(obs):
         h_white, _ = whiten(obs)
-        out.blocks.append((obs.time_s, list(range(len(layout))), h_white, "pair"))
+        target = dataset.plots["target_id"].astype(str).loc[obs.plot_rows[:, 0]]
+        out.blocks.append(ObservationBlock(
+            obs.time_s, list(range(len(layout))), h_white, "pair",
+            obs.plot_rows.astype(np.int64), target.to_numpy(object),
+        ))
     return out
 
 
@@ -336,17 +395,19 @@ def degree_curve(
     over the observations' time span (each point: all observations up to then).
     The information is accumulated per time bin, not recomputed from scratch.
     """
-    times = np.concatenate([t for t, *_ in blocks.blocks]) if blocks.blocks else np.zeros(0)
+    times = (np.concatenate([b.time_s for b in blocks.blocks]) if blocks.blocks
+             else np.zeros(0))
     if len(times) == 0:
         return np.zeros(0), np.zeros(0, np.int64), np.zeros(0)
     edges = np.linspace(times.min(), times.max(), points + 1)[1:]
     p = len(blocks.labels)
     increments = np.zeros((points, p, p))
     counts = np.zeros(points, dtype=np.int64)
-    for time_s, cols, jac, _ in blocks.blocks:
-        bin_of = np.minimum(np.searchsorted(edges, time_s, side="left"), points - 1)
+    for block in blocks.blocks:
+        cols = block.columns
+        bin_of = np.minimum(np.searchsorted(edges, block.time_s, side="left"), points - 1)
         per_bin = np.zeros((points, len(cols), len(cols)))
-        np.add.at(per_bin, bin_of, np.einsum("nip,niq->npq", jac, jac))
+        np.add.at(per_bin, bin_of, np.einsum("nip,niq->npq", block.jacobian, block.jacobian))
         idx = np.ix_(np.arange(points), cols, cols)
         increments[idx] += per_bin
         np.add.at(counts, bin_of, 1)

@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graphcal import frames
-from graphcal.align import PlotArrays, PlotPairs, pair_plots
+from graphcal.align import PlotArrays, PlotPairs, neighbour_plots, pair_plots
 from graphcal.bias import measurement_bias_jacobian
 from graphcal.covariance import convert_covariance
 from graphcal.dataset import Dataset, Site
@@ -37,6 +37,8 @@ from graphcal.estimators.linear import ParameterLayout
 
 FloatArray = NDArray[np.float64]
 
+#: Where :func:`cross_observations` evaluates the Jacobians.
+LINEARISE_CHOICES: tuple[str, ...] = ("plots", "neighbours")
 #: 1-sigma error [m] of a reported (Mode C) height used to place a 2-D radar's plot:
 #: 25 ft quantisation plus barometric-versus-geometric height differences.
 ALTITUDE_SIGMA_M = 30.0
@@ -54,19 +56,28 @@ class ConvertedPlots:
     usable: NDArray[np.bool_]
 
 
-def convert_plots(site: Site, plots: PlotArrays) -> ConvertedPlots:
+def convert_plots(
+    site: Site, plots: PlotArrays, linearise_at: PlotArrays | None = None
+) -> ConvertedPlots:
     """Measured plots -> ECEF with d(ECEF)/d(bias) and the converted noise covariance.
 
     For a 2-D radar the elevation comes from the reported height via
     :func:`graphcal.frames.elevation_from_height` and
     ``d el / d r = -(R_t^2 - R_r^2 + r^2) / (2 r^2 R_r cos el)`` enters the range
-    column.
+    column.  With ``linearise_at`` (e.g. :func:`graphcal.align.neighbour_plots`),
+    the Jacobian and the covariance are evaluated there instead of at the plots.
     """
     geometry = _plot_geometry(site, plots.range_m, plots.azimuth_rad, plots)
     bias_jac = geometry.ecef_jacobian @ measurement_bias_jacobian(plots.range_m)
+    cov = geometry.cov_m2
+    if linearise_at is not None:
+        at = _plot_geometry(site, linearise_at.range_m, linearise_at.azimuth_rad, linearise_at)
+        at_jac = at.ecef_jacobian @ measurement_bias_jacobian(linearise_at.range_m)
+        bias_jac = np.where(at.usable[:, None, None], at_jac, bias_jac)
+        cov = np.where(at.usable[:, None, None], at.cov_m2, cov)
     if not site.is_3d:
         bias_jac[:, :, 3] = 0.0
-    return ConvertedPlots(geometry.ecef_m, bias_jac, geometry.cov_m2, geometry.usable)
+    return ConvertedPlots(geometry.ecef_m, bias_jac, cov, geometry.usable)
 
 
 def corrected_ecef(
@@ -212,9 +223,22 @@ class CrossObservations:
 
 
 def cross_observations(
-    dataset: Dataset, layout: ParameterLayout, max_gap_s: float | None = None
+    dataset: Dataset,
+    layout: ParameterLayout,
+    max_gap_s: float | None = None,
+    linearise: str = "plots",
 ) -> CrossObservations:
-    """Build the paper-001 observations for every pair of radars ``a < b``."""
+    """Build the paper-001 observations for every pair of radars ``a < b``.
+
+    ``linearise="plots"`` evaluates ``H_k`` and the covariance at the measured
+    plots, as the paper; ``"neighbours"`` at each plot's track neighbours
+    (:func:`graphcal.align.neighbour_plots`), whose noise is independent of
+    ``z_k``'s: the errors-in-variables bias of the paper's choice, which grows
+    as ``sqrt(m)`` standard deviations along poorly observed directions, goes.
+    """
+    if linearise not in LINEARISE_CHOICES:
+        raise ValueError(f"linearise must be one of {', '.join(LINEARISE_CHOICES)}, "
+                         f"not '{linearise}'")
     radar_ids = list(dataset.radar_ids)
     p = len(layout)
     zs, hs, covs, times, pairs, rows, coefficients = [], [], [], [], [], [], []
@@ -226,7 +250,8 @@ def cross_observations(
             pairs_ab = pair_plots(dataset, ra, rb, max_gap_s)
             if len(pairs_ab) == 0:
                 continue
-            z, h, cov, ok, conv_a, conv_b = _pair_rows(dataset, layout, pairs_ab)
+            z, h, cov, ok, conv_a, conv_b = _pair_rows(dataset, layout, pairs_ab,
+                                                        linearise == "neighbours")
             if not np.any(ok):
                 continue
             a_idx, b_idx = pairs_ab.a_plots.index, pairs_ab.b_plots.index
@@ -305,10 +330,13 @@ def _pair_rows(
     dataset: Dataset,
     layout: ParameterLayout,
     pairs: PlotPairs,
+    instrumented: bool = False,
 ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_], ConvertedPlots, ConvertedPlots]:
     site_a, site_b = dataset.sites[pairs.radar_a], dataset.sites[pairs.radar_b]
-    conv_a = convert_plots(site_a, pairs.a_plots)
-    conv_b = convert_plots(site_b, pairs.b_plots)
+    at_a = neighbour_plots(pairs.a_plots) if instrumented else None
+    at_b = neighbour_plots(pairs.b_plots) if instrumented else None
+    conv_a = convert_plots(site_a, pairs.a_plots, at_a)
+    conv_b = convert_plots(site_b, pairs.b_plots, at_b)
     i0, i1, w, ib = pairs.a_index0, pairs.a_index0 + 1, pairs.weight, pairs.b_index
     w0, w1 = (1.0 - w)[:, None], w[:, None]
     pos_a = w0 * conv_a.ecef_m[i0] + w1 * conv_a.ecef_m[i1]

@@ -79,30 +79,11 @@ def greedy_prune(
     degree_trace : list of float
         ``Deg`` after each visit (length m).
     """
+    from graphcal.selection import greedy_prune_information
+
     information = np.einsum("mip,miq->pq", h_white, h_white)
-    scale = jacobi_scale(information)
-    scaled_h = h_white * scale
-    a = information * np.outer(scale, scale)
-
-    def degree(matrix: FloatArray) -> float:
-        ev = np.linalg.eigvalsh(matrix)
-        return float(max(ev[0], 0.0) / ev[-1]) if ev[-1] > 0 else 0.0
-
-    current = degree(a)
-    keep = np.ones(len(h_white), dtype=bool)
-    trace = []
-    total = len(h_white)
-    for k in range(total):
-        contribution = scaled_h[k].T @ scaled_h[k]
-        candidate = a - contribution
-        deg = degree(candidate)
-        if deg > current:  # eq. 12: Deg(k) < Deg(k - 1) -> remove observation k
-            a, current = candidate, deg
-            keep[k] = False
-        trace.append(current)
-        if progress is not None and (k % 500 == 0 or k == total - 1):
-            progress(k + 1, total)
-    return keep, trace
+    scaled_h = h_white * jacobi_scale(information)
+    return greedy_prune_information(np.einsum("mip,miq->mpq", scaled_h, scaled_h), progress)
 
 
 def _corrected(dataset: Dataset, biases: dict[str, RadarBias]) -> Dataset:
@@ -136,18 +117,19 @@ def _run_wls(
     iterations: int,
     max_gap_s: float | None,
     progress: Progress | None,
+    linearise: str = "plots",
 ) -> Calibration:
     if iterations < 1:
         raise ValueError("iterations must be at least 1")
     layout = ParameterLayout.for_sites(list(dataset.sites.values()))
     biases = {rid: RadarBias() for rid in dataset.radar_ids}
-    info: dict = {"iterations": iterations, "pruned": prune}
+    info: dict = {"iterations": iterations, "pruned": prune, "linearise": linearise}
     keep = None
     for _ in range(iterations):
         current = _corrected(dataset, biases) if any(
             b != RadarBias() for b in biases.values()
         ) else dataset
-        obs = cross_observations(current, layout, max_gap_s)
+        obs = cross_observations(current, layout, max_gap_s, linearise)
         if len(obs) == 0:
             raise EstimationError(
                 "no common observations: no two radars saw the same target_id within the "
@@ -229,9 +211,15 @@ def wls(
     iterations: int = 1,
     max_gap_s: float | None = None,
     progress: Progress | None = None,
+    linearise: str = "plots",
 ) -> Calibration:
-    """Paper 001 WLS (eq. 8-11) over all radar pairs, no ADS-B needed."""
-    return _run_wls("wls", dataset, False, iterations, max_gap_s, progress)
+    """Paper 001 WLS (eq. 8-11) over all radar pairs, no ADS-B needed.
+
+    ``linearise="neighbours"`` evaluates ``H_k`` at each plot's track neighbours
+    instead of the plot itself (:func:`~graphcal.estimators.cross_radar.cross_observations`),
+    which removes the errors-in-variables bias of the paper's choice.
+    """
+    return _run_wls("wls", dataset, False, iterations, max_gap_s, progress, linearise)
 
 
 @fills_missing_sigmas
@@ -241,9 +229,10 @@ def wls_pruned(
     iterations: int = 1,
     max_gap_s: float | None = None,
     progress: Progress | None = None,
+    linearise: str = "plots",
 ) -> Calibration:
     """Paper 001 greedy pruning (eq. 12), then WLS (eq. 10) on the kept observations."""
-    return _run_wls("wls-pruned", dataset, True, iterations, max_gap_s, progress)
+    return _run_wls("wls-pruned", dataset, True, iterations, max_gap_s, progress, linearise)
 
 
 __all__ = ["wls", "wls_pruned", "greedy_prune", "whiten"]
