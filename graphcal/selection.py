@@ -13,7 +13,7 @@ that any estimator can be run on the informative part of the data:
     (a downdate of ``A`` by the unit's rank-``m`` contribution, never a
     recomputation).  The paper's rule decides the size itself; with a budget,
     backward elimination (remove the units whose removal leaves the largest
-    ``Deg``) continues until the budget is met.
+    ``Deg``, ranked to first order) continues until the budget is met.
 ``e-optimal``
     ``max lambda_min(sum_i w_i A_i)`` over ``0 <= w_i <= 1``,
     ``sum_i c_i w_i = N`` (``c_i`` the unit's observation count, ``N`` the
@@ -35,6 +35,7 @@ into chunks first (and a note says so).
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -160,10 +161,18 @@ def selection_units(
         frame = frame.sort_values(["block", "target", "time_s"], kind="stable")
         group = np.arange(len(frame))
         if max_units is not None and len(frame) > max_units:
-            size = int(np.ceil(len(frame) / max_units))
             run = (frame["block"].astype(str) + "\0" + frame["target"]).to_numpy()
             starts = np.r_[True, run[1:] != run[:-1]]
             run_id = np.cumsum(starts) - 1
+            lengths = np.bincount(run_id)
+            if len(lengths) > max_units:
+                raise ValueError(
+                    f"{len(lengths)} aircraft-and-radar groups are too many for {max_units} "
+                    "units of single observations; select segments or tracks instead"
+                )
+            size = int(np.ceil(len(frame) / max_units))
+            while np.sum(np.ceil(lengths / size)) > max_units:
+                size = int(np.ceil(size * 1.25))
             position = np.arange(len(frame)) - np.flatnonzero(starts)[run_id]
             group = pd.factorize(pd.Series(run_id * 10**9 + position // size))[0]
             notes.append(f"{len(frame)} observations merged into {group.max() + 1} chunks of "
@@ -171,9 +180,17 @@ def selection_units(
         frame["key"] = group
     elif unit == "segment":
         window = np.floor((frame["time_s"].to_numpy() - t0) / segment_s).astype(np.int64)
-        n_segments = len(pd.unique(pd.Series(frame["target"] + "\0" + window.astype(str))))
+        def count(w: NDArray[np.int64]) -> int:
+            return len(pd.unique(pd.Series(frame["target"] + "\0" + w.astype(str))))
+
+        n_segments = count(window)
         if max_units is not None and n_segments > max_units:
             factor = int(np.ceil(n_segments / max_units))
+            while count(window // factor) > max_units:
+                if factor > window.max():
+                    raise ValueError(f"more than {max_units} aircraft: too many for the "
+                                     "convex solver even with one unit per aircraft")
+                factor = int(np.ceil(factor * 1.25))
             window //= factor
             notes.append(f"{n_segments} segments of {segment_s:g} s merged into segments of "
                          f"{factor * segment_s:g} s")
@@ -213,13 +230,6 @@ def degree(information: FloatArray) -> float:
     """``Deg = lambda_min / lambda_max`` of an (already scaled) information matrix."""
     w = np.linalg.eigvalsh(information)
     return float(max(w[0], 0.0) / w[-1]) if w[-1] > 0 else 0.0
-
-
-def _degrees(stack: FloatArray) -> FloatArray:
-    """``Deg`` of each matrix of a ``(k, p, p)`` stack."""
-    w = np.linalg.eigvalsh(stack)
-    top = w[:, -1]
-    return np.where(top > 0, np.clip(w[:, 0], 0.0, None) / np.where(top > 0, top, 1.0), 0.0)
 
 
 def greedy_prune_information(
@@ -263,16 +273,24 @@ def greedy_prune_information(
 def _eliminate_to_budget(
     scaled: FloatArray, cost: NDArray[np.int64], keep: NDArray[np.bool_], budget: int
 ) -> NDArray[np.bool_]:
-    """Backward elimination: drop the kept units whose removal leaves the largest Deg."""
+    """Backward elimination: drop the kept units whose removal leaves the largest Deg.
+
+    The units are ranked by the first-order change of Deg on removal
+    (``lambda_min - v_min^T A_i v_min`` over ``lambda_max - v_max^T A_i v_max``, ``v``
+    the extreme eigenvectors of the kept information), and removed in batches of
+    about a tenth of the excess, after which ``A`` and its eigenvectors are updated.
+    """
     keep = keep.copy()
     a = scaled[keep].sum(axis=0)
     while cost[keep].sum() > budget:
         kept = np.flatnonzero(keep)
         excess = cost[keep].sum() - budget
-        after = _degrees(a[None] - scaled[kept])
+        w, v = np.linalg.eigh(a)
+        low = w[0] - np.einsum("p,upq,q->u", v[:, 0], scaled[kept], v[:, 0])
+        high = w[-1] - np.einsum("p,upq,q->u", v[:, -1], scaled[kept], v[:, -1])
+        after = np.where(high > 0, low / np.where(high > 0, high, 1.0), -np.inf)
         order = kept[np.argsort(-after, kind="stable")]
-        # Remove a batch (about a twentieth of the excess) per evaluation.
-        batch = max(1, int(np.ceil(excess / np.mean(cost[kept]) / 20)))
+        batch = max(1, int(np.ceil(excess / np.mean(cost[kept]) / 10)))
         for i in order[:batch]:
             if cost[keep].sum() <= budget:
                 break
@@ -348,7 +366,9 @@ def relaxed_weights(
     failures = []
     for name, settings in attempts:
         try:
-            problem.solve(solver=name, **settings)
+            with warnings.catch_warnings():  # an inaccurate solution shows in the status
+                warnings.simplefilter("ignore", UserWarning)
+                problem.solve(solver=name, **settings)
         except cp.error.SolverError as exc:
             failures.append(f"{name}: {exc}")
             continue
