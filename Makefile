@@ -3,6 +3,7 @@
 #               (graph method, with ADS-B and from cross-radar observations alone)
 #   make test   same set-up, then the whole test suite
 #   make bench  same set-up, then benchmarks/bench_graph.py (graph vs scipy, 10-radar network)
+#               and benchmarks/bench_selection.py (selection on 131k observations)
 #   make papers same set-up, then the paper 000/002 reproductions (covariance, fusion, noise)
 PYTHON ?= python3
 VENV := .venv
@@ -28,6 +29,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_graph.py
+	$(BIN)/python benchmarks/bench_selection.py
 
 papers: $(STAMP)
 	$(BIN)/python benchmarks/paper002_covariance.py
