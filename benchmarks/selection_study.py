@@ -38,9 +38,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from synthetic import Track, make_dataset, site_at  # noqa: E402
+from synthetic import crowded_network  # noqa: E402
 
-from graphcal.bias import RadarBias  # noqa: E402
 from graphcal.dataset import atomic_write_stream, atomic_write_text  # noqa: E402
 from graphcal.estimators import calibrate  # noqa: E402
 from graphcal.observability import degree_curve, observation_blocks  # noqa: E402
@@ -90,23 +89,12 @@ def path2(seeds: int) -> dict:
 
 
 def crowded(seeds: int, budget: int = 400) -> dict:
-    radars = [
-        (site_at("A", -40e3, 0.0, sigma_range_m=50.0, sigma_azimuth_mrad=2.0),
-         RadarBias(150.0, 0.002, 0.004)),
-        (site_at("B", 40e3, 0.0, sigma_range_m=50.0, sigma_azimuth_mrad=2.0),
-         RadarBias(-100.0, -0.001, -0.003)),
-    ]
-    tracks = [Track(f"c{i}", (-20e3 + 3e3 * i, 150e3, 9000.0), (0.0, 220.0, 0.0), 0.0, 300.0)
-              for i in range(12)]
-    tracks += [Track("x1", (-80e3, -60e3, 8000.0), (250.0, 150.0, 0.0), 0.0, 300.0),
-               Track("x2", (60e3, -70e3, 7000.0), (-150.0, 220.0, 0.0), 0.0, 300.0)]
-    biases = {site.id: bias for site, bias in radars}
     methods = (*METHODS, "all")
     errors: dict[str, list] = {m: [] for m in methods}
     labels = None
     n_total = 0
     for seed in range(seeds):
-        ds = make_dataset(np.random.default_rng(seed), radars, tracks, adsb=False)
+        ds, biases = crowded_network(np.random.default_rng(seed))
         units = selection_units(observation_blocks(ds, "wls", linearise="neighbours"),
                                 "segment", segment_s=30.0)
         n_total = int(units.cost.sum())

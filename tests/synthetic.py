@@ -127,3 +127,19 @@ def make_dataset(
             )
         adsb_table = pd.concat(reports, ignore_index=True)
     return Dataset({s.id: s for s, _ in radars}, plots, adsb_table)
+
+
+def crowded_network(rng: np.random.Generator) -> tuple[Dataset, dict[str, RadarBias]]:
+    """Two radars; twelve parallel flights crowded far north, two crossing flights; no
+    ADS-B.  Returns the dataset and the true biases (the selection test and study)."""
+    radars = [
+        (site_at("A", -40e3, 0.0, sigma_range_m=50.0, sigma_azimuth_mrad=2.0),
+         RadarBias(150.0, 0.002, 0.004)),
+        (site_at("B", 40e3, 0.0, sigma_range_m=50.0, sigma_azimuth_mrad=2.0),
+         RadarBias(-100.0, -0.001, -0.003)),
+    ]
+    tracks = [Track(f"c{i}", (-20e3 + 3e3 * i, 150e3, 9000.0), (0.0, 220.0, 0.0), 0.0, 300.0)
+              for i in range(12)]
+    tracks += [Track("x1", (-80e3, -60e3, 8000.0), (250.0, 150.0, 0.0), 0.0, 300.0),
+               Track("x2", (60e3, -70e3, 7000.0), (-150.0, 220.0, 0.0), 0.0, 300.0)]
+    return make_dataset(rng, radars, tracks, adsb=False), {s.id: b for s, b in radars}

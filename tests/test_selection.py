@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from synthetic import Track, make_dataset, site_at
+from synthetic import Track, crowded_network, make_dataset, site_at
 from typer.testing import CliRunner
 
 from graphcal.bias import RadarBias
@@ -149,21 +149,6 @@ def test_linearising_at_the_neighbours_removes_the_errors_in_variables_bias(path
     assert np.max(np.abs(neighbours)) < 3.0
 
 
-def _crowded_network(rng: np.random.Generator):
-    """Two radars; twelve parallel flights crowded far north, two crossing flights."""
-    radars = [
-        (site_at("A", -40e3, 0.0, sigma_range_m=50.0, sigma_azimuth_mrad=2.0),
-         RadarBias(150.0, 0.002, 0.004)),
-        (site_at("B", 40e3, 0.0, sigma_range_m=50.0, sigma_azimuth_mrad=2.0),
-         RadarBias(-100.0, -0.001, -0.003)),
-    ]
-    tracks = [Track(f"c{i}", (-20e3 + 3e3 * i, 150e3, 9000.0), (0.0, 220.0, 0.0), 0.0, 300.0)
-              for i in range(12)]
-    tracks += [Track("x1", (-80e3, -60e3, 8000.0), (250.0, 150.0, 0.0), 0.0, 300.0),
-               Track("x2", (60e3, -70e3, 7000.0), (-150.0, 220.0, 0.0), 0.0, 300.0)]
-    return make_dataset(rng, radars, tracks, adsb=False), dict((s.id, b) for s, b in radars)
-
-
 def test_fixed_budget_selection_beats_random_subsets_in_monte_carlo() -> None:
     """400 of ~1040 observations in 30-s segments, 12 seeds, WLS linearised at the
     neighbours: the E-optimal subset's RMSE (in units of the full set's sigma, mean over the
@@ -172,7 +157,7 @@ def test_fixed_budget_selection_beats_random_subsets_in_monte_carlo() -> None:
     methods = ("e-optimal", "d-optimal", "random", "all")
     errors: dict[str, list[np.ndarray]] = {k: [] for k in methods}
     for seed in range(12):
-        ds, biases = _crowded_network(np.random.default_rng(seed))
+        ds, biases = crowded_network(np.random.default_rng(seed))
         blocks = observation_blocks(ds, "wls", linearise="neighbours")
         units = selection_units(blocks, "segment", segment_s=30.0)
         full_sigma = np.sqrt(np.diag(np.linalg.pinv(units.information.sum(axis=0))))
