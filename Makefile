@@ -28,13 +28,13 @@ test: $(STAMP)
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/bench_graph.py
-	$(BIN)/python benchmarks/bench_selection.py
+	$(BIN)/python -m benchmarks.bench_graph
+	$(BIN)/python -m benchmarks.bench_selection
 
 papers: $(STAMP)
-	$(BIN)/python benchmarks/paper002_covariance.py
-	$(BIN)/python benchmarks/paper002_fusion.py
-	$(BIN)/python benchmarks/noise_estimation.py --seeds 8
+	$(BIN)/python -m benchmarks.paper002_covariance
+	$(BIN)/python -m benchmarks.paper002_fusion
+	$(BIN)/python -m benchmarks.noise_estimation --seeds 8
 
 lint: $(STAMP)
 	$(BIN)/ruff check graphcal tests benchmarks

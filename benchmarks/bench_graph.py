@@ -2,16 +2,16 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/bench_graph.py            # full benchmark
-    .venv/bin/python benchmarks/bench_graph.py --quick    # 40k plots only, no network part
-    .venv/bin/python benchmarks/bench_graph.py --profile  # full, plus a cProfile of part 2
+    .venv/bin/python -m benchmarks.bench_graph            # full benchmark
+    .venv/bin/python -m benchmarks.bench_graph --quick    # 40k plots only, no network part
+    .venv/bin/python -m benchmarks.bench_graph --profile  # full, plus a cProfile of part 2
 
 Part 1 - solver overhead.  The ADS-B model of the ``graph`` calibrator is
 solved two ways on the same data: with GTSAM (one variable per radar, the
-weak priors of :func:`graphcal.estimators.graph.prior_sigmas`, the vectorised
+weak priors of :func:`graphcal.solvers.graph.prior_sigmas`, the vectorised
 ADS-B factors, Levenberg-Marquardt, then the joint marginal covariance) and
 with :func:`scipy.optimize.least_squares` on exactly the same stacked whitened
-residuals (:meth:`graphcal.estimators.factors.AdsbFactor.whitened` of every
+residuals (:meth:`graphcal.model.factors.AdsbFactor.whitened` of every
 radar plus the prior residuals ``x / sigma``) and the same analytic Jacobian,
 assembled into a dense matrix, with the covariance ``(J^T J)^-1`` at the
 solution.  Both start from zero and use no robust kernel, so they minimise the
@@ -62,10 +62,13 @@ import scipy.linalg
 import scipy.optimize
 from numpy.typing import NDArray
 
-from graphcal.align import DEFAULT_ADSB_MAX_GAP_S
-from graphcal.bias import CONTRACT_KEYS
-from graphcal.dataset import Dataset
-from graphcal.estimators.graph import (
+from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
+from graphcal.data.bias import CONTRACT_KEYS
+from graphcal.data.dataset import Dataset
+from graphcal.model.robust import RobustKernel
+from graphcal.simulation.scenario import Scenario, load_scenario
+from graphcal.simulation.simulate import SimulationResult, simulate
+from graphcal.solvers.graph import (
     _add_factor,
     _build_factors,
     _Problem,
@@ -73,10 +76,7 @@ from graphcal.estimators.graph import (
     prior_sigmas,
     radar_terms,
 )
-from graphcal.estimators.robust import RobustKernel
-from graphcal.gtsam_adapter import FactorGraph, OptimizationResult, symbol
-from graphcal.scenario import Scenario, load_scenario
-from graphcal.simulate import SimulationResult, simulate
+from graphcal.solvers.gtsam_adapter import FactorGraph, OptimizationResult, symbol
 
 FloatArray = NDArray[np.float64]
 T = TypeVar("T")

@@ -2,11 +2,11 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/bench_selection.py [--observations 100000] [--seed 0]
+    .venv/bin/python -m benchmarks.bench_selection [--observations 100000] [--seed 0]
 
 The demo network (``scenarios/demo_network.toml``, 5 radars, ADS-B) is simulated
 once; the observations ``graph`` sees (ADS-B-matched plots and cross-radar pairs,
-:func:`graphcal.observability.observation_blocks`, linearised at the
+:func:`graphcal.analysis.observability.observation_blocks`, linearised at the
 neighbours) are repeated with renamed aircraft and shifted times until there are
 at least ``--observations`` of them: real Jacobians, a realistic mix.  Then, for
 units of 60-s track segments and of single observations (merged into at most
@@ -28,11 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.dataset import atomic_write_text
-from graphcal.observability import ObservationBlocks, observation_blocks
-from graphcal.scenario import load_scenario
-from graphcal.selection import MAX_CONVEX_UNITS, select, selection_units
-from graphcal.simulate import simulate
+from graphcal.analysis.observability import ObservationBlocks, observation_blocks
+from graphcal.analysis.selection import MAX_CONVEX_UNITS, select, selection_units
+from graphcal.core.atomic import atomic_write_text
+from graphcal.simulation.scenario import load_scenario
+from graphcal.simulation.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

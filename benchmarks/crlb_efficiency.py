@@ -1,6 +1,6 @@
 """CRLB timing and the graph calibrator's efficiency on a simulated scenario.
 
-Usage: ``python benchmarks/crlb_efficiency.py [SCENARIO.toml] [--seed N]``
+Usage: ``.venv/bin/python -m benchmarks.crlb_efficiency [SCENARIO.toml] [--seed N]``
 (default ``scenarios/demo_network.toml``).  Prints the CRLB time, and per
 parameter the CRLB sigma, graph's reported sigma, their ratio and the error
 in CRLB sigmas, with and without ADS-B.
@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from graphcal.bias import CONTRACT_KEYS
-from graphcal.crlb import crlb
-from graphcal.estimators.graph import graph
-from graphcal.scenario import load_scenario
-from graphcal.simulate import simulate
+from graphcal.analysis.crlb import crlb
+from graphcal.data.bias import CONTRACT_KEYS
+from graphcal.simulation.scenario import load_scenario
+from graphcal.simulation.simulate import simulate
+from graphcal.solvers.graph import graph
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -2,21 +2,21 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/fuzz_asterix.py --n 10000
-    .venv/bin/python benchmarks/fuzz_asterix.py --n 0 --speed 100000
+    .venv/bin/python -m benchmarks.fuzz_asterix --n 10000
+    .venv/bin/python -m benchmarks.fuzz_asterix --n 0 --speed 100000
 
 Fuzzing: ``--n`` inputs, half random bytes and half mutations of valid data
 blocks (CAT048, CAT021, CAT034, several per input; bit flips, truncation,
 changed ``LEN``, inserted and deleted bytes), a quarter of the mutated ones
 wrapped in a pcap capture.  Each input goes through the block splitter, the
-decoder and the table builder.  Only :class:`graphcal.errors.GraphcalInputError`
+decoder and the table builder.  Only :class:`graphcal.core.errors.GraphcalInputError`
 may come out; anything else is a crash.  Prints the counts (inputs, blocks
 accepted, rejected by reason, crashes, slowest input) and exits with status 1
 on any crash.
 
 Speed: ``--speed N`` writes a raw file of N CAT048 target reports (typical Mode S
 content: I010, I140, I020, I040, I070, I090, I220, I240, I161, I200, I170) and
-times :func:`graphcal.asterix_read.decode_file` and the table builder on it.
+times :func:`graphcal.io.asterix.decode.decode_file` and the table builder on it.
 """
 
 from __future__ import annotations
@@ -34,9 +34,9 @@ from pathlib import Path
 import asterix.generated as gen
 import dpkt
 
-from graphcal.asterix_read import decode_bytes, decode_file
-from graphcal.asterix_tables import build_tables, load_user_sites
-from graphcal.errors import GraphcalInputError
+from graphcal.core.errors import GraphcalInputError
+from graphcal.io.asterix.decode import decode_bytes, decode_file
+from graphcal.io.asterix.tables import build_tables, load_user_sites
 
 CAT048 = gen.Cat_048_1_32
 CAT021 = gen.Cat_021_2_6

@@ -2,9 +2,9 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/noise_estimation.py               # 5 seeds + timing
-    .venv/bin/python benchmarks/noise_estimation.py --seeds 10
-    .venv/bin/python benchmarks/noise_estimation.py --no-timing
+    .venv/bin/python -m benchmarks.noise_estimation               # 5 seeds + timing
+    .venv/bin/python -m benchmarks.noise_estimation --seeds 10
+    .venv/bin/python -m benchmarks.noise_estimation --no-timing
 
 Part 1 - accuracy.  ``scenarios/demo_network.toml`` (two 2-D Mode S SSRs, two
 3-D air-defence radars, one 2-D approach radar; random traffic with turns and
@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from graphcal.noise import estimate_noise
-from graphcal.scenario import load_scenario, parse_scenario
-from graphcal.simulate import simulate
+from graphcal.simulation.scenario import load_scenario, parse_scenario
+from graphcal.simulation.simulate import simulate
 
 SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "demo_network.toml"
 

@@ -2,8 +2,8 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/paper002_covariance.py            # full (about 1 min)
-    .venv/bin/python benchmarks/paper002_covariance.py --quick    # small grids (seconds)
+    .venv/bin/python -m benchmarks.paper002_covariance            # full (about 1 min)
+    .venv/bin/python -m benchmarks.paper002_covariance --quick    # small grids (seconds)
 
 Experiments (radar polar -> ECEF, radar at 28.2 N, 112.9 E, 50 m):
 
@@ -20,7 +20,7 @@ Monte-Carlo procedure, per grid cell: ``n`` noisy polar measurements (Gaussian
 errors with the cell's sigmas) are converted to ECEF; the statistical covariance
 sum is paper eq. 30, the mean squared distance from the true ECEF point.  The
 paper's 100 Monte-Carlo runs are 100 further noisy measurements, at each of which
-the converted covariance (eq. 19, :func:`graphcal.covariance.polar_to_ecef_covariance`)
+the converted covariance (eq. 19, :func:`graphcal.core.covariance.polar_to_ecef_covariance`)
 is evaluated, as it would be in practice; the cell's relative error is the mean
 over the runs of ``|trace - e| / e``.  The paper does not give ``n``.
 
@@ -63,8 +63,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from graphcal import frames  # noqa: E402
-from graphcal.covariance import (  # noqa: E402
+from graphcal.core import frames  # noqa: E402
+from graphcal.core.covariance import (
     polar_covariance,
     polar_to_ecef_covariance,
     polar_to_enu_covariance,

@@ -2,15 +2,15 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/paper002_fusion.py [--runs 50] [--seed 0] [--q 1.0]
+    .venv/bin/python -m benchmarks.paper002_fusion [--runs 50] [--seed 0] [--q 1.0]
 
 Scenario ``scenarios/paper002_three_radars.toml``: three radars in ECEF, one
 target at ``v = (-300, -300, 300)`` m/s for 100 s, ``sigma_r = 100`` m,
 ``sigma_a = sigma_e = 0.1`` deg, 1 s scans, no biases.  Each run is
-:func:`graphcal.simulate.simulate` with its own seeded Generator
+:func:`graphcal.simulation.simulate.simulate` with its own seeded Generator
 (``numpy.random.SeedSequence(seed).spawn(runs)``); plots are converted to ECEF
 with their converted covariance (paper eq. 19) and filtered by the CV Kalman
-filter of :mod:`graphcal.tracking` (two-point start).
+filter of :mod:`graphcal.tracking.kalman` (two-point start).
 
 Table 2, filtering RMSE: eq. 32 with its misprint corrected (the sum over the
 ``m`` runs is *divided* by ``m``)::
@@ -57,12 +57,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from graphcal.align import plot_arrays  # noqa: E402
-from graphcal.estimators.cross_radar import convert_plots  # noqa: E402
-from graphcal.fusion import fuse_covariance_weighted, fuse_equal_weights  # noqa: E402
-from graphcal.scenario import load_scenario  # noqa: E402
-from graphcal.simulate import simulate  # noqa: E402
-from graphcal.tracking import (  # noqa: E402
+from graphcal.data.align import plot_arrays  # noqa: E402
+from graphcal.model.cross_radar import convert_plots  # noqa: E402
+from graphcal.simulation.scenario import load_scenario  # noqa: E402
+from graphcal.simulation.simulate import simulate  # noqa: E402
+from graphcal.tracking.fusion import fuse_covariance_weighted, fuse_equal_weights  # noqa: E402
+from graphcal.tracking.kalman import (
     NOISE_MODES,
     kalman_filter,
     measurement_noise,

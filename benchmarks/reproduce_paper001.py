@@ -2,17 +2,17 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/reproduce_paper001.py [--runs 1000] [--jobs 2] [--seed 0]
+    .venv/bin/python -m benchmarks.reproduce_paper001 [--runs 1000] [--jobs 2] [--seed 0]
 
 Scenarios ``scenarios/paper001_path1.toml`` and ``paper001_path2.toml`` (two 3-D
 radars, no ADS-B: the paper has none).  Methods: ``wls`` (the paper's full
 observation set, eq. 8-11), ``wls-pruned`` (its greedy pruning, eq. 12) and
 ``graph`` (cross-radar factors only, ``use_adsb=False``).  Every run simulates
-the scenario with its own seed (:func:`graphcal.compare.compare`) and runs all
+the scenario with its own seed (:func:`graphcal.pipeline.compare.compare`) and runs all
 three methods on the same data.
 
 Outputs: the tables on stdout, ``benchmarks/results/reproduce_paper001_path{1,2}.md``
-and ``.json`` (the full :class:`~graphcal.compare.ComparisonResult` summary) and
+and ``.json`` (the full :class:`~graphcal.pipeline.compare.ComparisonResult` summary) and
 ``benchmarks/results/reproduce_paper001.md`` (the Table 1 layout beside the paper).
 """
 
@@ -23,8 +23,8 @@ import sys
 import time
 from pathlib import Path
 
-from graphcal.compare import compare
-from graphcal.dataset import atomic_write_text
+from graphcal.core.atomic import atomic_write_text
+from graphcal.pipeline.compare import compare
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

@@ -2,12 +2,12 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/reproduce_paper003.py [--runs 1000] [--jobs 2] [--seed 0]
+    .venv/bin/python -m benchmarks.reproduce_paper003 [--runs 1000] [--jobs 2] [--seed 0]
 
 Scenario ``scenarios/paper003_adsb_2d.toml`` (one 2-D radar, one straight flight,
 ADS-B at 1 s; the paper uses one real recording of 27 plots, we simulate it with
 assumed geometry and noise).  Methods ``fl``, ``ls``, ``fl-ls`` and, for context,
-``graph``.  Per run (:func:`graphcal.compare.compare`): the estimates, and each
+``graph``.  Per run (:func:`graphcal.pipeline.compare.compare`): the estimates, and each
 calibration's mean absolute range and azimuth residual against the interpolated
 ADS-B before and after correction (the paper's Table 2 "mean error"); Table 3's
 improvement ``eta = (before - after) / before`` is computed from the means over runs.
@@ -23,8 +23,8 @@ import sys
 import time
 from pathlib import Path
 
-from graphcal.compare import compare
-from graphcal.dataset import atomic_write_text
+from graphcal.core.atomic import atomic_write_text
+from graphcal.pipeline.compare import compare
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    .venv/bin/python benchmarks/selection_study.py [--seeds 30]
+    .venv/bin/python -m benchmarks.selection_study [--seeds 30]
 
 Part 1 - paper 001 path 2 (``scenarios/paper001_path2.toml``, no ADS-B).  Per
 seed: WLS on all observations with the Jacobians at the plots (the paper) and at
@@ -35,17 +35,15 @@ from pathlib import Path
 
 import numpy as np
 
+from graphcal.analysis.observability import degree_curve, observation_blocks
+from graphcal.analysis.selection import select, select_dataset, selection_units
+from graphcal.core.atomic import atomic_write_stream, atomic_write_text
+from graphcal.simulation.scenario import load_scenario
+from graphcal.simulation.simulate import simulate
+from graphcal.solvers.registry import calibrate
+from tests.synthetic import crowded_network
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-from synthetic import crowded_network  # noqa: E402
-
-from graphcal.dataset import atomic_write_stream, atomic_write_text  # noqa: E402
-from graphcal.estimators import calibrate  # noqa: E402
-from graphcal.observability import degree_curve, observation_blocks  # noqa: E402
-from graphcal.scenario import load_scenario  # noqa: E402
-from graphcal.selection import select, select_dataset, selection_units  # noqa: E402
-from graphcal.simulate import simulate  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 FIGURE = ROOT / "docs" / "selection_path2.png"

@@ -1,6 +1,6 @@
 """Small synthetic datasets for estimator tests, built independently of the simulator.
 
-Geometry goes through pymap3d (an outside library), not graphcal.frames, so the
+Geometry goes through pymap3d (an outside library), not graphcal.core.frames, so the
 estimator tests do not share conversion code with the estimators they check.
 Plots are taken at regular times (no antenna sweep) - enough for estimators.
 """
@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 import pymap3d
 
-from graphcal.bias import RadarBias
-from graphcal.dataset import Dataset, Site
+from graphcal.data.bias import RadarBias
+from graphcal.data.dataset import Dataset, Site
 
 ORIGIN = (48.8, 2.4, 0.0)  # lat deg, lon deg, alt m
 

@@ -6,7 +6,7 @@ range [m], azimuth and elevation [rad] (reported in mrad by
 
 1. **Straight legs** (:func:`estimate_noise_line_fit`,
    :mod:`graphcal.noise.line_fit`): paper 000's statistical method (eq. 3-10,
-   corrected; the formulas are in :mod:`graphcal.variance`), a straight line
+   corrected; the formulas are in :mod:`graphcal.noise.variance`), a straight line
    fitted in time to each straight constant-velocity leg of a target; the
    scatter of the plots about it is the noise.  No ADS-B is needed.  The paper's
    variance lookup table (sigmas per range/azimuth bin) is
@@ -19,7 +19,7 @@ This module is the front end: :func:`estimate_noise` estimates every radar
 (ADS-B where a radar has enough matched plots, else straight legs),
 :func:`sites_with_estimated_sigmas` writes estimates into sites, and
 :func:`fill_missing_sigmas` / the decorator :func:`fills_missing_sigmas` (used
-by the estimators of :mod:`graphcal.estimators`) fill the sigmas that
+by the estimators of :mod:`graphcal.solvers.registry`) fill the sigmas that
 ``sites.toml`` leaves out.  Estimates are robust by default and carry their own
 standard errors; a radar that cannot be estimated gets a
 :class:`NoiseEstimate` with ``estimated=False`` (:mod:`graphcal.noise.result`),
@@ -34,9 +34,9 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, Literal
 
-from graphcal.align import align_adsb
-from graphcal.dataset import Dataset, Site
-from graphcal.errors import DatasetError
+from graphcal.core.errors import DatasetError
+from graphcal.data.align import align_adsb
+from graphcal.data.dataset import Dataset, Site
 from graphcal.noise.adsb import MIN_ADSB_PLOTS, estimate_noise_adsb
 from graphcal.noise.line_fit import (
     LineFitOptions,
@@ -48,7 +48,7 @@ from graphcal.noise.lookup_table import variance_table
 from graphcal.noise.result import MAD_SE_FACTOR, NoiseEstimate
 
 if TYPE_CHECKING:
-    from graphcal.calibration import Calibration
+    from graphcal.data.calibration import Calibration
 
 __all__ = [
     "DEFAULT_MIN_ADSB_PLOTS",
@@ -185,7 +185,7 @@ def fill_missing_sigmas(
 ) -> tuple[Dataset, dict[str, NoiseEstimate]]:
     """The dataset with every sigma that ``sites.toml`` left out estimated from the data.
 
-    Only radars with :attr:`graphcal.dataset.Site.missing_sigmas` are estimated
+    Only radars with :attr:`graphcal.data.dataset.Site.missing_sigmas` are estimated
     (:func:`estimate_noise`); a dataset without missing sigmas is returned as it
     is, with no estimate.
 

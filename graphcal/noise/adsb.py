@@ -1,12 +1,12 @@
 """Random-error sigmas of a radar from its residuals against ADS-B.
 
 Each plot minus the ADS-B position of its aircraft interpolated to its time
-(:func:`graphcal.align.align_adsb`), in polar: range [m], azimuth and
+(:func:`graphcal.data.align.align_adsb`), in polar: range [m], azimuth and
 elevation [rad].  The radar's biases are removed by robust (L1) fits (range
-residual ``= offset + gain * range``, :func:`graphcal.variance.fit_line_irls`;
+residual ``= offset + gain * range``, :func:`graphcal.noise.variance.fit_line_irls`;
 azimuth and elevation residuals constant), and the ADS-B error mapped into
 polar (horizontal ``sigma_m``, vertical
-:data:`graphcal.align.ADSB_VERTICAL_SIGMA_RATIO` times it; the interpolation
+:data:`graphcal.data.align.ADSB_VERTICAL_SIGMA_RATIO` times it; the interpolation
 weights included) is removed in quadrature, plot by plot.  Linear
 interpolation between reports 1 s apart adds at most ``a dt^2 / 8`` (about
 1 m in a 3 deg/s turn at 250 m/s), negligible against radar noise.  A
@@ -22,11 +22,11 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from graphcal import frames
-from graphcal.align import AdsbAlignment, align_adsb
-from graphcal.dataset import Dataset
+from graphcal.core import frames
+from graphcal.data.align import AdsbAlignment, align_adsb
+from graphcal.data.dataset import Dataset
 from graphcal.noise.result import MAD_SE_FACTOR, NoiseEstimate, not_estimated
-from graphcal.variance import MAD_TO_SIGMA, fit_line_irls
+from graphcal.noise.variance import MAD_TO_SIGMA, fit_line_irls
 
 FloatArray = NDArray[np.float64]
 
@@ -78,12 +78,12 @@ def estimate_noise_adsb(
 ) -> NoiseEstimate:
     """Polar sigmas of one radar from its residuals against interpolated ADS-B.
 
-    For every plot matched to ADS-B (:func:`graphcal.align.align_adsb`):
+    For every plot matched to ADS-B (:func:`graphcal.data.align.align_adsb`):
     ``e = (range, azimuth, elevation)_measured - polar(ADS-B at the plot time)``.
     The biases are removed by L1 fits (range: ``offset + gain * range``,
-    :func:`graphcal.variance.fit_line_irls`; azimuth, elevation: the median).  The ADS-B error
+    :func:`graphcal.noise.variance.fit_line_irls`; azimuth, elevation: the median).  The ADS-B error
     variance in polar, ``v_i = diag(Jp C_i Jp^T)`` with ``Jp``
-    (:func:`graphcal.frames.enu_to_polar_jacobian`) at the ADS-B position and
+    (:func:`graphcal.core.frames.enu_to_polar_jacobian`) at the ADS-B position and
     ``C_i`` the interpolated ADS-B covariance, is removed plot by plot:
     ``e_ik ~ N(0, sigma_k^2 + v_ik)`` is solved for ``sigma_k``
     (:func:`_scale_with_known_variance`; dof: 2 for range, 1 for the angles).
@@ -100,7 +100,7 @@ def estimate_noise_adsb(
     min_plots : int
         Fewer matched plots: not estimated.
     aligned : AdsbAlignment, optional
-        The radar's :func:`graphcal.align.align_adsb` result, when already computed.
+        The radar's :func:`graphcal.data.align.align_adsb` result, when already computed.
 
     Returns
     -------

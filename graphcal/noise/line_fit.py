@@ -3,7 +3,7 @@
 A target flying a straight constant-velocity leg is fitted by a straight line
 in time; the scatter of the plots about the line is the radar's noise (paper
 000 eq. 3-10; the corrected formulas and their departures from the printed
-paper are in :mod:`graphcal.variance`).  No ADS-B is needed.  Units: metres,
+paper are in :mod:`graphcal.noise.variance`).  No ADS-B is needed.  Units: metres,
 radians and seconds inside; the :class:`~graphcal.noise.result.NoiseEstimate`
 gives angles in mrad.
 
@@ -12,11 +12,11 @@ Departures from the paper besides the corrected formulas:
 * The paper fits ``x(t)`` and ``y(t)`` of 2-D plots (elevation 0).  graphcal
   fits in 3-D, in the coordinates ``(east, north, height)`` of the radar (the
   *fit frame*): east and north of its ENU frame and the height above the
-  radar's local sphere (the sphere of :func:`graphcal.frames.elevation_from_height`),
+  radar's local sphere (the sphere of :func:`graphcal.core.frames.elevation_from_height`),
   in which a level flight is a straight line (in plain ENU its height would
   sag by ``L^2 / 8R``, 70 m over a 60 km window).  3-D radars place plots with
   the measured elevation; 2-D radars at the reported (Mode C) height when
-  present (like :mod:`graphcal.estimators.cross_radar`), else on the
+  present (like :mod:`graphcal.model.cross_radar`), else on the
   horizontal plane (elevation 0, the paper's choice).
 * What graphcal needs are the polar sigmas, so the residuals are evaluated in
   polar space: the measured ``(range, azimuth, elevation)`` minus the polar
@@ -35,7 +35,7 @@ Legs: a radar's plots are split by ``target_id`` (plots without one are not
 used) and at time gaps longer than 2.5 scans, cut into windows of
 ``window_plots`` consecutive plots, and a window is kept only when a straight
 constant-velocity line fits it: the IRLS (L1) fit
-(:func:`graphcal.variance.fit_line_irls`, batched) flags outlying plots (more
+(:func:`graphcal.noise.variance.fit_line_irls`, batched) flags outlying plots (more
 than 5 robust sigmas), the remaining plots are fitted by ordinary least
 squares (the same hat matrix for every coordinate), a quadratic term that is
 significant against the window's own scatter (``|t| > 3.5`` in any coordinate)
@@ -53,11 +53,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import stats
 
-from graphcal import frames
-from graphcal.align import plot_arrays
-from graphcal.dataset import Dataset, Site
+from graphcal.core import frames
+from graphcal.data.align import plot_arrays
+from graphcal.data.dataset import Dataset, Site
 from graphcal.noise.result import MAD_SE_FACTOR, NoiseEstimate, not_estimated
-from graphcal.variance import MAD_TO_SIGMA, irls_lines
+from graphcal.noise.variance import MAD_TO_SIGMA, irls_lines
 
 FloatArray = NDArray[np.float64]
 
@@ -349,7 +349,7 @@ def line_fit_residuals(
     Steps (see the module docstring): split the plots by ``target_id`` and
     gaps, cut windows of ``options.window_plots`` plots, place them in the fit
     frame ``(east, north, height)``, fit each coordinate against time by IRLS
-    (:func:`graphcal.variance.irls_lines`) to flag outliers, refit the inliers by
+    (:func:`graphcal.noise.variance.irls_lines`) to flag outliers, refit the inliers by
     least squares, drop windows with a significant quadratic term, a large
     azimuth span or a plot too close to the radar, and evaluate the residuals
     in polar space with their variance coefficients.

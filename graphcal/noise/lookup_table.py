@@ -17,14 +17,14 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from graphcal.dataset import Dataset
+from graphcal.data.dataset import Dataset
 from graphcal.noise.line_fit import (
     LineFitOptions,
     line_fit_residuals,
     line_fit_sigmas,
     standardised_residuals,
 )
-from graphcal.variance import MAD_TO_SIGMA
+from graphcal.noise.variance import MAD_TO_SIGMA
 
 FloatArray = NDArray[np.float64]
 

@@ -1,0 +1,126 @@
+"""The ``import-asterix`` command: ASTERIX recordings (and OpenSky ADS-B) to a dataset folder.
+
+Names from :mod:`graphcal.cli.app` are imported inside the function so that this
+module can be imported by ``cli.py`` itself.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+def _format_span(span: tuple[float, float] | None) -> str:
+    if span is None:
+        return "-"
+    first, last = span
+    return f"{first:.1f} s .. {last:.1f} s ({last - first:.1f} s)"
+
+
+def import_asterix_command(
+    files: Annotated[
+        list[Path],
+        typer.Argument(metavar="FILE...", help="ASTERIX recordings: raw blocks, pcap or pcapng."),
+    ],
+    out: Annotated[Path, typer.Option("--out", help="Dataset folder to write.")],
+    sites: Annotated[
+        Path | None,
+        typer.Option(help="sites.toml with radar positions; its radar tables may carry sac/sic "
+                     "keys to name a radar (wins over CAT034 positions)."),
+    ] = None,
+    adsb: Annotated[
+        Path | None,
+        typer.Option(help="ADS-B source replacing the recording's CAT021 (see --adsb-format)."),
+    ] = None,
+    adsb_format: Annotated[
+        str, typer.Option("--adsb-format", help="Format of --adsb: asterix or opensky.")
+    ] = "asterix",
+    fmt: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
+) -> None:
+    """Decode ASTERIX CAT048/CAT021/CAT034 recordings into a dataset folder."""
+    from rich.table import Table
+
+    from graphcal.cli.app import EXIT_BAD_INPUT, _errors_to_exit, _fail, console, progress_bar
+    from graphcal.io.asterix.decode import decode_files
+    from graphcal.io.asterix.tables import (
+        build_tables,
+        load_user_sites,
+        recording_epoch,
+        sorted_by_time,
+        time_span,
+    )
+    from graphcal.io.folder import write_dataset
+    from graphcal.io.opensky import read_opensky_adsb
+
+    if fmt not in ("csv", "parquet"):
+        _fail(f"--format must be csv or parquet, not '{fmt}'", EXIT_BAD_INPUT)
+    if adsb_format not in ("asterix", "opensky"):
+        _fail(f"--adsb-format must be asterix or opensky, not '{adsb_format}'", EXIT_BAD_INPUT)
+    if not files:
+        _fail("give at least one recording FILE", EXIT_BAD_INPUT)
+    for path in [*files, *([adsb] if adsb is not None else [])]:
+        if not path.is_file():
+            _fail(f"{path}: no such file", EXIT_BAD_INPUT)
+    with _errors_to_exit():
+        user_sites = None if sites is None else load_user_sites(sites)
+        with progress_bar("decoding ASTERIX") as callback:
+            decoded = decode_files(files, progress=callback)
+        adsb_table = None
+        epoch = recording_epoch(decoded)
+        if adsb is not None:
+            if adsb_format == "opensky":
+                adsb_table = read_opensky_adsb(adsb, epoch_unix_s=epoch)
+                epoch = adsb_table.attrs["epoch_unix_s"] if epoch is None else epoch
+            else:
+                with progress_bar("decoding ADS-B") as callback:
+                    extra = decode_files([adsb], progress=callback)
+                decoded.extend(extra)
+        source = files[0] if len(files) == 1 else None
+        tables = build_tables(decoded, user_sites=user_sites, adsb=adsb_table,
+                              epoch_unix_s=epoch, source=source)
+        dataset = tables.dataset
+        dataset.plots = sorted_by_time(dataset.plots, ["radar_id", "time_s"])
+        if dataset.adsb is not None:
+            dataset.adsb = sorted_by_time(dataset.adsb, ["time_s", "target_id"])
+        write_dataset(dataset, out, fmt=fmt, overwrite=overwrite)
+
+    stats, decode = tables.stats, decoded.stats
+    table = Table(title=f"wrote {out}", title_justify="left")
+    for name in ("radar", "SAC", "SIC", "position from", "plots"):
+        table.add_column(name, justify="left" if name in ("radar", "position from") else "right")
+    for radar_id, n_plots in stats.plots_by_radar.items():
+        sac, sic = stats.sources[radar_id]
+        table.add_row(radar_id, str(sac), str(sic), stats.site_origin[radar_id], str(n_plots))
+    console.print(table)
+    date = tables.time_base.date
+    lines = [
+        f"time base: seconds since 00:00 UTC of {date or 'the first report day (date unknown)'}"
+        f"; span {_format_span(time_span([dataset.plots, dataset.adsb]))}",
+        f"ADS-B: {stats.adsb_reports} reports of {stats.aircraft} aircraft"
+        + (f" (from {adsb}, {adsb_format})" if adsb is not None else ""),
+        f"blocks: {decode.blocks} read, {decode.blocks_decoded} decoded; records: "
+        + (", ".join(f"CAT{c:03d} {n}" for c, n in sorted(decode.records.items())) or "none"),
+    ]
+    if decode.skipped_categories:
+        lines.append("skipped categories: " + ", ".join(
+            f"CAT{c:03d} ({n} blocks)" for c, n in sorted(decode.skipped_categories.items())))
+    if decode.rejected:
+        lines.append("rejected: " + ", ".join(
+            f"{reason} {n}" for reason, n in sorted(decode.rejected.items())))
+    if stats.skipped:
+        lines.append("reports skipped: " + ", ".join(
+            f"{reason} {n}" for reason, n in sorted(stats.skipped.items())))
+    if adsb_table is not None:
+        dropped = ", ".join(f"{k} {v}" for k, v in adsb_table.attrs["dropped"].items() if v)
+        lines.append(f"OpenSky rows: {adsb_table.attrs['rows_read']} read; dropped: "
+                     f"{dropped or 'none'}; height from {adsb_table.attrs['height_source']}")
+    plot_span = time_span([dataset.plots])
+    adsb_span = time_span([dataset.adsb])
+    if plot_span and adsb_span and (adsb_span[1] < plot_span[0] or adsb_span[0] > plot_span[1]):
+        lines.append("warning: the ADS-B reports do not overlap the plots in time "
+                     "(different days or recordings?)")
+    for line in lines:
+        console.print(line, highlight=False, soft_wrap=True)

@@ -1,0 +1,368 @@
+"""Association and time alignment of radar plots with ADS-B and with other radars.
+
+* Plots are associated with ADS-B reports by ``target_id`` (the ICAO address).
+* ADS-B positions are interpolated linearly to each plot time, paper 003
+  eq. 6-7 with its misprint corrected: ``x = x_j + v_x (t_R - t_j)`` with
+  ``v_x = (x_{j+1} - x_j) / (t_{j+1} - t_j)``.  Interpolation is done in ECEF,
+  which is equivalent to the paper's radar-local Cartesian frame because the
+  two differ by an affine map.
+* Gaps between the two bracketing reports longer than ``max_gap_s`` are not
+  bridged: such plots are left out.
+* Cross-radar pairs: each plot of radar *b* is paired with the two plots of
+  radar *a* of the same target that bracket its time (no more than
+  ``max_gap_s`` apart), with the interpolation weight.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from graphcal.core import frames
+from graphcal.data.dataset import Dataset, Site
+
+#: Default longest gap [s] between two ADS-B reports that is bridged by interpolation.
+DEFAULT_ADSB_MAX_GAP_S = 10.0
+#: Longest gap between a radar's bracketing plots, in scan periods, for cross-radar pairs.
+DEFAULT_PAIR_MAX_GAP_SCANS = 2.5
+#: Fallback gap limit [s] for cross-radar pairs when the scan period is unknown.
+DEFAULT_PAIR_MAX_GAP_S = 15.0
+#: ADS-B vertical sigma as a multiple of the horizontal one (GNSS geometry).
+ADSB_VERTICAL_SIGMA_RATIO = 1.5
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class PlotArrays:
+    """One radar's plots as SI arrays (azimuth and elevation in radians)."""
+
+    index: NDArray[np.int64]
+    time_s: FloatArray
+    range_m: FloatArray
+    azimuth_rad: FloatArray
+    elevation_rad: FloatArray
+    altitude_m: FloatArray
+    target_id: NDArray[np.object_]
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def subset(self, mask: NDArray[np.bool_]) -> PlotArrays:
+        """The plots selected by ``mask``."""
+        return PlotArrays(
+            *(getattr(self, name)[mask] for name in self.__dataclass_fields__)
+        )
+
+
+def plot_arrays(dataset: Dataset, radar_id: str) -> PlotArrays:
+    """The plots of ``radar_id`` in time order, as SI arrays."""
+    plots = dataset.plots_of(radar_id)
+    altitude = plots["altitude_m"] if "altitude_m" in plots else pd.Series(np.nan, plots.index)
+    return PlotArrays(
+        index=plots.index.to_numpy(dtype=np.int64),
+        time_s=plots["time_s"].to_numpy(dtype=float),
+        range_m=plots["range_m"].to_numpy(dtype=float),
+        azimuth_rad=np.deg2rad(plots["azimuth_deg"].to_numpy(dtype=float)),
+        elevation_rad=np.deg2rad(plots["elevation_deg"].to_numpy(dtype=float)),
+        altitude_m=altitude.to_numpy(dtype=float),
+        target_id=plots["target_id"].to_numpy(dtype=object),
+    )
+
+
+def neighbour_plots(plots: PlotArrays, skip: int = 1, half_width: int = 4) -> PlotArrays:
+    """Each plot replaced by the mean of its track neighbours, the plot itself left out.
+
+    For plot ``k`` of a target's time-ordered track, the mean of the plots
+    ``k +- (skip + 1) ... k +- (skip + half_width)`` of the same target (range,
+    altitude and elevation arithmetic, azimuth circular); a plot without such
+    neighbours keeps its own values.  Their noise is independent of the plots
+    ``k - skip ... k + skip``, which makes them instruments: a Jacobian evaluated
+    at them carries no noise correlated with an observation built from those
+    plots (the errors-in-variables bias of evaluating it at the plots themselves).
+    """
+    n = len(plots)
+    targets = plots.target_id.astype(str)
+    order = np.lexsort((plots.time_s, targets))
+    sorted_targets = targets[order]
+    values = {
+        "range_m": plots.range_m[order],
+        "elevation_rad": plots.elevation_rad[order],
+        "altitude_m": plots.altitude_m[order],
+    }
+    sums = {name: np.zeros(n) for name in values}
+    counts = {name: np.zeros(n) for name in values}
+    east = np.zeros(n)
+    north = np.zeros(n)
+    az = plots.azimuth_rad[order]
+    n_neighbours = np.zeros(n)
+    for step in range(skip + 1, skip + half_width + 1):
+        for shift in (step, -step):
+            src = np.arange(n) + shift
+            ok = (src >= 0) & (src < n)
+            ok[ok] &= sorted_targets[src[ok]] == sorted_targets[ok]
+            ok[ok] &= sorted_targets[ok] != ""
+            dst, src = np.flatnonzero(ok), src[ok]
+            for name, v in values.items():
+                finite = np.isfinite(v[src])
+                sums[name][dst[finite]] += v[src][finite]
+                counts[name][dst[finite]] += 1
+            east[dst] += np.sin(az[src])
+            north[dst] += np.cos(az[src])
+            n_neighbours[dst] += 1
+    out = {}
+    for name, v in values.items():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = sums[name] / counts[name]
+        out[name] = np.where(counts[name] > 0, mean, v)
+    out["azimuth_rad"] = np.where(n_neighbours > 0, np.mod(np.arctan2(east, north), 2 * np.pi),
+                                  az)
+    inverse = np.empty(n, dtype=np.int64)
+    inverse[order] = np.arange(n)
+    return PlotArrays(
+        index=plots.index, time_s=plots.time_s, range_m=out["range_m"][inverse],
+        azimuth_rad=out["azimuth_rad"][inverse], elevation_rad=out["elevation_rad"][inverse],
+        altitude_m=out["altitude_m"][inverse], target_id=plots.target_id,
+    )
+
+
+@dataclass
+class AdsbAlignment:
+    """Plots of one radar with the ADS-B position of the same aircraft at each plot time.
+
+    Attributes
+    ----------
+    plots : PlotArrays
+        The aligned plots (a subset of the radar's plots).
+    reference_ecef_m : ndarray, shape (n, 3)
+        Interpolated ADS-B position at each plot time [m].
+    reference_polar : ndarray, shape (n, 3)
+        That position in the radar's polar coordinates (range m, azimuth rad,
+        elevation rad).
+    reference_enu_cov_m2 : ndarray, shape (n, 3, 3)
+        Covariance of the interpolated ADS-B position in the radar's ENU [m^2].
+    n_unmatched : int
+        Plots with no ADS-B of their aircraft within the gap limit.
+    reference_velocity_ecef_m_s : ndarray, shape (n, 3)
+        Velocity of the ADS-B track at each plot time [m/s]: the slope between the
+        reports just outside the bracketing pair (``j - 1`` and ``j + 2``), whose noise
+        is independent of the interpolated position; the bracketing segment's slope
+        where those do not exist.
+    time_offset_s : float
+        The radar's time-stamping bias assumed in the alignment: ADS-B is
+        interpolated at ``time_s - time_offset_s`` (CONTRACT.md:
+        ``time_reported = time_true + time_offset_s``).
+    """
+
+    radar_id: str
+    plots: PlotArrays
+    reference_ecef_m: FloatArray
+    reference_polar: FloatArray
+    reference_enu_cov_m2: FloatArray
+    n_unmatched: int
+    reference_velocity_ecef_m_s: FloatArray | None = None
+    time_offset_s: float = 0.0
+
+    def __len__(self) -> int:
+        return len(self.plots)
+
+
+def tracks_by_target(
+    time_s: FloatArray, target_id: pd.Series, *columns: FloatArray, skip_empty: bool = True
+) -> dict[str, tuple[FloatArray, ...]]:
+    """Rows grouped per aircraft: ``(time_s, *columns)``, time-sorted, repeated times dropped.
+
+    Rows with an empty ``target_id`` are left out when ``skip_empty``.
+    """
+    tracks: dict[str, tuple[FloatArray, ...]] = {}
+    for target, rows in target_id.groupby(target_id, sort=False).indices.items():
+        if skip_empty and not target:
+            continue
+        order = rows[np.argsort(time_s[rows], kind="stable")]
+        keep = np.concatenate([[True], np.diff(time_s[order]) > 0])
+        order = order[keep]
+        tracks[str(target)] = (time_s[order], *(c[order] for c in columns))
+    return tracks
+
+
+def adsb_tracks(adsb: pd.DataFrame) -> dict[str, tuple[FloatArray, FloatArray, FloatArray]]:
+    """ADS-B per aircraft: (time_s, ecef_m, sigma_m), time-sorted, duplicate times removed."""
+    ecef = frames.geodetic_to_ecef(
+        np.deg2rad(adsb["lat_deg"].to_numpy(float)),
+        np.deg2rad(adsb["lon_deg"].to_numpy(float)),
+        adsb["alt_m"].to_numpy(float),
+    )
+    return tracks_by_target(  # type: ignore[return-value]
+        adsb["time_s"].to_numpy(float), adsb["target_id"], ecef,
+        adsb["sigma_m"].to_numpy(float),
+    )
+
+
+def bracket(
+    track_time_s: FloatArray, query_time_s: FloatArray, max_gap_s: float
+) -> tuple[NDArray[np.int64], FloatArray, NDArray[np.bool_]]:
+    """Bracketing samples for linear interpolation.
+
+    Returns ``(j, w, ok)`` such that the value at ``query_time_s`` is
+    ``(1 - w) * v[j] + w * v[j + 1]``; ``ok`` is False where the query lies
+    outside the track or the bracketing samples are more than ``max_gap_s``
+    apart (a query exactly at a sample time is always accepted).
+    """
+    n = len(track_time_s)
+    if n < 2:
+        zeros = np.zeros(len(query_time_s), dtype=np.int64)
+        return zeros, np.zeros(len(query_time_s)), np.zeros(len(query_time_s), dtype=bool)
+    j = np.searchsorted(track_time_s, query_time_s, side="right") - 1
+    j = np.clip(j, 0, n - 2)
+    t0, t1 = track_time_s[j], track_time_s[j + 1]
+    w = (query_time_s - t0) / (t1 - t0)
+    on_sample = (w == 0.0) | (w == 1.0)
+    ok = (w >= 0.0) & (w <= 1.0) & ((t1 - t0 <= max_gap_s) | on_sample)
+    return j, np.clip(w, 0.0, 1.0), ok
+
+
+def align_adsb(
+    dataset: Dataset,
+    radar_id: str,
+    max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
+    time_offset_s: float = 0.0,
+) -> AdsbAlignment:
+    """Associate one radar's plots with ADS-B and interpolate ADS-B to the plot times.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Must have an ADS-B table.
+    radar_id : str
+        The radar.
+    max_gap_s : float
+        Longest gap between two ADS-B reports that is bridged [s].
+    time_offset_s : float
+        The radar's time-stamping bias [s]: ADS-B is interpolated at the true plot
+        times ``time_s - time_offset_s``.
+
+    Returns
+    -------
+    AdsbAlignment
+    """
+    if dataset.adsb is None:
+        raise ValueError("the dataset has no ADS-B table")
+    site = dataset.sites[radar_id]
+    plots = plot_arrays(dataset, radar_id)
+    tracks = adsb_tracks(dataset.adsb)
+    n = len(plots)
+    ref = np.full((n, 3), np.nan)
+    vel = np.full((n, 3), np.nan)
+    var_h = np.full(n, np.nan)
+    matched = np.zeros(n, dtype=bool)
+    true_time_s = plots.time_s - time_offset_s
+    for target in pd.unique(plots.target_id):
+        if target not in tracks:
+            continue
+        rows = np.flatnonzero(plots.target_id == target)
+        t, ecef, sigma = tracks[target]
+        j, w, ok = bracket(t, true_time_s[rows], max_gap_s)
+        rows, j, w = rows[ok], j[ok], w[ok]
+        ref[rows] = (1.0 - w)[:, None] * ecef[j] + w[:, None] * ecef[j + 1]
+        # Velocity from the reports around the bracketing pair, not from the pair itself:
+        # the pair's noise is in the interpolated position, and a velocity sharing it
+        # would correlate the time-offset Jacobian with the residual.
+        lo = np.clip(j - 1, 0, len(t) - 1)
+        hi = np.clip(j + 2, 0, len(t) - 1)
+        outer = (hi - lo >= 3) & (t[hi] - t[lo] <= 3.0 * max_gap_s)
+        lo = np.where(outer, lo, j)
+        hi = np.where(outer, hi, j + 1)
+        vel[rows] = (ecef[hi] - ecef[lo]) / (t[hi] - t[lo])[:, None]
+        # Independent reports: the interpolated variance is w0^2 s0^2 + w1^2 s1^2.
+        var_h[rows] = (1.0 - w) ** 2 * sigma[j] ** 2 + w**2 * sigma[j + 1] ** 2
+        matched[rows] = True
+    plots = plots.subset(matched)
+    ref = ref[matched]
+    vel = vel[matched]
+    var_h = var_h[matched]
+    cov = np.zeros((len(plots), 3, 3))
+    cov[:, 0, 0] = var_h
+    cov[:, 1, 1] = var_h
+    cov[:, 2, 2] = ADSB_VERTICAL_SIGMA_RATIO**2 * var_h
+    polar = np.stack(site.polar_from_ecef(ref), axis=-1) if len(plots) else np.zeros((0, 3))
+    return AdsbAlignment(radar_id, plots, ref, polar, cov, int(n - matched.sum()), vel,
+                         float(time_offset_s))
+
+
+@dataclass
+class PlotPairs:
+    """Plots of radar ``b`` paired with radar ``a``'s track interpolated to their times.
+
+    For pair ``k`` the radar-``a`` position is
+    ``(1 - weight[k]) * a[a_index0[k]] + weight[k] * a[a_index0[k] + 1]`` in
+    terms of positions in :attr:`a_plots`.
+    """
+
+    radar_a: str
+    radar_b: str
+    a_plots: PlotArrays
+    b_plots: PlotArrays
+    a_index0: NDArray[np.int64]
+    weight: FloatArray
+    b_index: NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return len(self.b_index)
+
+
+def pair_max_gap_s(site: Site) -> float:
+    """Gap limit [s] for interpolating ``site``'s plots: 2.5 scans, or 15 s if unknown."""
+    if site.scan_period_s:
+        return DEFAULT_PAIR_MAX_GAP_SCANS * site.scan_period_s
+    return DEFAULT_PAIR_MAX_GAP_S
+
+
+def pair_plots(
+    dataset: Dataset,
+    radar_a: str,
+    radar_b: str,
+    max_gap_s: float | None = None,
+    shift_s: float = 0.0,
+) -> PlotPairs:
+    """Match radar ``b``'s plots to radar ``a``'s plots of the same target and time.
+
+    Plots with an empty ``target_id`` are not paired.  Positions within a
+    track of radar ``a`` are ordered by time; ``a_index0`` indexes that order.
+    ``shift_s`` is added to ``b``'s times before they are looked up in ``a``'s
+    track: with time-stamping biases it is ``time_offset_a - time_offset_b``,
+    so that both plots of a pair refer to the same true time.
+    """
+    if max_gap_s is None:
+        max_gap_s = pair_max_gap_s(dataset.sites[radar_a])
+    a = plot_arrays(dataset, radar_a)
+    b = plot_arrays(dataset, radar_b)
+    # Sort a by (target, time) so that each target's plots are contiguous.
+    order = np.lexsort((a.time_s, a.target_id.astype(str)))
+    a = a.subset(order)
+    a_index0: list[NDArray[np.int64]] = []
+    weights: list[FloatArray] = []
+    b_index: list[NDArray[np.int64]] = []
+    a_targets = a.target_id.astype(str)
+    starts = {}
+    for target in pd.unique(a_targets):
+        rows = np.flatnonzero(a_targets == target)
+        starts[target] = (rows[0], rows[-1] + 1)
+    b_targets = b.target_id.astype(str)
+    for target in pd.unique(b_targets):
+        if not target or target not in starts:
+            continue
+        lo, hi = starts[target]
+        rows_b = np.flatnonzero(b_targets == target)
+        j, w, ok = bracket(a.time_s[lo:hi], b.time_s[rows_b] + shift_s, max_gap_s)
+        a_index0.append(j[ok] + lo)
+        weights.append(w[ok])
+        b_index.append(rows_b[ok])
+    if b_index:
+        ia, ww, ib = np.concatenate(a_index0), np.concatenate(weights), np.concatenate(b_index)
+    else:
+        ia, ww, ib = np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64)
+    order_b = np.argsort(b.time_s[ib], kind="stable")
+    return PlotPairs(radar_a, radar_b, a, b, ia[order_b], ww[order_b], ib[order_b])

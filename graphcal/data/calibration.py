@@ -1,0 +1,701 @@
+"""The result every estimator returns: :class:`Calibration`.
+
+Estimates and covariance are held in SI units (m, fraction, rad, s) and
+converted to the contract's units (m, fraction, mrad, s) on output.
+
+Marginal queries, all in contract units::
+
+    cal.covariance("LAEG")            # LAEG's covariance block
+    cal.covariance("LAEG", "DOLE")    # cross block between LAEG's and DOLE's parameters
+    cal.sigma("LAEG", "azimuth_bias_mrad")
+    cal.correlation("LAEG", "DOLE")   # unit-free
+
+``cal.covariance`` is still the joint SI matrix as an array (see
+:class:`JointCovariance`).  :meth:`Calibration.from_dict` and
+:meth:`Calibration.read_json` rebuild a result from its contract JSON so that
+the same queries work on a file.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from graphcal.core.errors import ResultError
+from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY, PARAMETER_NAMES, RadarBias
+
+
+@dataclass
+class Observability:
+    """Observability figures of a linear(ised) estimation problem.
+
+    Attributes
+    ----------
+    degree : float
+        Observability degree ``Deg = lambda_min / lambda_max`` of the
+        information matrix (paper 001 eq. 11), computed after Jacobi scaling
+        (``D^-1/2 A D^-1/2`` with ``D = diag(A)``) so that it does not depend on
+        the parameters' units.
+    rank : int
+        Numerical rank of the information matrix.
+    n_parameters : int
+        Number of estimated parameters.
+    eigenvalues : ndarray
+        Eigenvalues of the scaled information matrix, ascending.
+    weakest_direction : ndarray
+        Unit eigenvector of the smallest eigenvalue (scaled parameters).
+    """
+
+    degree: float
+    rank: int
+    n_parameters: int
+    eigenvalues: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    weakest_direction: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Contract form: degree, rank, n_parameters (plus the eigenvalues)."""
+        return {
+            "degree": float(self.degree),
+            "rank": int(self.rank),
+            "n_parameters": int(self.n_parameters),
+            "eigenvalues": [float(v) for v in self.eigenvalues],
+        }
+
+
+@dataclass
+class ResidualStats:
+    """Residuals of one radar's plots against the reference, before and after correction.
+
+    Each entry of ``before`` / ``after`` maps a measurement name
+    (``range_m``, ``azimuth_mrad``, ``elevation_mrad``) to
+    ``{"mean": ..., "mean_abs": ..., "rms": ...}`` in that unit.
+    """
+
+    n: int
+    before: dict[str, dict[str, float]]
+    after: dict[str, dict[str, float]]
+    chi2_per_dof: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-dict form for JSON."""
+        return {
+            "n": self.n,
+            "before": self.before,
+            "after": self.after,
+            "chi2_per_dof": self.chi2_per_dof,
+        }
+
+
+class JointCovariance(np.ndarray):
+    """The joint covariance of a :class:`Calibration`: an SI array that can be called.
+
+    As an array it is exactly what ``Calibration.covariance`` always was, the
+    joint covariance in SI units (m, fraction, rad, s) in the order of
+    ``Calibration.labels``: index it, slice it, hand it to numpy.  Calling it
+    returns a marginal block in contract units (m, fraction, mrad, s), the same
+    as :meth:`Calibration.marginal`::
+
+        cal.covariance[i, j]              # SI element, as before
+        cal.covariance("LAEG")            # LAEG's block, contract units
+        cal.covariance("LAEG", "DOLE")    # cross block LAEG x DOLE
+
+    ``Calibration.covariance`` hands out a fresh view of the calibration's
+    matrix on each access (writes go through to it).  Everything derived from
+    it (slices, arithmetic, numpy functions) is a plain ``ndarray``; only the
+    attribute itself knows its labels and is callable.
+    """
+
+    _owner: Calibration | None
+
+    def __new__(cls, data: ArrayLike, owner: Calibration | None = None) -> JointCovariance:
+        obj = np.asarray(data, dtype=float).view(cls)
+        obj._owner = owner
+        return obj
+
+    def __array_finalize__(self, obj: object) -> None:
+        # Views made by ndarray methods (.T, .copy(), ...) lose the labels.
+        self._owner = None
+
+    def __call__(self, radar_a: str, radar_b: str | None = None) -> NDArray[np.float64]:
+        """Covariance block of ``radar_a`` (with ``radar_b``) in contract units.
+
+        Parameters
+        ----------
+        radar_a : str
+            Radar of the rows.
+        radar_b : str, optional
+            Radar of the columns; default ``radar_a`` (its marginal covariance).
+
+        Returns
+        -------
+        ndarray
+            Shape ``(n_a, n_b)``: rows and columns in the order of each radar's
+            estimated parameters (:meth:`Calibration.marginal_labels`), units
+            the products of the contract units (m, fraction, mrad, s).
+        """
+        owner = self._owner
+        if owner is None:
+            raise TypeError(
+                "only Calibration.covariance itself can be called; this array was derived "
+                "from it and has no labels"
+            )
+        if self.shape != (len(owner.labels), len(owner.labels)):
+            raise ValueError(
+                f"covariance of shape {self.shape} does not match the calibration's "
+                f"{len(owner.labels)} labels (the calibration was changed since)"
+            )
+        return _contract_block(np.asarray(self), owner, radar_a, radar_b)
+
+    def __getitem__(self, index: Any) -> Any:
+        item = super().__getitem__(index)
+        return item.view(np.ndarray) if isinstance(item, np.ndarray) else item
+
+    def __array_ufunc__(
+        self, ufunc: np.ufunc, method: str, *inputs: Any, out: Any = None, **kwargs: Any
+    ) -> Any:
+        inputs = tuple(_plain(x) for x in inputs)
+        if out is not None:
+            kwargs["out"] = tuple(_plain(x) for x in out)
+        result = getattr(ufunc, method)(*inputs, **kwargs)
+        if out is not None:  # in place: hand back the caller's own output arrays
+            return out[0] if len(out) == 1 else out
+        return result
+
+    def __array_function__(
+        self, func: Any, types: Any, args: tuple[Any, ...], kwargs: dict[str, Any]
+    ) -> Any:
+        return func(*_plain(args), **_plain(kwargs))
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with every :class:`JointCovariance` in it viewed as a plain ndarray."""
+    if isinstance(value, JointCovariance):
+        return value.view(np.ndarray)
+    if isinstance(value, tuple | list):
+        return type(value)(_plain(v) for v in value)
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    return value
+
+
+def _parameter_name(key: str) -> str:
+    """Internal parameter name of a contract key (``azimuth_bias_mrad`` -> ``azimuth_bias``)."""
+    try:
+        return NAME_FROM_KEY[key]
+    except KeyError:
+        raise KeyError(
+            f"unknown parameter key '{key}'; known: {', '.join(NAME_FROM_KEY)}"
+        ) from None
+
+
+def _contract_scale(labels: list[tuple[str, str]]) -> NDArray[np.float64]:
+    """Factor from SI to the contract unit of each label."""
+    return np.array([CONTRACT_KEYS[name][1] for _, name in labels], dtype=float)
+
+
+def _contract_block(
+    covariance_si: NDArray[np.float64], cal: Calibration, radar_a: str, radar_b: str | None
+) -> NDArray[np.float64]:
+    """Block ``radar_a x radar_b`` of an SI covariance over ``cal.labels``, contract units."""
+    ia, ib = cal._indices(radar_a), cal._indices(radar_b if radar_b is not None else radar_a)
+    scale = _contract_scale(cal.labels)
+    return covariance_si[np.ix_(ia, ib)] * np.outer(scale[ia], scale[ib])
+
+
+@dataclass
+class Calibration:
+    """Estimated biases of a radar network with their joint covariance.
+
+    Attributes
+    ----------
+    method : str
+        Estimator name (``ls``, ``fl``, ``fl-ls``, ``wls``, ...).
+    radar_ids : list of str
+        Radars covered by the result.
+    is_3d : dict
+        Whether each radar measures elevation.
+    labels : list of (radar_id, parameter name)
+        Estimated parameters, in the order of ``estimate`` and ``covariance``.
+    estimate : ndarray
+        Estimates in SI units.
+    covariance : JointCovariance
+        Joint covariance in SI units, shape ``(len(labels), len(labels))``.
+        Assign any array; reading gives a :class:`JointCovariance`, an ndarray
+        view that can also be called for contract-unit blocks:
+        ``cal.covariance("LAEG")``, ``cal.covariance("LAEG", "DOLE")``.
+    n_plots : dict
+        Plots of each radar used by the estimator.
+    observability : Observability
+    residuals : dict
+        :class:`ResidualStats` per radar, where a reference was available.
+    warnings : list of str
+        Plain-language warnings (weak observability, ...).
+    info : dict
+        Estimator-specific details (rank, singular values, iterations, ...).
+    fixed : dict
+        ``{(radar_id, parameter name): value SI}``: terms held at a known value,
+        not estimated (no sigma); :meth:`bias` and :meth:`value` include them.
+    """
+
+    method: str
+    radar_ids: list[str]
+    is_3d: dict[str, bool]
+    labels: list[tuple[str, str]]
+    estimate: NDArray[np.float64]
+    covariance: NDArray[np.float64]  # a property over ``_covariance``, defined below the class
+    n_plots: dict[str, int]
+    observability: Observability
+    residuals: dict[str, ResidualStats] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    info: dict[str, Any] = field(default_factory=dict)
+    fixed: dict[tuple[str, str], float] = field(default_factory=dict)
+
+    # ----------------------------------------------------------------- queries
+    def _position(self, radar_id: str, name: str) -> int | None:
+        try:
+            return self.labels.index((radar_id, name))
+        except ValueError:
+            return None
+
+    def _check_radar(self, radar_id: str) -> None:
+        if radar_id not in self.radar_ids:
+            raise KeyError(f"unknown radar '{radar_id}'; known: {', '.join(self.radar_ids)}")
+
+    def _indices(self, radar_id: str) -> list[int]:
+        """Positions of one radar's parameters in ``labels``."""
+        self._check_radar(radar_id)
+        return [i for i, (rid, _) in enumerate(self.labels) if rid == radar_id]
+
+    def bias(self, radar_id: str) -> RadarBias:
+        """The estimated biases of one radar (zero where not estimated), SI units."""
+        self._check_radar(radar_id)
+        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset")}
+        for (rid, name), value in self.fixed.items():
+            if rid == radar_id:
+                values[name] = float(value)
+        for i, (rid, name) in enumerate(self.labels):
+            if rid == radar_id:
+                values[name] = float(self.estimate[i])
+        return RadarBias(
+            values["range_offset"], values["range_gain"], values["azimuth_bias"],
+            values["elevation_bias"], values["time_offset"],
+        )
+
+    def value(self, radar_id: str, key: str) -> float | None:
+        """Estimate (or fixed value) in contract units for a contract key; ``None`` if neither.
+
+        Parameters
+        ----------
+        radar_id : str
+            Radar id.
+        key : str
+            Contract key: ``range_offset_m`` [m], ``range_gain`` [fraction],
+            ``azimuth_bias_mrad`` [mrad], ``elevation_bias_mrad`` [mrad] or
+            ``time_offset_s`` [s].
+        """
+        self._check_radar(radar_id)
+        name = _parameter_name(key)
+        i = self._position(radar_id, name)
+        if i is None:
+            fixed = self.fixed.get((radar_id, name))
+            return None if fixed is None else float(fixed * CONTRACT_KEYS[name][1])
+        return float(self.estimate[i] * CONTRACT_KEYS[name][1])
+
+    def sigma(self, radar_id: str, key: str) -> float | None:
+        """1-sigma in contract units for a contract key; ``None`` if not estimated.
+
+        Parameters
+        ----------
+        radar_id : str
+            Radar id.
+        key : str
+            Contract key, as for :meth:`value` (``time_offset_s`` included).
+
+        Returns
+        -------
+        float or None
+            Square root of the marginal variance, in the key's unit (m,
+            fraction, mrad, s); ``inf`` or NaN for an undetermined parameter.
+        """
+        self._check_radar(radar_id)
+        name = _parameter_name(key)
+        i = self._position(radar_id, name)
+        if i is None:
+            return None
+        return float(np.sqrt(max(self._covariance[i, i], 0.0)) * CONTRACT_KEYS[name][1])
+
+    def contract_labels(self) -> list[str]:
+        """Labels ``RADAR.key`` in contract units, e.g. ``LAEG.azimuth_bias_mrad``."""
+        return [f"{rid}.{CONTRACT_KEYS[name][0]}" for rid, name in self.labels]
+
+    def contract_covariance(self) -> NDArray[np.float64]:
+        """Joint covariance in the contract units of :meth:`contract_labels`."""
+        scale = _contract_scale(self.labels)
+        return self._covariance * np.outer(scale, scale)
+
+    def marginal_labels(self, radar_id: str) -> list[str]:
+        """Contract keys of one radar's estimated parameters, in covariance order.
+
+        These label the rows (and columns) of :meth:`marginal`, e.g.
+        ``["range_offset_m", "range_gain", "azimuth_bias_mrad"]``.
+        """
+        return [CONTRACT_KEYS[self.labels[i][1]][0] for i in self._indices(radar_id)]
+
+    def marginal(self, radar_a: str, radar_b: str | None = None) -> NDArray[np.float64]:
+        """Marginal covariance block of one radar, or cross block of two, contract units.
+
+        Parameters
+        ----------
+        radar_a : str
+            Radar of the rows.
+        radar_b : str, optional
+            Radar of the columns; default ``radar_a``.
+
+        Returns
+        -------
+        ndarray
+            Shape ``(n_a, n_b)``, rows and columns ordered as
+            :meth:`marginal_labels` of each radar; entries in the products of
+            the contract units (m, fraction, mrad, s), e.g. m·mrad.
+            ``marginal(b, a)`` is ``marginal(a, b).T``.
+        """
+        return _contract_block(self._covariance, self, radar_a, radar_b)
+
+    def covariance_block(self, radar_a: str, radar_b: str | None = None) -> NDArray[np.float64]:
+        """Same as :meth:`marginal` (kept for existing callers)."""
+        return self.marginal(radar_a, radar_b)
+
+    def correlation(
+        self, radar_a: str | None = None, radar_b: str | None = None
+    ) -> NDArray[np.float64]:
+        """Correlation coefficients of the estimated parameters (unit-free).
+
+        Parameters
+        ----------
+        radar_a : str, optional
+            Without it: the full matrix over ``labels``.  With it: the rows of
+            this radar's parameters only.
+        radar_b : str, optional
+            Columns of this radar's parameters; default ``radar_a``.
+
+        Returns
+        -------
+        ndarray
+            ``rho_ij = C_ij / sqrt(C_ii C_jj)``; NaN where a variance is
+            infinite or undefined.
+        """
+        cov = self._covariance
+        sd = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+        rho = cov / np.outer(sd, sd)
+        if radar_a is None:
+            if radar_b is not None:
+                raise TypeError("correlation(): give radar_a when radar_b is given")
+            return rho
+        ia = self._indices(radar_a)
+        ib = self._indices(radar_b if radar_b is not None else radar_a)
+        return rho[np.ix_(ia, ib)]
+
+    # ----------------------------------------------------------------- import
+    @classmethod
+    def from_dict(
+        cls, data: Mapping[str, Any], *, source: str | Path | None = None
+    ) -> Calibration:
+        """Rebuild a calibration from its contract result JSON (already parsed).
+
+        Reads ``radars`` (values in contract units, ``n_plots``, ``residuals``),
+        ``covariance.labels`` (``RADAR.key``) and ``covariance.matrix`` (in the
+        units of the labels), and ``method``, ``observability``, ``warnings``
+        and ``info`` when present.  Values and covariance are converted back
+        to SI, so every query (:meth:`value`, :meth:`sigma`, :meth:`marginal`,
+        ``covariance(...)``, :meth:`correlation`) works as on the estimator's
+        own result, and ``to_dict`` gives the same JSON back.  ``null`` values
+        (NaN, infinite variance) become NaN.  Without an ``observability``
+        entry the degree is NaN and the rank 0 (not recorded).  ``is_3d`` is
+        true where an elevation bias is estimated (all the file tells).
+
+        Parameters
+        ----------
+        data : mapping
+            The parsed JSON.
+        source : str or Path, optional
+            File name used in error messages.
+
+        Raises
+        ------
+        ResultError
+            A missing or malformed field, naming the file and the field.
+        """
+
+        def fail(message: str, where: str | None = None) -> ResultError:
+            return ResultError(message, path=source, field=where)
+
+        def number(value: Any, where: str) -> float:
+            """A JSON number (``null`` -> NaN) or a ResultError naming the field."""
+            if value is None:
+                return np.nan
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise fail(f"{value!r} is not a number", where)
+            return float(value)
+
+        if not isinstance(data, Mapping):
+            raise fail("not a result JSON object")
+        radars = data.get("radars")
+        if not isinstance(radars, Mapping):
+            raise fail("missing or not an object", "radars")
+        for rid, entry in radars.items():
+            if not isinstance(entry, Mapping):
+                raise fail("not an object", f"radars.{rid}")
+        cov_entry = data.get("covariance")
+        if not isinstance(cov_entry, Mapping):
+            raise fail("missing or not an object", "covariance")
+        raw_labels = cov_entry.get("labels")
+        if not isinstance(raw_labels, list):
+            raise fail("missing or not a list", "covariance.labels")
+        labels: list[tuple[str, str]] = []
+        for text in raw_labels:
+            rid, _, key = str(text).rpartition(".")
+            if not rid or key not in NAME_FROM_KEY:
+                raise fail(f"'{text}' is not RADAR.key with a contract key", "covariance.labels")
+            if rid not in radars:
+                raise fail(f"'{text}' names a radar missing from 'radars'", "covariance.labels")
+            labels.append((rid, NAME_FROM_KEY[key]))
+        if len(set(labels)) != len(labels):
+            raise fail("duplicate labels", "covariance.labels")
+        p = len(labels)
+        rows = cov_entry.get("matrix")
+        if not isinstance(rows, list) or len(rows) != p or any(
+            not isinstance(row, list) or len(row) != p for row in rows
+        ):
+            raise fail(f"must be a {p} x {p} list of rows (one per label)", "covariance.matrix")
+        matrix = np.array(
+            [[number(v, "covariance.matrix") for v in row] for row in rows], dtype=float
+        ).reshape(p, p)
+        scale = _contract_scale(labels)
+        estimate = np.array(
+            [
+                number(radars[rid].get(CONTRACT_KEYS[name][0]),
+                       f"radars.{rid}.{CONTRACT_KEYS[name][0]}")
+                for rid, name in labels
+            ],
+            dtype=float,
+        ) / scale
+
+        radar_ids = [str(rid) for rid in radars]
+        residuals: dict[str, ResidualStats] = {}
+        n_plots: dict[str, int] = {}
+        try:
+            for rid in radar_ids:
+                where = f"radars.{rid}.n_plots"
+                n_plots[rid] = int(radars[rid].get("n_plots") or 0)
+                res = radars[rid].get("residuals")
+                where = f"radars.{rid}.residuals"
+                if isinstance(res, Mapping):
+                    residuals[rid] = ResidualStats(
+                        int(res.get("n", 0)), dict(res.get("before", {})),
+                        dict(res.get("after", {})), res.get("chi2_per_dof"),
+                    )
+            fixed: dict[tuple[str, str], float] = {}
+            for rid in radar_ids:
+                where = f"radars.{rid}.fixed"
+                for key, value in dict(radars[rid].get("fixed") or {}).items():
+                    name = NAME_FROM_KEY[key]
+                    fixed[(rid, name)] = float(value) / CONTRACT_KEYS[name][1]
+            where = "observability"
+            obs = data.get("observability")
+            if isinstance(obs, Mapping):
+                observability = Observability(
+                    number(obs.get("degree"), "observability.degree"),
+                    int(obs.get("rank", 0)),
+                    int(obs.get("n_parameters", p)),
+                    np.asarray(obs.get("eigenvalues", []), dtype=float),
+                )
+            else:
+                observability = Observability(np.nan, 0, p)
+            where = "warnings"
+            warnings = [str(w) for w in data.get("warnings") or []]
+            where = "info"
+            info = dict(data.get("info") or {})
+        except (TypeError, ValueError, KeyError) as exc:
+            if isinstance(exc, ResultError):
+                raise
+            raise fail(f"malformed ({exc})", where) from None
+        return cls(
+            method=str(data.get("method", "")),
+            radar_ids=radar_ids,
+            is_3d={rid: (rid, "elevation_bias") in labels for rid in radar_ids},
+            labels=labels,
+            estimate=estimate,
+            covariance=matrix / np.outer(scale, scale),
+            n_plots=n_plots,
+            observability=observability,
+            residuals=residuals,
+            warnings=warnings,
+            info=info,
+            fixed=fixed,
+        )
+
+    @classmethod
+    def read_json(cls, path: str | Path) -> Calibration:
+        """Read a result JSON file (``calibrate --out``) with :meth:`from_dict`.
+
+        Raises
+        ------
+        ResultError
+            The file is missing or unreadable, not JSON, or not a result with
+            a covariance; the message names the file (and the field).
+        """
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise ResultError("no such file", path=path) from None
+        except OSError as exc:
+            raise ResultError(f"cannot read: {exc.strerror or exc}", path=path) from None
+        except UnicodeDecodeError:
+            raise ResultError("not UTF-8 text", path=path) from None
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ResultError(
+                f"not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg})", path=path
+            ) from None
+        return cls.from_dict(data, source=path)
+
+    # --------------------------------------------------------------- export
+    def to_dict(self) -> dict[str, Any]:
+        """The result JSON of the contract (plus optional extra keys)."""
+        radars: dict[str, Any] = {}
+        for rid in self.radar_ids:
+            entry: dict[str, Any] = {}
+            sigma: dict[str, float] = {}
+            fixed: dict[str, float] = {}
+            for name in PARAMETER_NAMES:
+                key = CONTRACT_KEYS[name][0]
+                i = self._position(rid, name)
+                # The contract: null where not estimated; known (fixed) values go to "fixed".
+                entry[key] = None if i is None else self.value(rid, key)
+                if i is None and (rid, name) in self.fixed:
+                    fixed[key] = self.value(rid, key)
+                s = self.sigma(rid, key)
+                if s is not None:
+                    sigma[key] = s
+            if self._position(rid, "time_offset") is not None:
+                entry["time_offset_s"] = self.value(rid, "time_offset_s")
+                sigma["time_offset_s"] = self.sigma(rid, "time_offset_s")
+            entry["sigma"] = sigma
+            if fixed:
+                entry["fixed"] = fixed
+            entry["n_plots"] = int(self.n_plots.get(rid, 0))
+            if rid in self.residuals:
+                entry["residuals"] = self.residuals[rid].to_dict()
+            radars[rid] = entry
+        return _jsonable({
+            "method": self.method,
+            "radars": radars,
+            "covariance": {
+                "labels": self.contract_labels(),
+                "matrix": self.contract_covariance().tolist(),
+            },
+            "observability": self.observability.to_dict(),
+            "warnings": list(self.warnings),
+            "info": self.info,
+        })
+
+    def to_json(self) -> str:
+        """The result JSON as text."""
+        return json.dumps(self.to_dict(), indent=2, allow_nan=False, default=_jsonable)
+
+    def write_json(self, path: str | Path) -> None:
+        """Write the result JSON atomically (temporary file, then rename)."""
+        from graphcal.core.atomic import atomic_write_text
+
+        atomic_write_text(Path(path), self.to_json() + "\n")
+
+
+def _get_covariance(self: Calibration) -> JointCovariance:
+    return JointCovariance(self._covariance, owner=self)
+
+
+def _set_covariance(self: Calibration, value: ArrayLike) -> None:
+    self._covariance = np.asarray(value, dtype=float)  # a plain view, never a copy of floats
+
+
+# Set after @dataclass has collected the fields, so ``covariance`` stays an
+# ordinary constructor argument without a default.
+Calibration.covariance = property(  # type: ignore[assignment]
+    _get_covariance,
+    _set_covariance,
+    doc="Joint covariance in SI units; callable for contract-unit blocks (JointCovariance).",
+)
+
+
+def _jsonable(value: Any) -> Any:
+    """Convert numpy values (and NaN) to JSON-safe Python values."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        v = float(value)
+        return v if np.isfinite(v) else None
+    return value
+
+
+def load_result(path: str | Path) -> dict[str, Any]:
+    """Read a result JSON (e.g. ``truth.json`` or ``calibrate --out``) as a dict."""
+    with open(path, encoding="utf-8") as handle:
+        return json.load(handle)
+
+
+def read_biases(path: str | Path) -> dict[str, RadarBias]:
+    """Per-radar biases from a result JSON: a calibration or a simulation's ``truth.json``.
+
+    :meth:`graphcal.data.calibration.Calibration.read_json` needs a ``covariance``
+    entry, which ``truth.json`` does not have; this reads only the values
+    (``radars.RADAR.<contract key>`` and ``radars.RADAR.fixed``), in contract
+    units, so it takes both.  Missing or ``null`` values are zero.
+
+    Raises
+    ------
+    ResultError
+        The file is missing, not JSON or has no ``radars`` object.
+    """
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ResultError("no such file", path=path) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ResultError(f"cannot read as JSON: {exc}", path=path) from None
+    radars = data.get("radars") if isinstance(data, Mapping) else None
+    if not isinstance(radars, Mapping):
+        raise ResultError("missing or not an object", path=path, field="radars")
+    out: dict[str, RadarBias] = {}
+    for rid, entry in radars.items():
+        if not isinstance(entry, Mapping):
+            raise ResultError("not an object", path=path, field=f"radars.{rid}")
+        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset")}
+        fixed = entry.get("fixed") or {}
+        items = list(fixed.items()) if isinstance(fixed, Mapping) else []
+        items += [(k, v) for k, v in entry.items() if k in NAME_FROM_KEY]
+        for key, value in items:
+            if key not in NAME_FROM_KEY or value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ResultError(f"{value!r} is not a number", path=path,
+                                  field=f"radars.{rid}.{key}")
+            name = NAME_FROM_KEY[key]
+            values[name] = float(value) / CONTRACT_KEYS[name][1]
+        out[str(rid)] = RadarBias(
+            values["range_offset"], values["range_gain"], values["azimuth_bias"],
+            values["elevation_bias"], values["time_offset"],
+        )
+    return out

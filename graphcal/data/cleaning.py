@@ -1,0 +1,853 @@
+"""Detection and removal of bad data before a calibration.
+
+Real recordings carry defects that a least-squares calibration would absorb
+into confidently wrong biases.  Each function here finds one kind of defect,
+returns the cleaned table and a :class:`CleaningReport` with the number of rows
+it removed or changed (per reason) and plain-English warnings for what the
+user should know about.  :func:`clean_dataset` runs them all, in this order:
+
+1. rows with NaN or infinite values in required columns (plots and ADS-B);
+2. exact duplicate rows (plots and ADS-B);
+3. stale ADS-B reports: the previous horizontal position of the same aircraft
+   repeated at a later time;
+4. ADS-B kinematic gating per aircraft and flight: isolated wild reports are
+   dropped; a flight whose positions jump and stay offset (spoofing, two
+   aircraft under one address) loses all its ADS-B reports, with a warning;
+5. identity check: per radar, an aircraft whose plots sit far from its ADS-B
+   positions while the radar's other aircraft agree (after removing what the
+   radar's biases can explain) carries a wrong address or a second transponder;
+   those plots lose their ``target_id``;
+6. coverage checks that only warn: radars without plots, 2-D radars whose
+   plots carry no altitude when there is no ADS-B, and groups of radars with
+   no aircraft in common when there is no ADS-B.
+
+Tables keep the contract's columns and units (degrees, metres, seconds); the
+rows kept are in their original order with a fresh ``RangeIndex``.  Nothing is
+written anywhere.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from graphcal.core import frames
+
+if TYPE_CHECKING:
+    from graphcal.data.dataset import Dataset, Site
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+#: Fastest credible ground speed of an aircraft [m/s] for the ADS-B speed gate.
+DEFAULT_MAX_SPEED_MPS = 700.0
+#: Largest credible acceleration of an aircraft [m/s^2] (about 2 g) for single wild reports.
+DEFAULT_MAX_ACCEL_MPS2 = 20.0
+#: A gap longer than this [s] between an aircraft's ADS-B reports starts a new flight.
+DEFAULT_FLIGHT_GAP_S = 600.0
+#: Noise allowance of the speed gate, in 1-sigma ADS-B position errors.
+DEFAULT_GATE_SIGMAS = 5.0
+#: A run of at most this many reports between two jumps is treated as wild reports.
+DEFAULT_MAX_WILD_RUN = 3
+#: Aircraft with fewer ADS-B reports are not judged by the kinematic gate.
+DEFAULT_MIN_TRACK_REPORTS = 10
+#: Identity check: smallest per-aircraft offset [m] from the radar's consensus to flag.
+DEFAULT_IDENTITY_FLOOR_M = 3000.0
+#: Identity check: robust z-score above which an aircraft's offset is flagged.
+DEFAULT_IDENTITY_Z = 6.0
+#: Identity check: aircraft needed per radar to form a consensus.
+DEFAULT_IDENTITY_MIN_AIRCRAFT = 4
+#: Identity check: plots an aircraft needs (on one radar) to be judged.
+DEFAULT_IDENTITY_MIN_PLOTS = 5
+#: Longest gap [s] between two ADS-B reports bridged when interpolating to plot times.
+DEFAULT_MAX_GAP_S = 10.0
+#: ADS-B horizontal sigma [m] used when the table has no ``sigma_m`` column.
+_FALLBACK_SIGMA_M = 30.0
+
+#: Plot columns that must be finite (``elevation_deg`` only for 3-D radars).
+_PLOT_REQUIRED = ("time_s", "range_m", "azimuth_deg")
+#: ADS-B columns that must be finite.
+_ADSB_REQUIRED = ("time_s", "lat_deg", "lon_deg", "alt_m")
+#: Columns that identify a plot (exact duplicates agree on all of them).
+_PLOT_KEY = ("radar_id", "time_s", "range_m", "azimuth_deg", "elevation_deg", "target_id")
+#: Columns that identify an ADS-B report.
+_ADSB_KEY = ("target_id", "time_s", "lat_deg", "lon_deg", "alt_m")
+
+#: Plain-English description of each count, for :meth:`CleaningReport.summary`.
+REASONS: dict[str, str] = {
+    "plots_non_finite": "plots with a missing or infinite required value dropped",
+    "plots_duplicate": "exact duplicate plots dropped",
+    "plots_identity_cleared": "plots whose target_id disagrees with its ADS-B: id cleared",
+    "adsb_non_finite": "ADS-B reports with a missing or infinite required value dropped",
+    "adsb_duplicate": "exact duplicate ADS-B reports dropped",
+    "adsb_stale": "stale ADS-B reports (previous horizontal position repeated) dropped",
+    "adsb_wild": "isolated wild ADS-B reports (impossible speed or turn) dropped",
+    "adsb_jumping_aircraft": "ADS-B reports of flights whose positions jump and stay off dropped",
+}
+
+
+@dataclass
+class CleaningReport:
+    """What cleaning removed or changed, and why.
+
+    Attributes
+    ----------
+    counts : dict of str to int
+        Rows removed (or changed, for ``plots_identity_cleared``) per reason;
+        keys from :data:`REASONS`, every key present.
+    warnings : list of str
+        Plain-English warnings, one line each (an aircraft's ADS-B dropped, a
+        mislabelled aircraft, a radar without plots, ...).
+    jumping_aircraft : list of str
+        Addresses whose ADS-B was dropped by the kinematic gate.
+    mislabelled : list of tuple
+        ``(radar_id, target_id, offset_m)`` of each aircraft whose plots had
+        their ``target_id`` cleared; ``offset_m`` is its distance from the
+        radar's consensus [m].
+    """
+
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REASONS, 0))
+    warnings: list[str] = field(default_factory=list)
+    jumping_aircraft: list[str] = field(default_factory=list)
+    mislabelled: list[tuple[str, str, float]] = field(default_factory=list)
+
+    def merge(self, other: CleaningReport) -> None:
+        """Add ``other``'s counts, warnings and findings to this report."""
+        for key, value in other.counts.items():
+            self.counts[key] = self.counts.get(key, 0) + value
+        self.warnings.extend(other.warnings)
+        self.jumping_aircraft.extend(other.jumping_aircraft)
+        self.mislabelled.extend(other.mislabelled)
+
+    @property
+    def n_changed(self) -> int:
+        """Total rows removed or changed."""
+        return int(sum(self.counts.values()))
+
+    def summary(self) -> list[str]:
+        """One plain-English line per non-zero count, e.g. ``"12 exact duplicate plots dropped"``.
+
+        Returns
+        -------
+        list of str
+        """
+        return [f"{n} {REASONS.get(key, key)}" for key, n in self.counts.items() if n]
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-ready form (for a result's ``info``)."""
+        return {
+            "counts": {key: int(n) for key, n in self.counts.items()},
+            "warnings": list(self.warnings),
+            "jumping_aircraft": list(self.jumping_aircraft),
+            "mislabelled": [
+                {"radar_id": r, "target_id": t, "offset_m": float(o)}
+                for r, t, o in self.mislabelled
+            ],
+        }
+
+
+def _report(**counts: int) -> CleaningReport:
+    report = CleaningReport()
+    report.counts.update(counts)
+    return report
+
+
+def _keep(table: pd.DataFrame, keep: BoolArray) -> pd.DataFrame:
+    """Rows of ``table`` where ``keep``, in their order, with a fresh ``RangeIndex``."""
+    if keep.all():
+        return table.reset_index(drop=True)
+    return table.loc[keep].reset_index(drop=True)
+
+
+def _column(table: pd.DataFrame, name: str) -> FloatArray:
+    return pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+
+
+# --------------------------------------------------------------------------- non-finite
+def drop_non_finite_plots(
+    plots: pd.DataFrame, sites: Mapping[str, Site] | None = None
+) -> tuple[pd.DataFrame, CleaningReport]:
+    """Drop plots with a NaN or infinite time, range or azimuth (or elevation of a 3-D radar).
+
+    An infinite ``altitude_m`` (optional column) is set to NaN, i.e. "not
+    given"; the plot is kept.
+
+    Parameters
+    ----------
+    plots : pandas.DataFrame
+        Plots table (contract columns; degrees, metres, seconds).
+    sites : mapping of str to Site, optional
+        Sites by id, to know which radars are 3-D.
+
+    Returns
+    -------
+    plots : pandas.DataFrame
+        The plots kept.
+    report : CleaningReport
+        ``counts["plots_non_finite"]``.
+    """
+    bad = np.zeros(len(plots), dtype=bool)
+    for name in _PLOT_REQUIRED:
+        bad |= ~np.isfinite(_column(plots, name))
+    if sites is not None and "elevation_deg" in plots:
+        three_d = [rid for rid, site in sites.items() if site.is_3d]
+        is_3d = plots["radar_id"].isin(three_d).to_numpy(dtype=bool)
+        bad |= is_3d & ~np.isfinite(_column(plots, "elevation_deg"))
+    out = _keep(plots, ~bad)
+    for name in ("altitude_m", "elevation_deg"):
+        if name in out:
+            values = _column(out, name)
+            if np.isinf(values).any():
+                out[name] = np.where(np.isinf(values), np.nan, values)
+    return out, _report(plots_non_finite=int(bad.sum()))
+
+
+def drop_non_finite_adsb(adsb: pd.DataFrame) -> tuple[pd.DataFrame, CleaningReport]:
+    """Drop ADS-B reports with a NaN or infinite time or position, or no ``target_id``.
+
+    A non-finite or non-positive ``sigma_m`` also drops the report.
+
+    Returns
+    -------
+    adsb : pandas.DataFrame
+        The reports kept.
+    report : CleaningReport
+        ``counts["adsb_non_finite"]``.
+    """
+    bad = np.zeros(len(adsb), dtype=bool)
+    for name in _ADSB_REQUIRED:
+        bad |= ~np.isfinite(_column(adsb, name))
+    if "sigma_m" in adsb:
+        sigma = _column(adsb, "sigma_m")
+        bad |= ~(np.isfinite(sigma) & (sigma > 0.0))
+    bad |= adsb["target_id"].astype(str).str.strip().eq("").to_numpy(dtype=bool)
+    return _keep(adsb, ~bad), _report(adsb_non_finite=int(bad.sum()))
+
+
+# --------------------------------------------------------------------------- duplicates
+def drop_duplicate_plots(plots: pd.DataFrame) -> tuple[pd.DataFrame, CleaningReport]:
+    """Drop exact duplicate plots: same radar, target, time, range, azimuth and elevation.
+
+    The first of each set of duplicates is kept.  Two plots of the same radar,
+    target and time with different values are both kept (they are not
+    duplicates of one record).
+
+    Returns
+    -------
+    plots : pandas.DataFrame
+    report : CleaningReport
+        ``counts["plots_duplicate"]``.
+    """
+    key = [name for name in _PLOT_KEY if name in plots]
+    duplicate = plots.duplicated(subset=key, keep="first").to_numpy(dtype=bool)
+    return _keep(plots, ~duplicate), _report(plots_duplicate=int(duplicate.sum()))
+
+
+def drop_duplicate_adsb(adsb: pd.DataFrame) -> tuple[pd.DataFrame, CleaningReport]:
+    """Drop exact duplicate ADS-B reports: same target, time, latitude, longitude and height.
+
+    Returns
+    -------
+    adsb : pandas.DataFrame
+    report : CleaningReport
+        ``counts["adsb_duplicate"]``.
+    """
+    duplicate = adsb.duplicated(subset=list(_ADSB_KEY), keep="first").to_numpy(dtype=bool)
+    return _keep(adsb, ~duplicate), _report(adsb_duplicate=int(duplicate.sum()))
+
+
+# --------------------------------------------------------------------------- ADS-B order
+def _track_order(adsb: pd.DataFrame) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Row order by (aircraft, time) and each row's aircraft code (``pd.factorize``)."""
+    codes, _ = pd.factorize(adsb["target_id"].astype(str), sort=False)
+    order = np.lexsort((_column(adsb, "time_s"), codes))
+    return order, codes
+
+
+def drop_stale_adsb(
+    adsb: pd.DataFrame, columns: tuple[str, ...] = ("lat_deg", "lon_deg")
+) -> tuple[pd.DataFrame, CleaningReport]:
+    """Drop ADS-B reports that repeat the previous position of the same aircraft.
+
+    A report is stale when its ``columns`` (by default latitude and longitude)
+    are exactly those of the aircraft's previous report (in time order) and its
+    time is later: the position was not updated, only its time stamp.  The
+    height is not compared by default because recorders often update the
+    (barometric) height while repeating an old horizontal position; an
+    airborne aircraft does not keep exactly the same latitude and longitude
+    from one report to the next.  The first report of each repeated run is kept.
+
+    Parameters
+    ----------
+    adsb : pandas.DataFrame
+        ADS-B table (contract columns).
+    columns : tuple of str
+        Columns that must all repeat.
+
+    Returns
+    -------
+    adsb : pandas.DataFrame
+    report : CleaningReport
+        ``counts["adsb_stale"]``.
+    """
+    if len(adsb) < 2:
+        return _keep(adsb, np.ones(len(adsb), dtype=bool)), _report()
+    order, codes = _track_order(adsb)
+    c = codes[order]
+    t = _column(adsb, "time_s")[order]
+    same = c[1:] == c[:-1]
+    same &= t[1:] > t[:-1]
+    for name in columns:
+        v = _column(adsb, name)[order]
+        same &= v[1:] == v[:-1]
+    stale = np.zeros(len(adsb), dtype=bool)
+    stale[order[1:][same]] = True
+    return _keep(adsb, ~stale), _report(adsb_stale=int(stale.sum()))
+
+
+def _ecef(adsb: pd.DataFrame) -> FloatArray:
+    return frames.geodetic_to_ecef(
+        np.deg2rad(_column(adsb, "lat_deg")),
+        np.deg2rad(_column(adsb, "lon_deg")),
+        _column(adsb, "alt_m"),
+    )
+
+
+def _sigma(adsb: pd.DataFrame) -> FloatArray:
+    if "sigma_m" in adsb:
+        return _column(adsb, "sigma_m")
+    return np.full(len(adsb), _FALLBACK_SIGMA_M)
+
+
+#: 3-D position sigma per unit of horizontal sigma (two horizontal axes, vertical 1.5x).
+_SIGMA_3D = float(np.sqrt(2.0 + 1.5**2))
+
+
+def _jumps(
+    flight: NDArray[np.int64],
+    time_s: FloatArray,
+    ecef_m: FloatArray,
+    sigma_m: FloatArray,
+    max_speed_mps: float,
+    gate_sigmas: float,
+) -> tuple[BoolArray, FloatArray]:
+    """Steps between consecutive rows (in track order) that no aircraft can fly.
+
+    Returns ``(jump, distance_m)`` of length ``n - 1``: step ``k`` goes from row
+    ``k`` to row ``k + 1`` and is a jump when both rows belong to the same
+    flight and the distance exceeds ``max_speed * dt`` plus ``gate_sigmas``
+    times the combined 3-D position sigma.
+    """
+    if len(flight) < 2:
+        return np.zeros(0, dtype=bool), np.zeros(0)
+    same = flight[1:] == flight[:-1]
+    dt = np.abs(np.diff(time_s))
+    distance = np.linalg.norm(np.diff(ecef_m, axis=0), axis=1)
+    slack = gate_sigmas * _SIGMA_3D * np.hypot(sigma_m[1:], sigma_m[:-1])
+    return same & (distance > max_speed_mps * dt + slack), distance
+
+
+def _isolated_outliers(
+    flight: NDArray[np.int64],
+    time_s: FloatArray,
+    ecef_m: FloatArray,
+    sigma_m: FloatArray,
+    max_speed_mps: float,
+    max_accel_mps2: float,
+    gate_sigmas: float,
+) -> BoolArray:
+    """Single reports off the chord of their two neighbours by more than an aircraft can turn.
+
+    Report ``i`` (with a neighbour on each side in its flight) is an outlier
+    when its distance from the straight line between reports ``i - 1`` and
+    ``i + 1``, interpolated to its time, exceeds ``max_accel * dt1 * dt2 / 2``
+    (constant acceleration) plus the noise allowance, when that distance is
+    larger than the neighbours' own, and when the neighbours are consistent
+    with each other (the track goes on where it was: not a jump that stays).
+    """
+    n = len(flight)
+    out = np.zeros(n, dtype=bool)
+    if n < 3:
+        return out
+    inner = (flight[1:-1] == flight[:-2]) & (flight[1:-1] == flight[2:])
+    t0, t1, t2 = time_s[:-2], time_s[1:-1], time_s[2:]
+    span = t2 - t0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = np.where(span > 0, (t1 - t0) / span, 0.5)
+    chord = ecef_m[:-2] + w[:, None] * (ecef_m[2:] - ecef_m[:-2])
+    deviation = np.where(inner, np.linalg.norm(ecef_m[1:-1] - chord, axis=1), 0.0)
+    sigma = np.maximum(sigma_m[1:-1], np.maximum(sigma_m[:-2], sigma_m[2:]))
+    slack = gate_sigmas * _SIGMA_3D * sigma * np.sqrt(1.5)
+    allowed = 0.5 * max_accel_mps2 * (t1 - t0) * (t2 - t1) + slack
+    bypass = np.linalg.norm(ecef_m[2:] - ecef_m[:-2], axis=1)
+    consistent = bypass <= max_speed_mps * span + gate_sigmas * _SIGMA_3D * np.hypot(
+        sigma_m[:-2], sigma_m[2:])
+    padded = np.concatenate([[0.0], deviation, [0.0]])
+    local_max = (deviation >= padded[:-2]) & (deviation >= padded[2:])
+    out[1:-1] = inner & (deviation > allowed) & local_max & consistent
+    return out
+
+
+def gate_adsb_kinematics(
+    adsb: pd.DataFrame,
+    *,
+    max_speed_mps: float = DEFAULT_MAX_SPEED_MPS,
+    max_accel_mps2: float = DEFAULT_MAX_ACCEL_MPS2,
+    gate_sigmas: float = DEFAULT_GATE_SIGMAS,
+    max_wild_run: int = DEFAULT_MAX_WILD_RUN,
+    min_track_reports: int = DEFAULT_MIN_TRACK_REPORTS,
+    flight_gap_s: float = DEFAULT_FLIGHT_GAP_S,
+) -> tuple[pd.DataFrame, CleaningReport]:
+    """Drop ADS-B positions no aircraft can have flown, per aircraft and flight.
+
+    An aircraft's reports (time order) are cut into *flights* at gaps longer
+    than ``flight_gap_s``.  Within a flight:
+
+    1. a single report off the chord between its two neighbours by more than
+       ``max_accel_mps2`` allows (plus the noise allowance), while the
+       neighbours agree with each other, is dropped (``adsb_wild``);
+    2. consecutive reports are a *jump* when the distance between them is more
+       than ``max_speed_mps`` times the time between them plus ``gate_sigmas``
+       times their combined position sigma (so noise does not trigger it).
+       Runs of at most ``max_wild_run`` reports cut off by jumps next to a
+       longer stretch (a few wild reports, also at the ends of a flight) are
+       dropped (``adsb_wild``);
+    3. if jumps remain, the positions jump and stay offset (a spoofed stretch,
+       or two aircraft under one address): which stretch is true cannot be
+       told from ADS-B alone, so every report of that flight is dropped
+       (``adsb_jumping_aircraft``) with a warning naming the address, the time
+       span and the size of the jumps.  The aircraft's radar plots are still
+       used between radars.
+
+    Flights with fewer than ``min_track_reports`` reports are not judged.
+
+    Parameters
+    ----------
+    adsb : pandas.DataFrame
+        ADS-B table (contract columns); ``sigma_m`` [m] if present, else 30 m.
+    max_speed_mps : float
+        Fastest credible ground speed [m/s].
+    max_accel_mps2 : float
+        Largest credible acceleration [m/s^2] (for single wild reports).
+    gate_sigmas : float
+        Noise allowance, in position sigmas.
+    max_wild_run : int
+        Longest run of reports [count] treated as wild reports.
+    min_track_reports : int
+        Flights with fewer reports [count] are not judged (too few to tell
+        which reports are wild).
+    flight_gap_s : float
+        A gap longer than this [s] starts a new flight.
+
+    Returns
+    -------
+    adsb : pandas.DataFrame
+    report : CleaningReport
+    """
+    report = _report()
+    if len(adsb) < 2:
+        return _keep(adsb, np.ones(len(adsb), dtype=bool)), report
+    order, codes_all = _track_order(adsb)
+    codes = codes_all[order]
+    time_s = _column(adsb, "time_s")[order]
+    gap = np.concatenate([[True], (codes[1:] != codes[:-1]) | (np.diff(time_s) > flight_gap_s)])
+    flight = np.cumsum(gap) - 1
+    size = np.bincount(flight)
+    judged = size[flight] >= min_track_reports
+    ecef = _ecef(adsb)[order]
+    sigma = _sigma(adsb)[order]
+    wild = judged & _isolated_outliers(flight, time_s, ecef, sigma, max_speed_mps,
+                                       max_accel_mps2, gate_sigmas)
+    rest = np.flatnonzero(~wild)
+    jump, _ = _jumps(flight[rest], time_s[rest], ecef[rest], sigma[rest], max_speed_mps,
+                     gate_sigmas)
+    jump &= judged[rest][1:]
+    whole = np.zeros(len(codes), dtype=bool)
+    if jump.any():
+        f = flight[rest]
+        starts = np.concatenate([[True], (f[1:] != f[:-1]) | jump])
+        segment = np.cumsum(starts) - 1
+        seg_size = np.bincount(segment)
+        seg_flight = f[starts]
+        longest = np.zeros(int(flight.max()) + 1, dtype=np.int64)
+        np.maximum.at(longest, seg_flight, seg_size)
+        # Short runs are wild only next to a longer stretch that is taken as the track.
+        short = (seg_size <= max_wild_run) & (longest[seg_flight] > max_wild_run)
+        wild[rest[short[segment]]] = True
+        kept = np.flatnonzero(~wild)
+        jump2, distance2 = _jumps(flight[kept], time_s[kept], ecef[kept], sigma[kept],
+                                  max_speed_mps, gate_sigmas)
+        jump2 &= judged[kept][1:]
+        bad_flights = np.unique(flight[kept][:-1][jump2])
+        whole = np.isin(flight, bad_flights)
+        for bad in bad_flights:
+            steps = np.flatnonzero(jump2 & (flight[kept][:-1] == bad))
+            first, last = kept[steps[0]], kept[steps[-1] + 1]
+            address = str(adsb["target_id"].iloc[order[first]])
+            if address not in report.jumping_aircraft:
+                report.jumping_aircraft.append(address)
+            mine = flight == bad
+            report.warnings.append(
+                f"ADS-B of aircraft {address}: positions jump by up to "
+                f"{distance2[steps].max() / 1e3:.1f} km between t = {time_s[first]:.1f} s and "
+                f"t = {time_s[last]:.1f} s ({len(steps)} jump{'s' if len(steps) > 1 else ''}: "
+                "a spoofed stretch or two aircraft under one address); its "
+                f"{int(mine.sum())} reports from t = {time_s[mine].min():.1f} s to "
+                f"{time_s[mine].max():.1f} s are left out"
+            )
+    report.counts["adsb_wild"] = int((wild & ~whole).sum())
+    report.counts["adsb_jumping_aircraft"] = int(whole.sum())
+    keep = np.ones(len(codes), dtype=bool)
+    keep[order[wild | whole]] = False
+    return _keep(adsb, keep), report
+
+
+# --------------------------------------------------------------------------- identities
+def _interpolate_adsb(
+    adsb: pd.DataFrame, target_id: NDArray[np.object_], time_s: FloatArray, max_gap_s: float
+) -> tuple[FloatArray, BoolArray]:
+    """ADS-B ECEF position [m] of each (target, time), linear in time; ``ok`` where bridged.
+
+    Vectorised over all aircraft: rows are keyed by ``code * span + time``
+    so that one ``searchsorted`` finds every bracket.
+    """
+    n = len(time_s)
+    ref = np.full((n, 3), np.nan)
+    ok = np.zeros(n, dtype=bool)
+    if len(adsb) < 2 or n == 0:
+        return ref, ok
+    a_target = adsb["target_id"].astype(str).to_numpy(dtype=object)
+    categories = pd.Index(pd.unique(a_target))
+    a_code = categories.get_indexer(a_target)
+    q_code = categories.get_indexer(target_id.astype(str))
+    a_time = _column(adsb, "time_s")
+    t0 = min(a_time.min(), time_s.min())
+    span = max(a_time.max(), time_s.max()) - t0 + 4.0 * max_gap_s + 1.0
+    a_key = a_code * span + (a_time - t0)
+    order = np.argsort(a_key, kind="stable")
+    a_key, a_code_s, a_time_s = a_key[order], a_code[order], a_time[order]
+    ecef = _ecef(adsb)[order]
+    q_key = q_code * span + (time_s - t0)
+    j = np.searchsorted(a_key, q_key, side="right") - 1
+    valid = (q_code >= 0) & (j >= 0) & (j < len(a_key) - 1)
+    j = np.clip(j, 0, len(a_key) - 2)
+    same = (a_code_s[j] == q_code) & (a_code_s[j + 1] == q_code)
+    dt = a_time_s[j + 1] - a_time_s[j]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = (time_s - a_time_s[j]) / dt
+    ok = valid & same & (dt > 0) & (dt <= max_gap_s) & (w >= 0.0) & (w <= 1.0)
+    w = np.where(ok, w, 0.0)
+    ref = (1.0 - w)[:, None] * ecef[j] + w[:, None] * ecef[j + 1]
+    ref[~ok] = np.nan
+    return ref, ok
+
+
+def _robust_line(x: FloatArray, y: FloatArray) -> FloatArray:
+    """Residuals of ``y`` about a Theil-Sen line in ``x`` (robust to 29 % outliers).
+
+    The slope is the median of the pairwise slopes (of at most 200 000 pairs,
+    a fixed sample when there are more) and the intercept the median of
+    ``y - slope * x``.  A constant (the median) when ``x`` hardly varies.
+    """
+    if len(x) < 3 or np.ptp(x) < 1e-6 * max(float(np.abs(x).max()), 1.0):
+        return y - np.median(y)
+    i, j = np.triu_indices(len(x), k=1)
+    if len(i) > 200_000:
+        pick = np.random.default_rng(0).choice(len(i), 200_000, replace=False)
+        i, j = i[pick], j[pick]
+    dx = x[j] - x[i]
+    usable = np.abs(dx) > 0
+    slope = float(np.median((y[j] - y[i])[usable] / dx[usable]))
+    return y - slope * x - np.median(y - slope * x)
+
+
+def check_identities(
+    plots: pd.DataFrame,
+    adsb: pd.DataFrame,
+    sites: Mapping[str, Site],
+    *,
+    floor_m: float = DEFAULT_IDENTITY_FLOOR_M,
+    z_limit: float = DEFAULT_IDENTITY_Z,
+    min_aircraft: int = DEFAULT_IDENTITY_MIN_AIRCRAFT,
+    min_plots: int = DEFAULT_IDENTITY_MIN_PLOTS,
+    max_gap_s: float = DEFAULT_MAX_GAP_S,
+) -> tuple[pd.DataFrame, CleaningReport]:
+    """Clear the ``target_id`` of plots whose aircraft is not the one the ADS-B describes.
+
+    For every radar and aircraft, each plot (taken at face value, zero bias)
+    is compared with the ADS-B position of the same address interpolated to
+    the plot time, in the radar's own measurement space: range difference [m]
+    and azimuth difference [rad].  Per aircraft, the medians of both are
+    taken.  A radar's biases are common to all its aircraft: its range
+    differences lie on a line ``offset + gain * range`` and its azimuth
+    differences are one constant, whatever their size (a 160 mrad azimuth bias
+    at 80 km is a 13 km offset, shared by every aircraft).  That common part is
+    fitted robustly over the radar's aircraft and removed; what is left,
+    converted to metres (azimuth times range), is each aircraft's offset from
+    the radar's consensus.  An aircraft is flagged when its offset is more than
+    ``floor_m`` and more than ``z_limit`` robust standard deviations of the
+    radar's offsets: its plots carry another aircraft's address (wrong
+    address, or a second transponder).  Its plots on that radar get an empty
+    ``target_id``, so they are matched neither to that ADS-B nor to other
+    radars' plots of the address, and a warning names the radar, the address
+    and the offset.
+
+    Parameters
+    ----------
+    plots, adsb : pandas.DataFrame
+        Plots and ADS-B tables (contract columns).
+    sites : mapping of str to Site
+        Radar sites by id.
+    floor_m : float
+        Smallest offset [m] that is flagged.
+    z_limit : float
+        Robust z-score [-] above which an offset is flagged.
+    min_aircraft : int
+        Aircraft with ADS-B a radar needs for a consensus; radars with fewer
+        are not checked.
+    min_plots : int
+        Matched plots an aircraft needs on a radar to be judged.
+    max_gap_s : float
+        Longest ADS-B gap bridged by interpolation [s].
+
+    Returns
+    -------
+    plots : pandas.DataFrame
+        The plots, with the flagged ``target_id`` cleared.
+    report : CleaningReport
+        ``counts["plots_identity_cleared"]`` and :attr:`CleaningReport.mislabelled`.
+    """
+    report = _report()
+    out = plots.reset_index(drop=True)
+    if len(out) == 0 or len(adsb) < 2:
+        return out, report
+    target = out["target_id"].astype(str).to_numpy(dtype=object)
+    has_id = target != ""
+    time_s = _column(out, "time_s")
+    ref, ok = _interpolate_adsb(adsb, np.where(has_id, target, ""), time_s, max_gap_s)
+    ok &= has_id
+    radar = out["radar_id"].astype(str).to_numpy(dtype=object)
+    range_m = _column(out, "range_m")
+    azimuth = np.deg2rad(_column(out, "azimuth_deg"))
+    clear = np.zeros(len(out), dtype=bool)
+    for rid, site in sites.items():
+        rows = np.flatnonzero(ok & (radar == rid))
+        if len(rows) == 0:
+            continue
+        r_ref, az_ref, _ = site.polar_from_ecef(ref[rows])
+        d_range = range_m[rows] - r_ref
+        d_az = frames.wrap_to_pi(azimuth[rows] - az_ref)
+        groups = pd.DataFrame({"t": target[rows], "dr": d_range, "da": d_az, "r": r_ref})
+        per = groups.groupby("t", sort=False).agg(
+            dr=("dr", "median"), da=("da", "median"), r=("r", "median"), n=("dr", "size"))
+        per = per[per["n"] >= min_plots]
+        if len(per) < min_aircraft:
+            continue
+        r = per["r"].to_numpy()
+        range_resid = _robust_line(r, per["dr"].to_numpy())
+        da = per["da"].to_numpy()
+        az_resid = frames.wrap_to_pi(da - _circular_median(da))
+        offset = np.hypot(range_resid, az_resid * r)
+        centre = np.median(offset)
+        scale = 1.4826 * np.median(np.abs(offset - centre))
+        z = (offset - centre) / max(scale, 1.0)
+        flagged = (offset > floor_m) & (z > z_limit)
+        if not flagged.any():
+            continue
+        agree = float(np.max(offset[~flagged]))
+        for address, off in zip(per.index[flagged], offset[flagged], strict=True):
+            sel = rows[target[rows] == address]
+            all_rows = np.flatnonzero((radar == rid) & (target == address))
+            clear[all_rows] = True
+            report.mislabelled.append((rid, str(address), float(off)))
+            report.warnings.append(
+                f"radar {rid}: the plots labelled {address} are {off / 1e3:.1f} km from that "
+                f"aircraft's ADS-B positions, while the radar's other aircraft agree within "
+                f"{_distance(agree)} (after its common bias): a wrong address or a second "
+                f"transponder; the target_id of its {len(all_rows)} plots on {rid} is cleared "
+                f"({len(sel)} had ADS-B)"
+            )
+    if clear.any():
+        out = out.copy()
+        out.loc[clear, "target_id"] = ""
+    report.counts["plots_identity_cleared"] = int(clear.sum())
+    return out, report
+
+
+def _distance(metres: float) -> str:
+    """``"850 m"`` or ``"13.2 km"``."""
+    return f"{metres:.0f} m" if metres < 1000.0 else f"{metres / 1e3:.1f} km"
+
+
+def _circular_median(angle_rad: FloatArray) -> float:
+    """Median of angles [rad] taken about their circular mean (robust to wrap-around)."""
+    mean = float(np.arctan2(np.sin(angle_rad).mean(), np.cos(angle_rad).mean()))
+    return mean + float(np.median(frames.wrap_to_pi(angle_rad - mean)))
+
+
+# --------------------------------------------------------------------------- coverage
+def coverage_warnings(
+    plots: pd.DataFrame, sites: Mapping[str, Site], has_adsb: bool
+) -> list[str]:
+    """Warnings about what the data cannot calibrate (nothing is removed).
+
+    * a radar of ``sites.toml`` with no plots is not calibrated;
+    * without ADS-B, a 2-D radar whose plots carry no altitude cannot be
+      paired with other radars (its plots cannot be placed in height);
+    * without ADS-B, radars are linked only by the aircraft they share; groups
+      of radars with no aircraft in common are calibrated separately, and a
+      radar that shares no aircraft with any other is not calibrated.
+
+    Parameters
+    ----------
+    plots : pandas.DataFrame
+        Plots table.
+    sites : mapping of str to Site
+        Radar sites.
+    has_adsb : bool
+        Whether the dataset has ADS-B reports.
+
+    Returns
+    -------
+    list of str
+    """
+    warnings: list[str] = []
+    radar = plots["radar_id"].astype(str)
+    counts = radar.value_counts()
+    with_plots = [rid for rid in sites if counts.get(rid, 0) > 0]
+    for rid in sites:
+        if counts.get(rid, 0) == 0:
+            warnings.append(f"radar {rid} has no plots; not calibrated")
+    if has_adsb:
+        return warnings
+    altitude = _column(plots, "altitude_m") if "altitude_m" in plots else None
+    for rid in with_plots:
+        if sites[rid].is_3d:
+            continue
+        mine = (radar == rid).to_numpy(dtype=bool)
+        if altitude is None or not np.isfinite(altitude[mine]).any():
+            warnings.append(
+                f"radar {rid} is 2-D and none of its plots carries an altitude: without ADS-B "
+                "it cannot be compared with other radars; not calibrated"
+            )
+    groups = traffic_groups(plots, with_plots)
+    if len(groups) > 1:
+        described = " and ".join("{" + ", ".join(g) + "}" for g in groups)
+        warnings.append(
+            f"radars {described} have no aircraft in common: without ADS-B each group is "
+            "calibrated on its own traffic and nothing ties one group to another"
+        )
+        for group in groups:
+            if len(group) == 1:
+                warnings.append(
+                    f"radar {group[0]} shares no aircraft with any other radar and there is "
+                    "no ADS-B; not calibrated"
+                )
+    return warnings
+
+
+def traffic_groups(plots: pd.DataFrame, radar_ids: list[str]) -> list[list[str]]:
+    """Groups of radars linked (directly or through others) by aircraft seen in common.
+
+    Two radars are linked when both have plots with the same non-empty
+    ``target_id``.  Returns the connected groups, each in ``radar_ids`` order.
+    """
+    parent = {rid: rid for rid in radar_ids}
+
+    def root(rid: str) -> str:
+        while parent[rid] != rid:
+            parent[rid] = parent[parent[rid]]
+            rid = parent[rid]
+        return rid
+
+    labelled = plots.loc[plots["target_id"].astype(str) != "", ["radar_id", "target_id"]]
+    pairs = labelled.drop_duplicates()
+    pairs = pairs[pairs["radar_id"].isin(radar_ids)]
+    for _, seen_by in pairs.groupby("target_id", sort=False)["radar_id"]:
+        radars = list(seen_by)
+        for other in radars[1:]:
+            a, b = root(radars[0]), root(other)
+            if a != b:
+                parent[b] = a
+    groups: dict[str, list[str]] = {}
+    for rid in radar_ids:
+        groups.setdefault(root(rid), []).append(rid)
+    return list(groups.values())
+
+
+# --------------------------------------------------------------------------- everything
+def clean_dataset(
+    dataset: Dataset,
+    *,
+    max_speed_mps: float = DEFAULT_MAX_SPEED_MPS,
+    max_accel_mps2: float = DEFAULT_MAX_ACCEL_MPS2,
+    gate_sigmas: float = DEFAULT_GATE_SIGMAS,
+    max_wild_run: int = DEFAULT_MAX_WILD_RUN,
+    identity_floor_m: float = DEFAULT_IDENTITY_FLOOR_M,
+    identity_z: float = DEFAULT_IDENTITY_Z,
+    max_gap_s: float = DEFAULT_MAX_GAP_S,
+    check_identity: bool = True,
+) -> tuple[Dataset, CleaningReport]:
+    """Run every check of this module on a dataset (see the module docstring for the order).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The dataset; it is not modified.
+    max_speed_mps, max_accel_mps2, gate_sigmas, max_wild_run
+        See :func:`gate_adsb_kinematics`.
+    identity_floor_m, identity_z, max_gap_s
+        See :func:`check_identities` (``floor_m``, ``z_limit``, ``max_gap_s``).
+    check_identity : bool
+        Run :func:`check_identities`.
+
+    Returns
+    -------
+    dataset : Dataset
+        A new dataset with the cleaned tables; its ``cleaning`` attribute
+        holds the report.
+    report : CleaningReport
+    """
+    report = CleaningReport()
+    plots, step = drop_non_finite_plots(dataset.plots, dataset.sites)
+    report.merge(step)
+    plots, step = drop_duplicate_plots(plots)
+    report.merge(step)
+    adsb = dataset.adsb
+    if adsb is not None:
+        for check in (drop_non_finite_adsb, drop_duplicate_adsb, drop_stale_adsb):
+            adsb, step = check(adsb)
+            report.merge(step)
+        adsb, step = gate_adsb_kinematics(
+            adsb, max_speed_mps=max_speed_mps, max_accel_mps2=max_accel_mps2,
+            gate_sigmas=gate_sigmas, max_wild_run=max_wild_run)
+        report.merge(step)
+        if check_identity:
+            plots, step = check_identities(
+                plots, adsb, dataset.sites, floor_m=identity_floor_m, z_limit=identity_z,
+                max_gap_s=max_gap_s)
+            report.merge(step)
+    if adsb is not None and len(adsb) == 0:
+        if dataset.adsb is not None and len(dataset.adsb):
+            report.warnings.append("every ADS-B report was dropped; calibrating without ADS-B")
+        adsb = None
+    has_adsb = adsb is not None
+    report.warnings.extend(coverage_warnings(plots, dataset.sites, has_adsb))
+    return dataclasses.replace(dataset, plots=plots, adsb=adsb, cleaning=report), report
+
+
+def ensure_clean(dataset: Dataset) -> Dataset:
+    """``dataset`` if it was already cleaned (loaded with cleaning), else a cleaned copy.
+
+    For estimators that may receive datasets built in memory (simulations,
+    scripts): the report is on the returned dataset's ``cleaning`` attribute.
+    """
+    if getattr(dataset, "cleaning", None) is not None:
+        return dataset
+    return clean_dataset(dataset)[0]

@@ -1,0 +1,354 @@
+"""Cross-radar observations of paper 001 (no ADS-B needed).
+
+For every pair of radars ``(a, b)`` that see the same aircraft, each plot
+of ``b`` is paired with ``a``'s track interpolated to its time
+(:func:`graphcal.data.align.pair_plots`).  Both are converted to ECEF with the
+measured (biased) values; the difference is the observation of paper 001
+eq. 8 (there with radar 1 as the reference; here every pair)::
+
+    z_k = P_b Z_b(k) + Z_cr_b - (P_a Z_a(k) + Z_cr_a)          (eq. 8)
+        = H_k X + M_k V(k)                                    (eq. 9)
+
+with ``H_k = dz/dX`` at ``X = 0`` (the measured values), i.e. the
+polar -> ECEF Jacobian times the bias Jacobian of each radar (``-`` for
+``a``, ``+`` for ``b``; the ``a`` rows blend its two bracketing plots with
+the interpolation weights), and ``M_k cov(V) M_k^T`` the converted
+measurement covariance (paper 002).  A 2-D radar has no elevation: its plot
+is placed at the reported (Mode C) height, and the range column includes
+the change of elevation with range at that height; the height carries a
+1-sigma error of :data:`ALTITUDE_SIGMA_M` in the covariance (without it two
+2-D radars would compare heights they both took from the same report as if
+they were exact); 2-D plots without an altitude are left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graphcal.core import frames
+from graphcal.core.covariance import convert_covariance
+from graphcal.data.align import PlotArrays, PlotPairs, neighbour_plots, pair_plots
+from graphcal.data.bias import measurement_bias_jacobian
+from graphcal.data.dataset import Dataset, Site
+from graphcal.model.information import ParameterLayout
+
+FloatArray = NDArray[np.float64]
+
+#: Where :func:`cross_observations` evaluates the Jacobians.
+LINEARISE_CHOICES: tuple[str, ...] = ("plots", "neighbours")
+#: 1-sigma error [m] of a reported (Mode C) height used to place a 2-D radar's plot:
+#: 25 ft quantisation plus barometric-versus-geometric height differences.
+ALTITUDE_SIGMA_M = 30.0
+#: 2-D plots above this elevation [rad] (70 deg) are not placed from their reported height.
+MAX_2D_ELEVATION_RAD = np.deg2rad(70.0)
+
+
+@dataclass
+class ConvertedPlots:
+    """Plots converted to ECEF with the Jacobian w.r.t. the radar's biases."""
+
+    ecef_m: FloatArray  # (n, 3)
+    bias_jacobian: FloatArray  # (n, 3, 4): d ecef / d (offset, gain, az, el)
+    cov_m2: FloatArray  # (n, 3, 3): measurement noise in ECEF
+    usable: NDArray[np.bool_]
+
+
+def convert_plots(
+    site: Site, plots: PlotArrays, linearise_at: PlotArrays | None = None
+) -> ConvertedPlots:
+    """Measured plots -> ECEF with d(ECEF)/d(bias) and the converted noise covariance.
+
+    For a 2-D radar the elevation comes from the reported height via
+    :func:`graphcal.core.frames.elevation_from_height` and
+    ``d el / d r = -(R_t^2 - R_r^2 + r^2) / (2 r^2 R_r cos el)`` enters the range
+    column.  With ``linearise_at`` (e.g. :func:`graphcal.data.align.neighbour_plots`),
+    the Jacobian and the covariance are evaluated there instead of at the plots.
+    """
+    geometry = _plot_geometry(site, plots.range_m, plots.azimuth_rad, plots)
+    bias_jac = geometry.ecef_jacobian @ measurement_bias_jacobian(plots.range_m)
+    cov = geometry.cov_m2
+    if linearise_at is not None:
+        at = _plot_geometry(site, linearise_at.range_m, linearise_at.azimuth_rad, linearise_at)
+        at_jac = at.ecef_jacobian @ measurement_bias_jacobian(linearise_at.range_m)
+        bias_jac = np.where(at.usable[:, None, None], at_jac, bias_jac)
+        cov = np.where(at.usable[:, None, None], at.cov_m2, cov)
+    if not site.is_3d:
+        bias_jac[:, :, 3] = 0.0
+    return ConvertedPlots(geometry.ecef_m, bias_jac, cov, geometry.usable)
+
+
+def corrected_ecef(
+    site: Site, plots: PlotArrays, bias: FloatArray
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Plots corrected by ``bias`` -> ECEF, with the Jacobian w.r.t. the bias.
+
+    The correction is the inverse bias model (:func:`graphcal.data.bias.correct_bias`):
+    ``r = (r_m - offset) / (1 + gain)``, ``az = az_m - az_bias``,
+    ``el = el_m - el_bias`` (3-D) or the elevation of the reported height at
+    the corrected range (2-D).
+
+    Parameters
+    ----------
+    site : Site
+    plots : PlotArrays
+    bias : ndarray (4,)
+        ``(range_offset_m, range_gain, azimuth_bias_rad, elevation_bias_rad)``.
+
+    Returns
+    -------
+    ecef_m : ndarray (n, 3)
+    jacobian : ndarray (n, 3, 4)
+        ``d ecef / d bias`` [m per unit of each bias].
+    usable : ndarray (n,) of bool
+        False for 2-D plots without a reported height or 3-D plots without elevation.
+    """
+    offset, gain, az_bias, el_bias = (float(v) for v in bias)
+    r = (plots.range_m - offset) / (1.0 + gain)
+    az = plots.azimuth_rad - az_bias
+    geometry = _plot_geometry(site, r, az, plots, el_bias)
+    d_polar = np.zeros((len(r), 3, 4))
+    d_polar[:, 0, 0] = -1.0 / (1.0 + gain)
+    d_polar[:, 0, 1] = -r / (1.0 + gain)
+    d_polar[:, 1, 2] = -1.0
+    if site.is_3d:
+        d_polar[:, 2, 3] = -1.0
+    return geometry.ecef_m, geometry.ecef_jacobian @ d_polar, geometry.usable
+
+
+@dataclass
+class _Geometry:
+    ecef_m: FloatArray  # (n, 3)
+    ecef_jacobian: FloatArray  # (n, 3, 3) d ecef / d (r, az, el); 2-D: el follows r
+    cov_m2: FloatArray  # (n, 3, 3) measurement noise in ECEF
+    usable: NDArray[np.bool_]
+
+
+def _plot_geometry(
+    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float = 0.0
+) -> _Geometry:
+    """ECEF position, d ecef / d polar and converted noise of plots at ``(r, az)``."""
+    n = len(r)
+    cov_polar = np.zeros((n, 3, 3))
+    cov_polar[:, 0, 0] = site.sigma_range_m**2
+    cov_polar[:, 1, 1] = site.sigma_azimuth_rad**2
+    if site.is_3d:
+        el = plots.elevation_rad - elevation_bias
+        usable = np.isfinite(el)
+        cov_polar[:, 2, 2] = site.sigma_elevation_rad**2
+        d_el_d_r = np.zeros(n)
+    else:
+        el = frames.elevation_from_height(r, plots.altitude_m, site.lat_rad, site.alt_m)
+        # Near the zenith (or where noise puts the reported height out of reach of
+        # the slant range) the height says nothing usable about the elevation.
+        with np.errstate(invalid="ignore"):
+            usable = np.isfinite(el) & np.isfinite(plots.altitude_m) & (
+                np.abs(el) < MAX_2D_ELEVATION_RAD
+            )
+        radius = _gaussian_radius_m(site.lat_rad)
+        rt = radius + np.nan_to_num(plots.altitude_m)
+        rr = radius + site.alt_m
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d_el_d_r = -(rt**2 - rr**2 + r**2) / (2.0 * r**2 * rr * np.cos(el))
+            d_el_d_h = rt / (r * rr * np.cos(el))
+        # The reported height's error enters through the elevation.
+        cov_polar[:, 2, 2] = np.nan_to_num(d_el_d_h) ** 2 * ALTITUDE_SIGMA_M**2
+    el = np.where(usable, el, 0.0)
+    enu_jac = frames.polar_to_enu_jacobian(r, az, el)  # (n, 3, 3)
+    if not site.is_3d:
+        # Range moves the point along the slant direction and, at fixed height, in elevation.
+        enu_jac = enu_jac.copy()
+        enu_jac[:, :, 0] += enu_jac[:, :, 2] * np.nan_to_num(d_el_d_r)[:, None]
+    rot = site.ecef_to_enu.T  # d ecef / d enu
+    ecef_jac = rot @ enu_jac
+    ecef = site.ecef_from_polar(r, az, el)
+    cov = convert_covariance(cov_polar, ecef_jac)
+    return _Geometry(ecef, ecef_jac, cov, usable)
+
+
+def _gaussian_radius_m(lat_rad: float) -> float:
+    sin2 = np.sin(lat_rad) ** 2
+    return frames.WGS84_A_M * np.sqrt(1.0 - frames.WGS84_E2) / (1.0 - frames.WGS84_E2 * sin2)
+
+
+@dataclass
+class CrossObservations:
+    """Stacked paper-001 observations ``z_k = H_k X + noise`` for all radar pairs.
+
+    Attributes
+    ----------
+    z : ndarray (m, 3)
+        Position differences [m] (radar b minus radar a), ECEF.
+    h : ndarray (m, 3, p)
+        ``dz/dX`` over the layout's parameters.
+    cov : ndarray (m, 3, 3)
+        Converted measurement covariance of each ``z_k`` [m^2].
+    time_s : ndarray (m,)
+        Time of radar b's plot.
+    pair : ndarray (m, 2) of int
+        Radar indices (a, b) in the layout's radar order.
+    n_plots : dict
+        Plots of each radar that entered at least one observation.
+    plot_rows : ndarray (m, 3) of int
+        Row labels in ``dataset.plots`` of the plots behind ``z_k``: radar b's
+        plot and radar a's two bracketing plots.
+    plot_coefficients : ndarray (m, 3)
+        ``z_k``'s noise is ``sum_j plot_coefficients[k, j] * e[plot_rows[k, j]]``
+        with ``e`` a plot's ECEF noise: ``(1, -(1 - w), -w)``.
+    plot_cov : dict
+        ECEF noise covariance [m^2] of each plot row used.
+    """
+
+    z: FloatArray
+    h: FloatArray
+    cov: FloatArray
+    time_s: FloatArray
+    pair: NDArray[np.int64]
+    n_plots: dict[str, int]
+    plot_rows: NDArray[np.int64]
+    plot_coefficients: FloatArray
+    plot_cov: dict[int, FloatArray]
+
+    def subset(self, keep: NDArray[np.bool_]) -> CrossObservations:
+        """The observations selected by ``keep``."""
+        return CrossObservations(
+            self.z[keep], self.h[keep], self.cov[keep], self.time_s[keep], self.pair[keep],
+            self.n_plots, self.plot_rows[keep], self.plot_coefficients[keep], self.plot_cov,
+        )
+
+    def __len__(self) -> int:
+        return len(self.z)
+
+
+def cross_observations(
+    dataset: Dataset,
+    layout: ParameterLayout,
+    max_gap_s: float | None = None,
+    linearise: str = "plots",
+) -> CrossObservations:
+    """Build the paper-001 observations for every pair of radars ``a < b``.
+
+    ``linearise="plots"`` evaluates ``H_k`` and the covariance at the measured
+    plots, as the paper; ``"neighbours"`` at each plot's track neighbours
+    (:func:`graphcal.data.align.neighbour_plots`), whose noise is independent of
+    ``z_k``'s: the errors-in-variables bias of the paper's choice, which grows
+    as ``sqrt(m)`` standard deviations along poorly observed directions, goes.
+    """
+    if linearise not in LINEARISE_CHOICES:
+        raise ValueError(f"linearise must be one of {', '.join(LINEARISE_CHOICES)}, "
+                         f"not '{linearise}'")
+    radar_ids = list(dataset.radar_ids)
+    p = len(layout)
+    zs, hs, covs, times, pairs, rows, coefficients = [], [], [], [], [], [], []
+    plot_cov: dict[int, FloatArray] = {}
+    used: dict[str, set[int]] = {rid: set() for rid in radar_ids}
+    for ia, ra in enumerate(radar_ids):
+        for ib in range(ia + 1, len(radar_ids)):
+            rb = radar_ids[ib]
+            pairs_ab = pair_plots(dataset, ra, rb, max_gap_s)
+            if len(pairs_ab) == 0:
+                continue
+            z, h, cov, ok, conv_a, conv_b = _pair_rows(dataset, layout, pairs_ab,
+                                                        linearise == "neighbours")
+            if not np.any(ok):
+                continue
+            a_idx, b_idx = pairs_ab.a_plots.index, pairs_ab.b_plots.index
+            i0, jb, w = pairs_ab.a_index0[ok], pairs_ab.b_index[ok], pairs_ab.weight[ok]
+            rows.append(np.stack([b_idx[jb], a_idx[i0], a_idx[i0 + 1]], axis=1))
+            coefficients.append(np.stack([np.ones_like(w), -(1.0 - w), -w], axis=1))
+            plot_cov.update(zip(a_idx.tolist(), conv_a.cov_m2, strict=True))
+            plot_cov.update(zip(b_idx.tolist(), conv_b.cov_m2, strict=True))
+            zs.append(z[ok])
+            hs.append(h[ok])
+            covs.append(cov[ok])
+            times.append(pairs_ab.b_plots.time_s[pairs_ab.b_index[ok]])
+            pairs.append(np.tile([ia, ib], (int(ok.sum()), 1)))
+            used[ra].update(a_idx[pairs_ab.a_index0[ok]].tolist())
+            used[ra].update(a_idx[pairs_ab.a_index0[ok] + 1].tolist())
+            used[rb].update(pairs_ab.b_plots.index[pairs_ab.b_index[ok]].tolist())
+    if not zs:
+        return CrossObservations(
+            np.zeros((0, 3)), np.zeros((0, 3, p)), np.zeros((0, 3, 3)), np.zeros(0),
+            np.zeros((0, 2), np.int64), {rid: 0 for rid in radar_ids},
+            np.zeros((0, 3), np.int64), np.zeros((0, 3)), {},
+        )
+    return CrossObservations(
+        np.concatenate(zs), np.concatenate(hs), np.concatenate(covs), np.concatenate(times),
+        np.concatenate(pairs), {rid: len(v) for rid, v in used.items()},
+        np.concatenate(rows), np.concatenate(coefficients), plot_cov,
+    )
+
+
+def shared_noise_middle(obs: CrossObservations) -> FloatArray:
+    """``M = sum_plots G_p Sigma_p G_p^T`` with ``G_p = sum_k H_k^T Q_k c_kp``.
+
+    A plot enters several observations (as radar b's plot of one pair, as a
+    bracketing plot of another, with several other radars), so the ``z_k`` are
+    correlated.  ``A^-1 M A^-1`` is the exact covariance of the linear WLS
+    solution under that shared noise, where ``A^-1`` alone would be
+    over-confident.
+    """
+    p = obs.h.shape[2]
+    if len(obs) == 0:
+        return np.zeros((p, p))
+    ht_q = np.swapaxes(obs.h, 1, 2) @ np.linalg.inv(obs.cov)  # (m, p, 3)
+    return gradient_noise_middle(ht_q, obs.plot_rows, obs.plot_coefficients, obs.plot_cov)
+
+
+def gradient_noise_middle(
+    ht_q: FloatArray,
+    plot_rows: NDArray[np.int64],
+    coefficients: FloatArray,
+    plot_cov: dict[int, FloatArray],
+) -> FloatArray:
+    """``sum_plots G_p Sigma_p G_p^T`` with ``G_p = sum_k c_kp (H_k^T Q_k)``.
+
+    Parameters
+    ----------
+    ht_q : ndarray (m, p, 3)
+        Each observation's ``H_k^T Q_k`` (times its weight, for a re-weighted fit).
+    plot_rows : ndarray (m, j) of int
+        Plot-table row labels of the plots behind each observation.
+    coefficients : ndarray (m, j)
+        Observation ``k``'s noise is ``sum_j coefficients[k, j] e[plot_rows[k, j]]``.
+    plot_cov : dict
+        ECEF noise covariance [m^2] of each plot row label.
+    """
+    p = ht_q.shape[1]
+    labels, position = np.unique(plot_rows, return_inverse=True)
+    position = position.reshape(plot_rows.shape)
+    g = np.zeros((len(labels), p, 3))
+    for j in range(plot_rows.shape[1]):
+        np.add.at(g, position[:, j], coefficients[:, j, None, None] * ht_q)
+    cov = np.stack([plot_cov[int(label)] for label in labels])
+    return np.einsum("npi,nij,nqj->pq", g, cov, g)
+
+
+def _pair_rows(
+    dataset: Dataset,
+    layout: ParameterLayout,
+    pairs: PlotPairs,
+    instrumented: bool = False,
+) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_], ConvertedPlots, ConvertedPlots]:
+    site_a, site_b = dataset.sites[pairs.radar_a], dataset.sites[pairs.radar_b]
+    at_a = neighbour_plots(pairs.a_plots) if instrumented else None
+    at_b = neighbour_plots(pairs.b_plots) if instrumented else None
+    conv_a = convert_plots(site_a, pairs.a_plots, at_a)
+    conv_b = convert_plots(site_b, pairs.b_plots, at_b)
+    i0, i1, w, ib = pairs.a_index0, pairs.a_index0 + 1, pairs.weight, pairs.b_index
+    w0, w1 = (1.0 - w)[:, None], w[:, None]
+    pos_a = w0 * conv_a.ecef_m[i0] + w1 * conv_a.ecef_m[i1]
+    z = conv_b.ecef_m[ib] - pos_a
+    m = len(ib)
+    h = np.zeros((m, 3, len(layout)))
+    cols_a, positions_a = layout.columns(pairs.radar_a)
+    cols_b, positions_b = layout.columns(pairs.radar_b)
+    jac_a = w0[:, :, None] * conv_a.bias_jacobian[i0] + w1[:, :, None] * conv_a.bias_jacobian[i1]
+    h[:, :, cols_a] = -jac_a[:, :, positions_a]
+    h[:, :, cols_b] = conv_b.bias_jacobian[ib][:, :, positions_b]
+    w0c, w1c = (1.0 - w)[:, None, None], w[:, None, None]
+    cov = conv_b.cov_m2[ib] + w0c**2 * conv_a.cov_m2[i0] + w1c**2 * conv_a.cov_m2[i1]
+    ok = conv_b.usable[ib] & conv_a.usable[i0] & conv_a.usable[i1]
+    return z, h, cov, ok, conv_a, conv_b

@@ -1,0 +1,379 @@
+"""Vectorised factor error functions of the graph calibrator.
+
+Each factor holds many measurements that share the same variables (all plots
+of one radar matched to ADS-B; all plot pairs of two radars), so GTSAM calls
+Python once per factor and iteration, not once per plot.  Every factor
+exposes
+
+* ``keys``: the GTSAM keys of its variables (radar bias vectors),
+* ``dimension``: the length of its stacked error,
+* ``error(values, want_jacobians)``: the stacked, whitened, robustified error
+  and, when asked, its Jacobian blocks (one per key), the form
+  :meth:`graphcal.solvers.gtsam_adapter.FactorGraph.add_custom` expects,
+* ``whitened(values)``: the whitened residual ``(n, m)`` and Jacobians
+  ``(n, m, k)`` before the robust kernel, for diagnostics.
+
+A radar's variable holds only its *free* bias terms; :class:`RadarTerms`
+expands it to the full ``(range_offset_m, range_gain, azimuth_bias_rad,
+elevation_bias_rad)`` vector with fixed terms at their known values, and gives
+the radar's time-stamping bias ``time_offset_s`` (a fifth term, free only when
+time offsets are estimated).  Jacobians are ``(..., 5)`` over
+:data:`TERM_NAMES` (factors that do not depend on the time offset may return
+``(..., 4)``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graphcal.core import frames
+from graphcal.data.align import PlotArrays
+from graphcal.data.bias import PARAMETER_NAMES, measurement_bias_jacobian
+from graphcal.data.dataset import Site
+from graphcal.model.cross_radar import convert_plots, corrected_ecef
+from graphcal.model.robust import RobustKernel
+
+FloatArray = NDArray[np.float64]
+
+#: Every term a radar variable can hold: the four biases, then the time-stamping bias.
+TERM_NAMES: tuple[str, ...] = (*PARAMETER_NAMES, "time_offset")
+
+
+@dataclass(frozen=True)
+class RadarTerms:
+    """Which of a radar's biases are estimated, and the known values of the others.
+
+    Attributes
+    ----------
+    radar_id : str
+    free : tuple of str
+        Estimated terms, in :data:`TERM_NAMES` order.
+    fixed : dict of str to float
+        Terms held at a known value (SI); terms neither free nor fixed are 0.
+    """
+
+    radar_id: str
+    free: tuple[str, ...]
+    fixed: dict[str, float] = field(default_factory=dict, hash=False)
+
+    @property
+    def positions(self) -> list[int]:
+        """Positions of the free terms in the full 5-vector of :data:`TERM_NAMES`."""
+        return [TERM_NAMES.index(name) for name in self.free]
+
+    def _full5(self, free_values: FloatArray) -> FloatArray:
+        values = np.zeros(len(TERM_NAMES))
+        for name, value in self.fixed.items():
+            values[TERM_NAMES.index(name)] = value
+        values[self.positions] = free_values
+        return values
+
+    def full(self, free_values: FloatArray) -> FloatArray:
+        """The full bias 4-vector from the free values (SI)."""
+        return self._full5(free_values)[:4]
+
+    def time_offset(self, free_values: FloatArray) -> float:
+        """The time-stamping bias [s]: free, fixed, or 0."""
+        return float(self._full5(free_values)[4])
+
+    def select(self, jacobian_full: FloatArray) -> FloatArray:
+        """Columns of a ``(..., 4)`` or ``(..., 5)`` Jacobian that belong to the free terms.
+
+        A 4-column Jacobian does not depend on the time offset (zero column).
+        """
+        if jacobian_full.shape[-1] == len(PARAMETER_NAMES):
+            pad = np.zeros((*jacobian_full.shape[:-1], 1))
+            jacobian_full = np.concatenate([jacobian_full, pad], axis=-1)
+        return jacobian_full[..., self.positions]
+
+
+def whitening_matrices(cov: FloatArray) -> FloatArray:
+    """``L^-1`` per measurement with ``L L^T = cov``, so ``||L^-1 r||^2 = r^T cov^-1 r``."""
+    return np.linalg.inv(np.linalg.cholesky(cov))
+
+
+def _flatten(
+    e: FloatArray, jacobians: list[FloatArray] | None
+) -> tuple[FloatArray, list[FloatArray] | None]:
+    flat = e.reshape(-1)
+    if jacobians is None:
+        return flat, None
+    return flat, [j.reshape(flat.size, j.shape[-1]) for j in jacobians]
+
+
+# --------------------------------------------------------------------------- ADS-B
+@dataclass
+class AdsbFactor:
+    """All plots of one radar against the ADS-B position of their aircraft.
+
+    Residual in the radar's measurement space, azimuth wrapped to ``[-pi, pi)``::
+
+        e_i = z_i - h(p_i, beta),   h = ((1 + g) r_i + offset, az_i + b_az, el_i + b_el)
+
+    with ``(r_i, az_i, el_i)`` the ADS-B position in the radar's polar frame
+    and ``z_i`` the measured plot (2-D radars: range and azimuth only).  The
+    noise is the radar's plus the ADS-B position noise mapped through the
+    polar Jacobian (paper 002's first-order conversion, eq. 17-19), fixed at
+    the ADS-B geometry.
+
+    With a time-stamping bias ``tau`` the plot reported at ``t`` was made at
+    ``t - tau``; the ADS-B reference, interpolated at ``t - tau0``, moves to
+    ``reference + rate (tau0 - tau)`` (first order in ``tau - tau0``, which the
+    graph keeps small by re-aligning ADS-B at its latest ``tau``), so
+    ``d e / d tau = ((1 + g) dr/dt, daz/dt, del/dt)``.
+
+    Attributes
+    ----------
+    measured, reference : ndarray (n, 3)
+        Measured plot and ADS-B reference in polar coordinates [m, rad].
+    whitening : ndarray (n, m, m)
+        :func:`whitening_matrices` of the ``(n, m, m)`` noise covariance.
+    plot_rows : ndarray (n,)
+        Row labels of the plots in the dataset's plot table.
+    rate : ndarray (n, 3) or None
+        Time derivative of the reference in polar coordinates [m/s, rad/s].
+    tau0 : float
+        Time offset [s] at which the reference was interpolated.
+    """
+
+    terms: RadarTerms
+    key: int
+    measured: FloatArray
+    reference: FloatArray
+    whitening: FloatArray
+    kernel: RobustKernel
+    plot_rows: NDArray[np.int64]
+    rate: FloatArray | None = None
+    tau0: float = 0.0
+
+    @property
+    def keys(self) -> list[int]:
+        return [self.key]
+
+    @property
+    def rows(self) -> int:
+        """Measurement dimension ``m`` (2 or 3)."""
+        return self.whitening.shape[1]
+
+    @property
+    def dimension(self) -> int:
+        return len(self.measured) * self.rows
+
+    def residual(
+        self, bias: FloatArray, time_offset_s: float = 0.0
+    ) -> tuple[FloatArray, FloatArray]:
+        """Unwhitened residual ``(n, m)`` and its Jacobian ``(n, m, 5)`` (:data:`TERM_NAMES`)."""
+        offset, gain, az_bias, el_bias = bias
+        m = self.rows
+        reference = self.reference
+        if self.rate is not None:
+            reference = reference + self.rate * (self.tau0 - time_offset_s)
+        r_true, az_true, el_true = reference.T
+        res = np.empty((len(r_true), m))
+        res[:, 0] = self.measured[:, 0] - ((1.0 + gain) * r_true + offset)
+        res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - (az_true + az_bias))
+        if m == 3:
+            res[:, 2] = self.measured[:, 2] - (el_true + el_bias)
+        jac = np.zeros((len(r_true), m, len(TERM_NAMES)))
+        jac[:, :, :4] = -measurement_bias_jacobian(r_true)[:, :m, :]
+        if self.rate is not None:
+            jac[:, :, 4] = self.rate[:, :m]
+            jac[:, 0, 4] *= 1.0 + gain
+        return res, jac
+
+    def whitened(self, values: list[FloatArray]) -> tuple[FloatArray, list[FloatArray]]:
+        res, jac = self.residual(self.terms.full(values[0]), self.terms.time_offset(values[0]))
+        e = np.einsum("nij,nj->ni", self.whitening, res)
+        j = self.whitening @ self.terms.select(jac)
+        return e, [j]
+
+    def error(
+        self, values: list[FloatArray], want_jacobians: bool
+    ) -> tuple[FloatArray, list[FloatArray] | None]:
+        e, jac = self.whitened(values)
+        return _flatten(*self.kernel.apply(e, jac if want_jacobians else None))
+
+
+def adsb_factor(
+    site: Site,
+    terms: RadarTerms,
+    key: int,
+    plots: PlotArrays,
+    reference_polar: FloatArray,
+    reference_polar_cov: FloatArray,
+    kernel: RobustKernel,
+    reference_rate: FloatArray | None = None,
+    tau0: float = 0.0,
+) -> AdsbFactor:
+    """Build the ADS-B factor of one radar.
+
+    ``reference_polar_cov`` is the ADS-B position covariance mapped to the
+    radar's polar coordinates ``(n, 3, 3)``; ``reference_rate`` the reference's
+    time derivative in polar coordinates (needed when the time offset is free),
+    interpolated at time offset ``tau0``.
+    """
+    m = 3 if site.is_3d else 2
+    measured = np.stack([plots.range_m, plots.azimuth_rad, plots.elevation_rad], axis=-1)
+    cov = reference_polar_cov[:, :m, :m].copy()
+    sigmas = site.measurement_sigmas()[:m]
+    cov[:, np.arange(m), np.arange(m)] += sigmas**2
+    return AdsbFactor(
+        terms, key, measured, reference_polar, whitening_matrices(cov), kernel,
+        plots.index.copy(), reference_rate, float(tau0),
+    )
+
+
+# --------------------------------------------------------------------------- pairwise
+@dataclass
+class PairwiseFactor:
+    """Paper 001's cross-radar differences for one radar pair, solved without linearising once.
+
+    For pair ``k`` (radar b's plot ``ib[k]`` and radar a's two bracketing
+    plots ``i0[k]``, ``i0[k] + 1`` with interpolation weight ``w``)::
+
+        e_k = P_b(z_b, beta_b) - [(1 - w) P_a(z_a0, beta_a) + w P_a(z_a1, beta_a)]
+
+    with ``P(z, beta)`` the plot corrected by the bias and converted to ECEF
+    (:func:`graphcal.model.cross_radar.corrected_ecef`); paper 001 eq. 8
+    evaluated exactly at every iteration rather than linearised at zero bias.
+    The noise is both plots' converted covariance (paper 002), fixed at the
+    measured values.
+
+    Time-stamping biases ``tau_a``, ``tau_b``: the pairs were formed with
+    ``b``'s times shifted by ``tau0_a - tau0_b``; a change of that difference
+    moves ``a``'s interpolated position along its track,
+    ``- v_a [(tau_a - tau_b) - (tau0_a - tau0_b)]`` with ``v_a`` the slope of
+    ``a``'s bracketing segment.
+    """
+
+    terms_a: RadarTerms
+    terms_b: RadarTerms
+    key_a: int
+    key_b: int
+    site_a: Site
+    site_b: Site
+    a_plots: PlotArrays
+    b_plots: PlotArrays
+    i0: NDArray[np.int64]
+    weight: FloatArray
+    ib: NDArray[np.int64]
+    whitening: FloatArray
+    a_cov_m2: FloatArray
+    b_cov_m2: FloatArray
+    kernel: RobustKernel
+    tau0_a: float = 0.0
+    tau0_b: float = 0.0
+
+    @property
+    def keys(self) -> list[int]:
+        return [self.key_a, self.key_b]
+
+    @property
+    def dimension(self) -> int:
+        return 3 * len(self.ib)
+
+    def __len__(self) -> int:
+        return len(self.ib)
+
+    def residual(
+        self, bias_a: FloatArray, bias_b: FloatArray, tau_a: float = 0.0, tau_b: float = 0.0
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Unwhitened residual ``(n, 3)`` [m] and its Jacobians ``(n, 3, 5)`` for a and b."""
+        ecef_a, jac_a, _ = corrected_ecef(self.site_a, self.a_plots, bias_a)
+        ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b)
+        w1 = self.weight[:, None]
+        w0 = 1.0 - w1
+        i0, i1 = self.i0, self.i0 + 1
+        res = ecef_b[self.ib] - (w0 * ecef_a[i0] + w1 * ecef_a[i1])
+        n = len(self.ib)
+        d_a = np.zeros((n, 3, len(TERM_NAMES)))
+        d_b = np.zeros((n, 3, len(TERM_NAMES)))
+        d_a[:, :, :4] = -(w0[:, :, None] * jac_a[i0] + w1[:, :, None] * jac_a[i1])
+        d_b[:, :, :4] = jac_b[self.ib]
+        dt = (self.a_plots.time_s[i1] - self.a_plots.time_s[i0])[:, None]
+        dt = np.where(dt > 0.0, dt, np.inf)  # two plots at one time: no velocity
+        velocity = (ecef_a[i1] - ecef_a[i0]) / dt
+        shift = (tau_a - tau_b) - (self.tau0_a - self.tau0_b)
+        if shift != 0.0:
+            res = res - velocity * shift
+            d_a[:, :, :4] -= shift * (jac_a[i1] - jac_a[i0]) / dt[:, :, None]
+        d_a[:, :, 4] = -velocity
+        d_b[:, :, 4] = velocity
+        return res, d_a, d_b
+
+    def whitened(self, values: list[FloatArray]) -> tuple[FloatArray, list[FloatArray]]:
+        ta, tb = self.terms_a, self.terms_b
+        res, d_a, d_b = self.residual(
+            ta.full(values[0]), tb.full(values[1]),
+            ta.time_offset(values[0]), tb.time_offset(values[1]),
+        )
+        e = np.einsum("nij,nj->ni", self.whitening, res)
+        jac_a = self.whitening @ self.terms_a.select(d_a)
+        return e, [jac_a, self.whitening @ self.terms_b.select(d_b)]
+
+    def error(
+        self, values: list[FloatArray], want_jacobians: bool
+    ) -> tuple[FloatArray, list[FloatArray] | None]:
+        e, jac = self.whitened(values)
+        return _flatten(*self.kernel.apply(e, jac if want_jacobians else None))
+
+    def plot_noise(self) -> tuple[NDArray[np.int64], FloatArray]:
+        """For the shared-noise sandwich: per pair, the plots behind it and their coefficients.
+
+        Returns ``(positions (n, 3), coefficients (n, 3))`` with positions
+        indexing the concatenation ``[a_plots, b_plots]`` and the residual
+        noise ``sum_j c_j e_j`` of the plots' ECEF noise ``e_j``.
+        """
+        na = len(self.a_plots)
+        positions = np.stack([self.ib + na, self.i0, self.i0 + 1], axis=1)
+        w = self.weight
+        coefficients = np.stack([np.ones_like(w), -(1.0 - w), -w], axis=1)
+        return positions, coefficients
+
+
+def pairwise_factor(
+    site_a: Site,
+    site_b: Site,
+    terms_a: RadarTerms,
+    terms_b: RadarTerms,
+    key_a: int,
+    key_b: int,
+    a_plots: PlotArrays,
+    b_plots: PlotArrays,
+    i0: NDArray[np.int64],
+    weight: FloatArray,
+    ib: NDArray[np.int64],
+    kernel: RobustKernel,
+    tau0_a: float = 0.0,
+    tau0_b: float = 0.0,
+) -> PairwiseFactor | None:
+    """Build the pairwise factor from :func:`graphcal.data.align.pair_plots` indices.
+
+    Only the plots that enter a pair are kept; pairs with an unusable plot (a
+    2-D plot without reported height) are dropped.  ``None`` when nothing is left.
+    ``tau0_a``, ``tau0_b``: the time offsets [s] the pairs were formed with.
+    """
+    used_a = np.unique(np.concatenate([i0, i0 + 1]))
+    used_b = np.unique(ib)
+    a_sub = a_plots.subset(used_a)
+    b_sub = b_plots.subset(used_b)
+    i0 = np.searchsorted(used_a, i0)
+    ib = np.searchsorted(used_b, ib)
+    conv_a = convert_plots(site_a, a_sub)
+    conv_b = convert_plots(site_b, b_sub)
+    ok = conv_b.usable[ib] & conv_a.usable[i0] & conv_a.usable[i0 + 1]
+    # used_a holds both bracketing plots, so i0 + 1 is still the later one.
+    if not np.any(ok):
+        return None
+    i0, ib, weight = i0[ok], ib[ok], weight[ok]
+    w0 = (1.0 - weight)[:, None, None]
+    w1 = weight[:, None, None]
+    cov = conv_b.cov_m2[ib] + w0**2 * conv_a.cov_m2[i0] + w1**2 * conv_a.cov_m2[i0 + 1]
+    return PairwiseFactor(
+        terms_a, terms_b, key_a, key_b, site_a, site_b, a_sub, b_sub, i0, weight, ib,
+        whitening_matrices(cov), conv_a.cov_m2, conv_b.cov_m2, kernel, float(tau0_a),
+        float(tau0_b),
+    )

@@ -1,0 +1,47 @@
+"""Correct a dataset folder: read it and a result, write the plots with the biases removed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from graphcal.core.errors import DatasetError
+from graphcal.data.calibration import read_biases
+from graphcal.data.correct import correct_dataset
+from graphcal.data.dataset import Dataset
+from graphcal.io.folder import load_dataset, write_dataset
+
+
+def _table_format(folder: Path | None) -> str:
+    """``parquet`` when the source dataset's plots are Parquet, else ``csv``."""
+    if folder is not None and (Path(folder) / "plots.parquet").exists():
+        return "parquet"
+    return "csv"
+
+
+def correct_folder(
+    dataset_dir: str | Path, result: str | Path, out: str | Path, *, overwrite: bool = False
+) -> Dataset:
+    """Read a dataset folder and a result JSON, write the corrected dataset to ``out``.
+
+    ``result`` may be a calibration result or a simulation's ``truth.json``
+    (read with :func:`graphcal.data.calibration.read_biases`).  The output keeps the
+    table format of the input and is written atomically
+    (:func:`graphcal.io.folder.write_dataset`); ``dataset_dir`` is only read.
+
+    Raises
+    ------
+    DatasetError
+        Bad input dataset, ``out`` is ``dataset_dir``, or ``out`` exists and is
+        not empty without ``overwrite``.
+    ResultError
+        Bad result file.
+    """
+    dataset_dir, out = Path(dataset_dir), Path(out)
+    if out.exists() and dataset_dir.exists() and out.resolve() == dataset_dir.resolve():
+        raise DatasetError("the output folder must differ from the input dataset", path=out)
+    dataset = load_dataset(dataset_dir)
+    biases = read_biases(result)
+    corrected = correct_dataset(dataset, biases)
+    write_dataset(corrected, out, fmt=_table_format(dataset_dir), overwrite=overwrite)
+    corrected.path = out
+    return corrected

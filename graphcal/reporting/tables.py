@@ -1,0 +1,264 @@
+"""Readable tables of calibration results (``value ± sigma``) for the terminal."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rich.table import Table
+
+from graphcal.data.bias import CONTRACT_KEYS, PARAMETER_NAMES
+from graphcal.data.calibration import Calibration
+
+#: Display precision per contract key.
+_FORMATS = {
+    "range_offset_m": "{:.2f}",
+    "range_gain": "{:.3e}",
+    "azimuth_bias_mrad": "{:.3f}",
+    "elevation_bias_mrad": "{:.3f}",
+    "time_offset_s": "{:.3f}",
+}
+
+
+def format_value(key: str, value: float | None, sigma: float | None = None) -> str:
+    """``value ± sigma`` in the key's precision; '-' when not estimated."""
+    if value is None:
+        return "-"
+    fmt = _FORMATS.get(key, "{:.4g}")
+    text = fmt.format(value)
+    if sigma is None:
+        return text
+    if sigma != sigma or sigma == float("inf"):
+        return f"{text} ± undetermined"
+    return f"{text} ± {fmt.format(sigma)}"
+
+
+def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> Table:
+    """A table: one row per radar and parameter, estimate ± 1 sigma, truth if given."""
+    table = Table(title=f"graphcal calibration, method {cal.method}")
+    table.add_column("radar")
+    table.add_column("parameter", no_wrap=True)
+    table.add_column("estimate ± 1σ", justify="right", no_wrap=True)
+    efficiency = cal.info.get("efficiency") or {}
+    if efficiency:
+        table.add_column("σ/CRLB", justify="right")
+    if truth is not None:
+        table.add_column("truth", justify="right")
+        table.add_column("error/σ", justify="right")
+    table.add_column("plots", justify="right")
+    for rid in cal.radar_ids:
+        first = True
+        for name in (*PARAMETER_NAMES, "time_offset"):
+            key = CONTRACT_KEYS[name][0]
+            value, sigma = cal.value(rid, key), cal.sigma(rid, key)
+            if value is None or (name == "time_offset" and not sigma):
+                continue
+            shown = format_value(key, value, sigma)
+            if f"{rid}.{key}" in cal.info.get("undetermined", []):
+                shown = f"not determined (prior ± {_FORMATS.get(key, '{:.4g}').format(sigma)})"
+            row = [rid if first else "", key, shown]
+            if efficiency:
+                ratio = efficiency.get(f"{rid}.{key}")
+                row.append("" if ratio is None else f"{ratio:.2f}")
+            if truth is not None:
+                true = truth.get("radars", {}).get(rid, {}).get(key)
+                if true is None and name == "time_offset" and rid in truth.get("radars", {}):
+                    true = 0.0  # truth.json leaves out a zero time offset
+                row.append(format_value(key, true))
+                if true is not None and sigma and sigma == sigma and sigma != float("inf"):
+                    row.append(f"{(value - true) / sigma:+.1f}")
+                else:
+                    row.append("")
+            row.append(str(cal.n_plots.get(rid, "")) if first else "")
+            table.add_row(*row)
+            first = False
+    return table
+
+
+# ------------------------------------------------------------------ marginals
+def _stacked(key: str) -> str:
+    """A contract key as a two-line column header: ``azimuth\\nbias_mrad``."""
+    head, _, tail = key.partition("_")
+    return f"{head}\n{tail}" if tail else key
+
+
+def _number(value: float, fmt: str = "{:.4g}") -> str:
+    """A matrix entry; NaN/inf spelt out."""
+    if value != value:
+        return "nan"
+    if value in (float("inf"), float("-inf")):
+        return "inf" if value > 0 else "-inf"
+    return fmt.format(value)
+
+
+def marginal_table(cal: Calibration, radar_id: str) -> Table:
+    """One radar: each parameter's ``value ± 1σ`` and its marginal covariance block.
+
+    Covariance entries are in the products of the contract units of the row
+    and column keys (m, fraction, mrad, s), e.g. mrad² or m·mrad.
+    """
+    keys = cal.marginal_labels(radar_id)
+    block = cal.marginal(radar_id)
+    table = Table(title=f"{radar_id}: marginal covariance (contract units)")
+    table.add_column("parameter", no_wrap=True)
+    table.add_column("estimate ± 1σ", justify="right", no_wrap=True)
+    for key in keys:
+        table.add_column(_stacked(key), justify="right", no_wrap=True)
+    for i, key in enumerate(keys):
+        value, sigma = cal.value(radar_id, key), cal.sigma(radar_id, key)
+        table.add_row(key, format_value(key, value, sigma), *(_number(v) for v in block[i]))
+    return table
+
+
+def correlation_block_table(cal: Calibration, radar_id: str) -> Table:
+    """Correlation coefficients among one radar's parameters."""
+    keys = cal.marginal_labels(radar_id)
+    rho = cal.correlation(radar_id)
+    table = Table(title=f"{radar_id}: correlation")
+    table.add_column("parameter", no_wrap=True)
+    for key in keys:
+        table.add_column(_stacked(key), justify="right", no_wrap=True)
+    for i, key in enumerate(keys):
+        table.add_row(key, *(_number(v, "{:+.3f}") for v in rho[i]))
+    return table
+
+
+def correlation_matrix_tables(cal: Calibration, width: int = 120) -> list[Table]:
+    """The full correlation matrix, numbered columns, split to fit ``width`` characters.
+
+    Rows are ``[k] RADAR.key``; column ``k`` is the parameter of row ``k``.
+    """
+    labels = cal.contract_labels()
+    rho = cal.correlation()
+    n = len(labels)
+    row_names = [f"[{k + 1}] {label}" for k, label in enumerate(labels)]
+    first = max((len(name) for name in row_names), default=10) + 4
+    per_table = max(1, (width - first) // 8)
+    tables = []
+    for start in range(0, n, per_table):
+        cols = range(start, min(start + per_table, n))
+        title = "correlation" if n <= per_table else (
+            f"correlation, columns {cols[0] + 1}-{cols[-1] + 1} of {n}"
+        )
+        table = Table(title=title)
+        table.add_column("parameter", no_wrap=True)
+        for j in cols:
+            table.add_column(f"[{j + 1}]", justify="right", no_wrap=True)
+        for i in range(n):
+            cells = ["1" if i == j else _number(rho[i, j], "{:+.2f}") for j in cols]
+            table.add_row(row_names[i], *cells)
+        tables.append(table)
+    return tables
+
+
+def strong_correlations(
+    cal: Calibration, min_rho: float = 0.5, radar_id: str | None = None
+) -> list[tuple[str, str, float]]:
+    """Parameter pairs with ``|rho| > min_rho``, strongest first.
+
+    Parameters
+    ----------
+    cal : Calibration
+    min_rho : float
+        Threshold on the absolute correlation coefficient.
+    radar_id : str, optional
+        Only pairs of this radar's parameters with other radars' parameters.
+        Without it: every pair.
+
+    Returns
+    -------
+    list of (label_a, label_b, rho)
+        ``RADAR.key`` labels; ``label_a`` belongs to ``radar_id`` when given.
+    """
+    labels = cal.contract_labels()
+    rho = cal.correlation()
+    pairs = []
+    for i, (rid_i, _) in enumerate(cal.labels):
+        for j, (rid_j, _) in enumerate(cal.labels):
+            if radar_id is None:
+                wanted = j > i
+            else:
+                wanted = rid_i == radar_id and rid_j != radar_id
+            if wanted and abs(rho[i, j]) > min_rho:
+                pairs.append((labels[i], labels[j], float(rho[i, j])))
+    return sorted(pairs, key=lambda pair: -abs(pair[2]))
+
+
+def strong_correlations_table(pairs: list[tuple[str, str, float]], title: str) -> Table:
+    """A table of :func:`strong_correlations` pairs."""
+    table = Table(title=title)
+    table.add_column("parameter", no_wrap=True)
+    table.add_column("with", no_wrap=True)
+    table.add_column("ρ", justify="right", no_wrap=True)
+    for a, b, r in pairs:
+        table.add_row(a, b, f"{r:+.3f}")
+    return table
+
+
+def fusion_table(summary: Any, comparison: Any | None = None) -> Table:
+    """Track and fused RMSE against the reference, optionally before and after calibration.
+
+    Parameters
+    ----------
+    summary : pandas.DataFrame
+        :attr:`graphcal.tracking.fusion.FusionResult.summary` (without calibration).
+    comparison : pandas.DataFrame, optional
+        :func:`graphcal.tracking.fusion.fusion_comparison` of the runs before and after.
+    """
+    from graphcal.tracking.fusion import FUSED_COV, FUSED_EQUAL
+
+    names = {FUSED_COV: "fused, covariance weights", FUSED_EQUAL: "fused, equal weights"}
+    table = Table(title="track accuracy against ADS-B" if comparison is None
+                  else "track accuracy against ADS-B, before and after calibration")
+    table.add_column("track")
+    if comparison is None:
+        table.add_column("RMSE \\[m]", justify="right")
+        table.add_column("points", justify="right")
+        table.add_column("aircraft", justify="right")
+        for label, row in summary.iterrows():
+            table.add_row(names.get(label, str(label)), _number(row["rmse_m"], "{:.1f}"),
+                          str(int(row["n_points"])), str(int(row["n_targets"])))
+        return table
+    for column in ("RMSE before \\[m]", "RMSE after \\[m]", "improvement", "points"):
+        table.add_column(column, justify="right")
+    for label, row in comparison.iterrows():
+        table.add_row(names.get(label, str(label)), _number(row["rmse_before_m"], "{:.1f}"),
+                      _number(row["rmse_after_m"], "{:.1f}"),
+                      _number(row["improvement_pct"], "{:+.1f} %"), str(int(row["n_points"])))
+    return table
+
+
+def noise_table(sites: Any, estimates: Any) -> Table:
+    """Estimated random-error sigmas ``value ± standard error`` beside the site file's.
+
+    Parameters
+    ----------
+    sites : mapping of str to Site
+    estimates : mapping of str to graphcal.noise.NoiseEstimate
+    """
+    table = Table(title="random-error sigmas: estimated ± standard error (sites.toml)")
+    for column in ("radar", "method", "plots", "range \\[m]", "azimuth \\[mrad]",
+                   "elevation \\[mrad]"):
+        table.add_column(column, justify="left" if column in ("radar", "method") else "right")
+
+    def cell(value: float | None, se: float | None, given: float | None, scale: float,
+             fmt: str) -> str:
+        if value is None:
+            return "-"
+        text = "not estimated" if value != value else (
+            f"{fmt.format(value)} ± {fmt.format(se)}" if se == se and se is not None
+            else fmt.format(value))
+        if given is not None and given == given:
+            text += f" ({fmt.format(given * scale)})"
+        return text
+
+    for rid, est in estimates.items():
+        site = sites[rid]
+        table.add_row(
+            rid, est.method, str(est.n_plots_used),
+            cell(est.sigma_range_m, est.se_range_m, site.sigma_range_m, 1.0, "{:.1f}"),
+            cell(est.sigma_azimuth_mrad, est.se_azimuth_mrad, site.sigma_azimuth_rad, 1e3,
+                 "{:.3f}"),
+            cell(est.sigma_elevation_mrad, est.se_elevation_mrad, site.sigma_elevation_rad, 1e3,
+                 "{:.3f}"),
+        )
+    return table

@@ -1,0 +1,595 @@
+"""Simulate a radar network and ADS-B from a scenario: scenario + Generator -> Dataset + truth.
+
+Radar plots follow each antenna's sweep.  The beam turns clockwise at
+``omega = 2 pi / scan_period`` from ``antenna_phase`` at time 0, so its azimuth
+is ``beta(t) = phase + omega t``.  A target is hit when the beam passes its true
+azimuth ``alpha(t)``: ``g(t) = phase + omega t - alpha(t) = 2 pi m`` for an
+integer ``m``.  ``g`` increases (the beam turns faster than any aircraft moves
+across it), so each ``m`` gives one hit: the simulator samples ``g`` on a grid
+of a quarter of the shortest scan period, brackets every multiple of ``2 pi``,
+and refines the time by the fixed-point iteration
+``t <- t + (2 pi m - g(t)) / omega`` (it contracts by ``|alpha'| / omega``, so
+two or three steps reach micro-second accuracy; it runs to 1e-9 s).
+
+At each hit the true position (WGS-84, straight line of sight) gives the true
+polar coordinates; the target is in coverage when within ``max_range_m``, above
+``min_elevation_deg`` and, unless the radar's ``horizon_check`` is off, when the
+line of sight clears the Earth (:func:`earth_blocks`); it is then detected with
+the radar's probability.  The
+plot is :func:`graphcal.data.bias.apply_bias` of the true polar coordinates plus
+Gaussian noise, azimuth wrapped to ``[0, 360)`` deg; 2-D radars write NaN
+elevation.  The reported time is the true time plus ``time_offset_s``.
+``altitude_m`` is the true height above the ellipsoid plus Gaussian noise,
+quantised (Mode C style).
+
+ADS-B reports come every ``period_s`` from a random phase per aircraft, with
+Gaussian noise per axis in the ENU frame at the aircraft, optional outliers and
+dropouts.  With ``equipped_fraction < 1`` only a random subset of the aircraft
+broadcasts (:func:`adsb_equipage`).
+
+Every random number is drawn from the one :class:`numpy.random.Generator`
+passed in, in a fixed order (traffic, antenna phases, radars in file order,
+ADS-B: equipage when ``equipped_fraction < 1``, then phases and noise), so one
+seed reproduces a dataset exactly.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from graphcal.core import frames
+from graphcal.core.atomic import atomic_write_text
+from graphcal.core.errors import ScenarioError
+from graphcal.data.bias import CONTRACT_KEYS, PARAMETER_NAMES, RadarBias, apply_bias
+from graphcal.data.dataset import PLOT_COLUMNS, Dataset
+from graphcal.io.folder import write_dataset
+from graphcal.simulation.scenario import AdsbSpec, RadarSpec, Scenario
+from graphcal.simulation.trajectories import (
+    ReplayStats,
+    Trajectory,
+    generate_traffic,
+    replay_opensky,
+)
+
+Array = NDArray[np.float64]
+
+#: ``progress(stage, done, total)``: called after each step of a simulation.
+ProgressCallback = Callable[[str, int, int], None]
+
+#: Convergence tolerance of the beam-crossing time [s].
+CROSSING_TOLERANCE_S = 1e-9
+#: Maximum fixed-point iterations per beam crossing.
+CROSSING_MAX_ITER = 30
+
+_TRUTH_COLUMNS = (
+    "time_true_s",
+    "x_m",
+    "y_m",
+    "z_m",
+    "range_true_m",
+    "azimuth_true_deg",
+    "elevation_true_deg",
+    "height_true_m",
+)
+
+
+@dataclass
+class SimulationResult:
+    """A simulated dataset and the truth behind it.
+
+    Attributes
+    ----------
+    scenario : Scenario
+        The scenario simulated.
+    dataset : Dataset
+        Sites, plots (contract columns, sorted by time) and ADS-B (``None``
+        when ADS-B is off or produced no report).
+    biases : dict of str to RadarBias
+        True biases per radar.
+    plot_truth : pandas.DataFrame
+        One row per plot, same order as ``dataset.plots``: ``time_true_s``,
+        true ECEF position ``x_m, y_m, z_m``, true ``range_true_m``,
+        ``azimuth_true_deg``, ``elevation_true_deg`` and ``height_true_m``.
+    adsb_truth : pandas.DataFrame or None
+        One row per ADS-B report, same order: ``x_m, y_m, z_m`` true ECEF
+        position and ``outlier`` (bool).
+    trajectories : list of Trajectory
+        Every simulated flight.
+    antenna_phase_rad : dict of str to float
+        Beam azimuth at time 0 of each radar [rad].
+    replay_stats : ReplayStats or None
+        Cleaning statistics of an ``[opensky]`` replay.
+    n_candidates : dict of str to int
+        Per radar, the beam hits in coverage before the detection draw (the
+        plots are a Bernoulli thinning of them).
+    adsb_equipped : tuple of str
+        Addresses of the aircraft that broadcast ADS-B, in the order of
+        ``trajectories`` (every aircraft unless ``[adsb] equipped_fraction`` is
+        below 1; empty when ADS-B is off).  An equipped aircraft can still
+        have no report (dropouts, or no report time inside the scenario).
+    """
+
+    scenario: Scenario
+    dataset: Dataset
+    biases: dict[str, RadarBias]
+    plot_truth: pd.DataFrame
+    adsb_truth: pd.DataFrame | None
+    trajectories: list[Trajectory]
+    antenna_phase_rad: dict[str, float]
+    replay_stats: ReplayStats | None = None
+    n_candidates: dict[str, int] = field(default_factory=dict)
+    adsb_equipped: tuple[str, ...] = ()
+
+    def n_plots(self) -> dict[str, int]:
+        """Number of plots per radar."""
+        counts = self.dataset.plots["radar_id"].value_counts()
+        return {rid: int(counts.get(rid, 0)) for rid in self.dataset.sites}
+
+
+# --------------------------------------------------------------------------- trajectories
+
+
+def build_trajectories(
+    scenario: Scenario, rng: np.random.Generator
+) -> tuple[list[Trajectory], ReplayStats | None]:
+    """All flights of a scenario: explicit aircraft, random traffic, replayed tracks.
+
+    Raises
+    ------
+    ScenarioError
+        If the ``[opensky]`` file cannot be read.
+    """
+    flights: list[Trajectory] = list(scenario.aircraft)
+    stats = None
+    if scenario.traffic is not None and scenario.origin is not None:
+        taken = {f.target_id for f in flights}
+        flights += generate_traffic(
+            scenario.traffic, scenario.origin, scenario.duration_s, rng, taken
+        )
+    if scenario.opensky is not None:
+        try:
+            replayed, stats = replay_opensky(scenario.opensky)
+        except FileNotFoundError:
+            raise ScenarioError(
+                f"OpenSky table not found: {scenario.opensky.file}",
+                path=scenario.path,
+                field="opensky.file",
+            ) from None
+        except (OSError, ValueError) as exc:
+            raise ScenarioError(
+                f"cannot use OpenSky table {scenario.opensky.file}: {exc}",
+                path=scenario.path,
+                field="opensky.file",
+            ) from None
+        taken = {f.target_id for f in flights}
+        flights += [f for f in replayed if f.target_id not in taken]
+    return flights, stats
+
+
+# --------------------------------------------------------------------------- sweep
+
+
+def _azimuth(radar_ecef: Array, rotation: Array, positions: Array) -> Array:
+    """True azimuth [rad] of ECEF positions from a radar (``rotation``: ECEF -> ENU)."""
+    enu = (positions - radar_ecef) @ rotation.T
+    return np.arctan2(enu[..., 0], enu[..., 1])
+
+
+def beam_crossings(
+    trajectory: Trajectory,
+    radar_ecef_m: Array,
+    ecef_to_enu: Array,
+    scan_period_s: float,
+    antenna_phase_rad: float,
+    t_begin: float,
+    t_end: float,
+    grid_step_s: float | None = None,
+) -> Array:
+    """Times [s] at which a clockwise-turning beam passes a moving target's azimuth.
+
+    Parameters
+    ----------
+    trajectory : Trajectory
+        The target.
+    radar_ecef_m : ndarray, shape (3,)
+        Antenna position [m].
+    ecef_to_enu : ndarray, shape (3, 3)
+        Rotation ECEF -> the radar's ENU frame.
+    scan_period_s : float
+        Antenna rotation period [s].
+    antenna_phase_rad : float
+        Beam azimuth at time 0 [rad].
+    t_begin, t_end : float
+        Time window [s].
+    grid_step_s : float, optional
+        Bracketing grid step [s]; default a quarter of the scan period.
+
+    Returns
+    -------
+    ndarray
+        Sorted crossing times within the window and the trajectory's segments.
+    """
+    omega = 2.0 * np.pi / scan_period_s
+    step = scan_period_s / 4.0 if grid_step_s is None else grid_step_s
+    out = []
+    for seg0, seg1 in trajectory.segments():
+        a, b = max(seg0, t_begin), min(seg1, t_end)
+        if not b > a:
+            continue
+        n = max(int(math.ceil((b - a) / step)), 1)
+        grid = np.linspace(a, b, n + 1)
+        pos = trajectory.position_ecef(grid)
+        alpha = np.unwrap(_azimuth(radar_ecef_m, ecef_to_enu, pos))
+        g = antenna_phase_rad + omega * grid - alpha
+        g = np.maximum.accumulate(g)  # guards the rare non-monotonic step near the zenith
+        m = np.arange(math.ceil(g[0] / (2 * np.pi)), math.floor(g[-1] / (2 * np.pi)) + 1)
+        if m.size == 0:
+            continue
+        level = 2.0 * np.pi * m
+        t = np.interp(level, g, grid)
+        alpha_ref = np.interp(t, grid, alpha)
+        for _ in range(CROSSING_MAX_ITER):
+            az = _azimuth(radar_ecef_m, ecef_to_enu, trajectory.position_ecef(t))
+            alpha_t = alpha_ref + frames.wrap_to_pi(az - alpha_ref)
+            dt = (level - (antenna_phase_rad + omega * t - alpha_t)) / omega
+            t = t + dt
+            alpha_ref = alpha_t
+            # NaN: the iterate left the segment; such a crossing is dropped below.
+            if np.all((np.abs(dt) < CROSSING_TOLERANCE_S) | np.isnan(dt)):
+                break
+        keep = (t >= a) & (t <= b) & (np.abs(dt) < 1e-6)
+        out.append(t[keep])
+    if not out:
+        return np.empty(0)
+    return np.sort(np.concatenate(out))
+
+
+# --------------------------------------------------------------------------- radar plots
+
+
+def earth_blocks(enu_m: Array, lat_rad: float, alt_m: float) -> NDArray[np.bool_]:
+    """True where the straight line from the antenna to an ENU point passes below the Earth.
+
+    The Earth is the sphere of the local Gaussian radius of curvature ``R`` at
+    the radar (within metres of the ellipsoid over a radar's coverage), centred
+    at ``(0, 0, -(R + alt_m))`` in the radar's ENU frame.  The segment ``s v``,
+    ``0 <= s <= 1``, comes closest to the centre ``c`` at
+    ``s* = clip(v.c / |v|^2, 0, 1)``; it is blocked when ``|s* v - c| < R``.
+    Targets above the antenna's horizontal plane are never blocked.
+
+    Parameters
+    ----------
+    enu_m : ndarray, shape (n, 3)
+        Target positions in the radar's ENU frame [m].
+    lat_rad : float
+        Radar latitude [rad].
+    alt_m : float
+        Antenna height above the ellipsoid [m].
+    """
+    enu = np.asarray(enu_m, dtype=float)
+    sin_lat2 = np.sin(lat_rad) ** 2
+    radius = frames.WGS84_A_M * np.sqrt(1.0 - frames.WGS84_E2) / (1.0 - frames.WGS84_E2 * sin_lat2)
+    centre = np.array([0.0, 0.0, -(radius + alt_m)])
+    norm2 = np.einsum("ij,ij->i", enu, enu)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = np.clip((enu @ centre) / norm2, 0.0, 1.0)
+    s = np.where(norm2 > 0, s, 0.0)
+    closest = np.linalg.norm(s[:, None] * enu - centre, axis=1)
+    return closest < radius
+
+
+def _antenna_phases(scenario: Scenario, rng: np.random.Generator) -> dict[str, float]:
+    """Beam azimuth at time 0 per radar: configured, else uniform from ``rng``."""
+    draws = rng.uniform(0.0, 2.0 * np.pi, size=len(scenario.radars))
+    return {
+        r.id: (float(draws[i]) if r.antenna_phase_rad is None else r.antenna_phase_rad)
+        for i, r in enumerate(scenario.radars)
+    }
+
+
+def _radar_plots(
+    radar: RadarSpec,
+    phase: float,
+    flights: list[Trajectory],
+    duration_s: float,
+    rng: np.random.Generator,
+) -> tuple[pd.DataFrame, pd.DataFrame, int]:
+    """Plots of one radar and their truth; also the number of in-coverage hits."""
+    site = radar.site()
+    radar_ecef, rotation = site.ecef_m, site.ecef_to_enu
+    times, ids = [], []
+    for flight in flights:
+        t = beam_crossings(
+            flight, radar_ecef, rotation, radar.scan_period_s, phase, 0.0, duration_s
+        )
+        times.append(t)
+        ids.append(np.full(t.size, flight.target_id, dtype=object))
+    positions = [f.position_ecef(t) for f, t in zip(flights, times, strict=True) if t.size]
+    t_true = np.concatenate(times) if times else np.empty(0)
+    target = np.concatenate(ids) if ids else np.empty(0, dtype=object)
+    pos = np.concatenate(positions) if positions else np.empty((0, 3))
+    order = np.argsort(t_true, kind="stable")
+    t_true, target, pos = t_true[order], target[order], pos[order]
+    rng_m, az, el = frames.enu_to_polar((pos - radar_ecef) @ rotation.T)
+    covered = (rng_m <= radar.max_range_m) & (el >= radar.min_elevation_rad)
+    if radar.horizon_check:
+        covered &= ~earth_blocks((pos - radar_ecef) @ rotation.T, radar.lat_rad, radar.alt_m)
+    t_true, target, pos = t_true[covered], target[covered], pos[covered]
+    rng_m, az, el = rng_m[covered], az[covered], el[covered]
+    n = t_true.size
+    # Fixed draw shapes, independent of which hits are detected.
+    detect_u = rng.uniform(size=n)
+    noise = rng.standard_normal(size=(n, 3))
+    alt_noise = rng.standard_normal(size=n)
+    detected = detect_u < radar.detection_probability
+    r_meas, az_meas, el_meas = apply_bias(rng_m, az, el, radar.bias)
+    r_meas = r_meas + radar.sigma_range_m * noise[:, 0]
+    az_meas = frames.wrap_to_2pi(az_meas + radar.sigma_azimuth_rad * noise[:, 1])
+    if radar.sigma_elevation_rad is None:
+        el_meas = np.full(n, np.nan)
+    else:
+        el_meas = el_meas + radar.sigma_elevation_rad * noise[:, 2]
+    height = frames.ecef_to_geodetic(pos)[2]
+    altitude = height + radar.altitude_sigma_m * alt_noise
+    if radar.altitude_quantum_m > 0:
+        altitude = np.round(altitude / radar.altitude_quantum_m) * radar.altitude_quantum_m
+    az_deg = np.degrees(az_meas)
+    az_deg = np.where(az_deg >= 360.0, 0.0, az_deg)
+    plots = pd.DataFrame(
+        {
+            "radar_id": np.full(n, radar.id, dtype=object),
+            "time_s": t_true + radar.bias.time_offset_s,
+            "range_m": r_meas,
+            "azimuth_deg": az_deg,
+            "elevation_deg": np.degrees(el_meas),
+            "target_id": target,
+            "altitude_m": altitude,
+        }
+    )[detected]
+    truth = pd.DataFrame(
+        {
+            "time_true_s": t_true,
+            "x_m": pos[:, 0],
+            "y_m": pos[:, 1],
+            "z_m": pos[:, 2],
+            "range_true_m": rng_m,
+            "azimuth_true_deg": np.degrees(az),
+            "elevation_true_deg": np.degrees(el),
+            "height_true_m": height,
+        }
+    )[detected]
+    return plots, truth, n
+
+
+# --------------------------------------------------------------------------- ADS-B
+
+
+def adsb_equipage(
+    equipped_fraction: float, n_flights: int, rng: np.random.Generator
+) -> NDArray[np.bool_]:
+    """Which of ``n_flights`` aircraft broadcast ADS-B (boolean mask).
+
+    ``round(equipped_fraction * n_flights)`` aircraft (halves round up) are
+    drawn without replacement.  A fraction of 1 equips every aircraft and
+    draws nothing from ``rng``, so scenarios without the key keep their
+    random stream.
+    """
+    if equipped_fraction >= 1.0:
+        return np.ones(n_flights, dtype=bool)
+    n_equipped = min(int(math.floor(equipped_fraction * n_flights + 0.5)), n_flights)
+    mask = np.zeros(n_flights, dtype=bool)
+    mask[rng.choice(n_flights, size=n_equipped, replace=False)] = True
+    return mask
+
+
+def _adsb_reports(
+    spec: AdsbSpec, flights: list[Trajectory], duration_s: float, rng: np.random.Generator
+) -> tuple[pd.DataFrame, pd.DataFrame, tuple[str, ...]]:
+    """ADS-B reports of the equipped flights, their truth and the equipped addresses."""
+    equipped = adsb_equipage(spec.equipped_fraction, len(flights), rng)
+    # One phase per flight, equipped or not: fixed draw shapes.
+    phases = rng.uniform(0.0, spec.period_s, size=len(flights))
+    times, ids, positions = [], [], []
+    for flight, phase, has_adsb in zip(flights, phases, equipped, strict=True):
+        if not has_adsb:
+            continue
+        for seg0, seg1 in flight.segments():
+            a, b = max(seg0, 0.0), min(seg1, duration_s)
+            if not b >= a:
+                continue
+            k0 = math.ceil((a - phase) / spec.period_s)
+            k1 = math.floor((b - phase) / spec.period_s)
+            if k1 < k0:
+                continue
+            t = phase + spec.period_s * np.arange(k0, k1 + 1)
+            times.append(t)
+            ids.append(np.full(t.size, flight.target_id, dtype=object))
+            positions.append(flight.position_ecef(t))
+    t = np.concatenate(times) if times else np.empty(0)
+    target = np.concatenate(ids) if ids else np.empty(0, dtype=object)
+    pos = np.concatenate(positions) if positions else np.empty((0, 3))
+    order = np.lexsort((target.astype(str), t)) if t.size else np.empty(0, dtype=int)
+    t, target, pos = t[order], target[order], pos[order]
+    n = t.size
+    keep_u = rng.uniform(size=n)
+    noise = rng.standard_normal(size=(n, 3))
+    outlier_u = rng.uniform(size=n)
+    outlier_dir = rng.uniform(0.0, 2.0 * np.pi, size=n)
+    lat, lon, _ = frames.ecef_to_geodetic(pos)
+    sigma_h, sigma_v = spec.horizontal_sigma_m, spec.vertical_sigma_m
+    enu = np.column_stack([sigma_h * noise[:, 0], sigma_h * noise[:, 1], sigma_v * noise[:, 2]])
+    outlier = outlier_u < spec.outlier_fraction
+    enu[:, 0] += np.where(outlier, spec.outlier_distance_m * np.sin(outlier_dir), 0.0)
+    enu[:, 1] += np.where(outlier, spec.outlier_distance_m * np.cos(outlier_dir), 0.0)
+    rot = frames.ecef_to_enu_rotation(lat, lon)  # (n, 3, 3), rows E, N, U
+    reported = pos + np.einsum("nij,ni->nj", rot, enu)
+    r_lat, r_lon, r_alt = frames.ecef_to_geodetic(reported)
+    kept = keep_u >= spec.dropout_probability
+    columns: dict[str, object] = {
+        "time_s": t,
+        "target_id": target,
+        "lat_deg": np.degrees(r_lat),
+        "lon_deg": np.degrees(r_lon),
+        "alt_m": r_alt,
+        "sigma_m": np.full(n, sigma_h),
+    }
+    if spec.nacp is not None:
+        columns["nacp"] = np.full(n, spec.nacp, dtype=np.int64)
+    reports = pd.DataFrame(columns)[kept].reset_index(drop=True)
+    truth = pd.DataFrame(
+        {"x_m": pos[:, 0], "y_m": pos[:, 1], "z_m": pos[:, 2], "outlier": outlier}
+    )[kept].reset_index(drop=True)
+    addresses = tuple(f.target_id for f, e in zip(flights, equipped, strict=True) if e)
+    return reports, truth, addresses
+
+
+# --------------------------------------------------------------------------- simulate
+
+
+def simulate(
+    scenario: Scenario,
+    rng: np.random.Generator,
+    *,
+    progress: ProgressCallback | None = None,
+) -> SimulationResult:
+    """Simulate the radar plots and ADS-B reports of a scenario.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        From :func:`graphcal.simulation.scenario.load_scenario`.
+    rng : numpy.random.Generator
+        The only source of randomness (``numpy.random.default_rng(seed)``).
+    progress : callable, optional
+        ``progress(stage, done, total)`` after each step (traffic, each radar,
+        ADS-B); e.g. to drive a progress bar.
+
+    Returns
+    -------
+    SimulationResult
+        The dataset and its truth.
+
+    Raises
+    ------
+    ScenarioError
+        If an ``[opensky]`` table is missing or unreadable.
+    """
+    total = len(scenario.radars) + 2
+    done = 0
+
+    def report(stage: str) -> None:
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(stage, done, total)
+
+    flights, stats = build_trajectories(scenario, rng)
+    report(f"{len(flights)} flights")
+    phases = _antenna_phases(scenario, rng)
+    plot_frames, truth_frames, candidates = [], [], {}
+    for radar in scenario.radars:
+        plots, truth, n_hits = _radar_plots(
+            radar, phases[radar.id], flights, scenario.duration_s, rng
+        )
+        plot_frames.append(plots)
+        truth_frames.append(truth)
+        candidates[radar.id] = n_hits
+        report(f"radar {radar.id}: {len(plots)} plots")
+    plots = pd.concat(plot_frames, ignore_index=True)
+    truth = pd.concat(truth_frames, ignore_index=True)
+    order = np.argsort(plots["time_s"].to_numpy(), kind="stable")
+    plots = plots.iloc[order].reset_index(drop=True)[list(PLOT_COLUMNS) + ["altitude_m"]]
+    truth = truth.iloc[order].reset_index(drop=True)[list(_TRUTH_COLUMNS)]
+    adsb = adsb_truth = None
+    equipped: tuple[str, ...] = ()
+    if scenario.adsb.enabled:
+        adsb, adsb_truth, equipped = _adsb_reports(scenario.adsb, flights, scenario.duration_s, rng)
+        if adsb.empty:
+            # No report at all (e.g. equipped_fraction = 0): no table, as a
+            # dataset's ADS-B file must have rows to be read back.
+            adsb = adsb_truth = None
+    report(f"ADS-B: {0 if adsb is None else len(adsb)} reports")
+    sites = {r.id: r.site() for r in scenario.radars}
+    dataset = Dataset(sites=sites, plots=plots, adsb=adsb)
+    return SimulationResult(
+        scenario=scenario,
+        dataset=dataset,
+        biases={r.id: r.bias for r in scenario.radars},
+        plot_truth=truth,
+        adsb_truth=adsb_truth,
+        trajectories=flights,
+        antenna_phase_rad=phases,
+        replay_stats=stats,
+        n_candidates=candidates,
+        adsb_equipped=equipped,
+    )
+
+
+# --------------------------------------------------------------------------- output
+
+
+def truth_document(result: SimulationResult) -> dict:
+    """The true biases in the contract's result schema (``method = "truth"``).
+
+    Every radar gets the four bias keys in contract units
+    (``elevation_bias_mrad`` null for a 2-D radar), ``time_offset_s`` when it
+    is not zero, an empty ``sigma`` and ``n_plots``.
+    """
+    counts = result.n_plots()
+    radars = {}
+    for radar in result.scenario.radars:
+        bias = radar.bias
+        values = dict(zip(PARAMETER_NAMES, bias.as_vector(), strict=True))
+        entry: dict[str, object] = {}
+        for name in PARAMETER_NAMES:
+            key, factor = CONTRACT_KEYS[name]
+            if name == "elevation_bias" and not radar.is_3d:
+                entry[key] = None
+            else:
+                entry[key] = float(values[name]) * factor
+        if bias.time_offset_s != 0.0:
+            key, factor = CONTRACT_KEYS["time_offset"]
+            entry[key] = float(bias.time_offset_s) * factor
+        entry["sigma"] = {}
+        entry["n_plots"] = counts[radar.id]
+        radars[radar.id] = entry
+    return {"method": "truth", "scenario": result.scenario.name, "radars": radars}
+
+
+def write_simulation(
+    result: SimulationResult,
+    out_dir: str | Path,
+    fmt: str = "csv",
+    *,
+    overwrite: bool = False,
+) -> Path:
+    """Write the dataset folder and ``truth.json``, each atomically.
+
+    Parameters
+    ----------
+    result : SimulationResult
+        From :func:`simulate`.
+    out_dir : str or Path
+        Destination folder (see :func:`graphcal.io.folder.write_dataset`).
+    fmt : {"csv", "parquet"}, optional
+        Table format.
+    overwrite : bool, optional
+        Replace an existing non-empty folder.
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+    """
+    folder = write_dataset(result.dataset, out_dir, fmt=fmt, overwrite=overwrite)
+    text = json.dumps(truth_document(result), indent=2) + "\n"
+    atomic_write_text(Path(folder) / "truth.json", text)
+    return Path(folder)

@@ -1,0 +1,377 @@
+"""ADS-B-referenced closed-form estimators of paper 003: ``ls``, ``fl`` and ``fl-ls``.
+
+Each radar is calibrated on its own against the ADS-B positions of the same
+aircraft interpolated to its plot times (:func:`graphcal.data.align.align_adsb`).
+
+``ls`` -- paper 003 eq. 11-19.  With ``p(r, az, el)`` the polar -> ENU map
+(paper 003 eq. 5 for a 2-D radar, i.e. the elevation taken as 0 and slant
+range projected on the plane; the full 3-D map for a 3-D radar)::
+
+    z_i = p(measured_i) - p(adsb_i) = H_i beta + noise,
+    H_i = dp/d(r, az, el) at measured_i  @  d(measured)/d(beta)
+
+which for a 2-D radar and ``beta = (range_offset, azimuth_bias)`` is exactly
+eq. 15-16.  Extended (documented): a range-gain column ``r_i * d p/d r`` where
+the radar estimates gain, and an elevation-bias column for 3-D radars.  The
+solution is the paper's unweighted ``(H^T H)^-1 H^T z`` (eq. 19 corrected); its
+covariance is the sandwich ``(H^T H)^-1 H^T Sigma H (H^T H)^-1`` with Sigma
+the radar noise plus the ADS-B noise mapped through the same Jacobians
+(paper 002's first-order conversion), so the reported sigma is honest for
+an unweighted fit.  Like the paper, it linearises once at zero bias: with a
+large azimuth bias it is biased (that is what FL-LS fixes).
+
+``fl`` -- paper 003 eq. 8-10: straight lines are fitted to the radar track
+and to the ADS-B track in the plane (orthogonal regression, so north-south
+tracks work), and the azimuth bias is the signed angle between them (eq. 9
+corrected: the sign is kept; measured minus true is ``alpha_adsb -
+alpha_radar`` with ``alpha`` the counter-clockwise direction angle).  Tracks
+are cut into windows of :data:`FL_WINDOW_PLOTS` plots; windows whose ADS-B
+points are not straight to within :data:`FL_MAX_LINE_RMS_M` are skipped, the
+rest are combined with inverse-variance weights, and the variance is inflated
+by the Birge ratio when windows disagree more than their noise.  The range
+offset is the mean of ``r_radar - r_adsb`` and, for a 3-D radar, the
+elevation bias the mean elevation difference (extensions; FL in the paper
+only yields an angle).  FL does not estimate range gain.
+
+``fl-ls`` -- FL compensation of the azimuth (eq. 10, sign corrected:
+``az' = az - fl_bias``) followed by LS on the compensated plots; the
+azimuth estimate is the FL angle plus the LS correction.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graphcal.core import frames
+from graphcal.core.errors import EstimationError
+from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_adsb
+from graphcal.data.bias import PARAMETER_NAMES, RadarBias, correct_bias, measurement_bias_jacobian
+from graphcal.data.calibration import Calibration, ResidualStats
+from graphcal.data.dataset import Dataset, Site
+from graphcal.model.information import (
+    ParameterLayout,
+    describe_weak_directions,
+    observability,
+    solve_normal_equations,
+)
+from graphcal.noise import fills_missing_sigmas
+
+#: Plots per FL window.
+FL_WINDOW_PLOTS = 30
+#: Fewest plots in an FL window.
+FL_MIN_WINDOW_PLOTS = 6
+#: Largest RMS perpendicular distance [m] of ADS-B points from their fitted line
+#: for a window to count as straight flight.
+FL_MAX_LINE_RMS_M = 150.0
+
+FloatArray = NDArray[np.float64]
+
+
+# --------------------------------------------------------------------------- helpers
+def _plane_polar(site: Site, polar: FloatArray) -> FloatArray:
+    """Elevation used in the Cartesian projection: measured for 3-D, 0 for 2-D (eq. 5)."""
+    out = polar.copy()
+    if not site.is_3d:
+        out[:, 2] = 0.0
+    return out
+
+
+def _measured_polar(al: AdsbAlignment) -> FloatArray:
+    p = al.plots
+    return np.stack([p.range_m, p.azimuth_rad, p.elevation_rad], axis=-1)
+
+
+def _reference_polar_cov(al: AdsbAlignment) -> FloatArray:
+    """ADS-B position covariance mapped to the radar's polar coordinates [m, rad]."""
+    enu = frames.polar_to_enu(*al.reference_polar.T)
+    jac = frames.enu_to_polar_jacobian(enu)
+    return jac @ al.reference_enu_cov_m2 @ np.swapaxes(jac, -1, -2)
+
+
+def _radar_polar_cov(site: Site, n: int) -> FloatArray:
+    cov = np.zeros((n, 3, 3))
+    cov[:, 0, 0] = site.sigma_range_m**2
+    cov[:, 1, 1] = site.sigma_azimuth_rad**2
+    if site.is_3d:
+        cov[:, 2, 2] = site.sigma_elevation_rad**2
+    return cov
+
+
+def residual_stats(site: Site, al: AdsbAlignment, bias: RadarBias) -> ResidualStats:
+    """Polar residuals of one radar against ADS-B, before and after correction.
+
+    Residual = corrected measurement minus ADS-B in the radar's polar
+    coordinates; azimuth wrapped to [-pi, pi).  ``chi2_per_dof`` normalises the
+    corrected residuals by the radar plus ADS-B noise.
+    """
+    measured = _measured_polar(al)
+    ref = al.reference_polar
+    noise = _radar_polar_cov(site, len(al)) + _reference_polar_cov(al)
+
+    def stats(b: RadarBias) -> tuple[dict[str, dict[str, float]], float]:
+        r, az, el = correct_bias(measured[:, 0], measured[:, 1], measured[:, 2], b)
+        parts = {
+            "range_m": (r - ref[:, 0], 1.0, 0),
+            "azimuth_mrad": (frames.wrap_to_pi(az - ref[:, 1]), 1e3, 1),
+        }
+        if site.is_3d:
+            parts["elevation_mrad"] = (el - ref[:, 2], 1e3, 2)
+        out, chi2 = {}, 0.0
+        for key, (res, unit, k) in parts.items():
+            out[key] = {
+                "mean": float(np.mean(res) * unit),
+                "mean_abs": float(np.mean(np.abs(res)) * unit),
+                "rms": float(np.sqrt(np.mean(res**2)) * unit),
+            }
+            chi2 += float(np.sum(res**2 / noise[:, k, k]))
+        return out, chi2
+
+    before, _ = stats(RadarBias())
+    after, chi2 = stats(bias)
+    n_meas = len(al) * (3 if site.is_3d else 2)
+    dof = max(n_meas - len(site.estimate), 1)
+    return ResidualStats(n=len(al), before=before, after=after, chi2_per_dof=chi2 / dof)
+
+
+def _alignments(dataset: Dataset, max_gap_s: float) -> dict[str, AdsbAlignment]:
+    if dataset.adsb is None:
+        raise EstimationError(
+            "this method needs ADS-B reports (adsb.csv|parquet): use 'wls' for "
+            "cross-radar calibration without ADS-B"
+        )
+    return {rid: align_adsb(dataset, rid, max_gap_s) for rid in dataset.radar_ids}
+
+
+# --------------------------------------------------------------------------- LS
+def ls_radar(
+    site: Site, al: AdsbAlignment, names: list[str], azimuth_compensation_rad: float = 0.0
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Paper 003 LS for one radar.
+
+    Returns ``(estimate, covariance, information)`` over ``names`` (SI units).
+    ``azimuth_compensation_rad`` is subtracted from the measured azimuths first
+    (FL-LS, eq. 10 corrected); the returned azimuth estimate excludes it.
+    """
+    measured = _plane_polar(site, _measured_polar(al))
+    measured[:, 1] = measured[:, 1] - azimuth_compensation_rad
+    reference = _plane_polar(site, al.reference_polar)
+    rows = 3 if site.is_3d else 2
+    z = (frames.polar_to_enu(*measured.T) - frames.polar_to_enu(*reference.T))[:, :rows]
+    jac_r = frames.polar_to_enu_jacobian(*measured.T)[:, :rows, :]
+    positions = [PARAMETER_NAMES.index(n) for n in names]
+    h = jac_r @ measurement_bias_jacobian(measured[:, 0])[:, :, positions]
+    # Noise of z: radar noise plus the ADS-B noise, both mapped to the plane.
+    jac_a = frames.polar_to_enu_jacobian(*reference.T)[:, :rows, :]
+    ref_cov = _reference_polar_cov(al)
+    if not site.is_3d:
+        ref_cov[:, 2, :] = 0.0
+        ref_cov[:, :, 2] = 0.0
+    sigma = jac_r @ _radar_polar_cov(site, len(al)) @ np.swapaxes(jac_r, 1, 2)
+    sigma += jac_a @ ref_cov @ np.swapaxes(jac_a, 1, 2)
+    ht = np.swapaxes(h, 1, 2)
+    information = np.einsum("nip,niq->pq", h, h)
+    rhs = np.einsum("nip,ni->p", h, z)
+    middle = np.einsum("npi,nij,njq->pq", ht, sigma, h)
+    sol = solve_normal_equations(information, rhs, middle)
+    return sol.estimate, sol.covariance, information
+
+
+def _assemble(
+    method: str,
+    dataset: Dataset,
+    per_radar: dict[str, tuple[list[str], FloatArray, FloatArray, FloatArray]],
+    alignments: dict[str, AdsbAlignment],
+    info: dict,
+) -> Calibration:
+    """Block-diagonal joint result from independent per-radar solutions."""
+    radar_ids = [rid for rid in dataset.radar_ids if rid in per_radar]
+    labels = [(rid, name) for rid in radar_ids for name in per_radar[rid][0]]
+    p = len(labels)
+    estimate = np.zeros(p)
+    covariance = np.zeros((p, p))
+    information = np.zeros((p, p))
+    i = 0
+    for rid in radar_ids:
+        names, est, cov, inf = per_radar[rid]
+        k = len(names)
+        estimate[i : i + k] = est
+        covariance[i : i + k, i : i + k] = cov
+        information[i : i + k, i : i + k] = inf
+        i += k
+    obs = observability(information)
+    cal = Calibration(
+        method=method,
+        radar_ids=radar_ids,
+        is_3d={rid: dataset.sites[rid].is_3d for rid in radar_ids},
+        labels=labels,
+        estimate=estimate,
+        covariance=covariance,
+        n_plots={rid: len(alignments[rid]) for rid in radar_ids},
+        observability=obs,
+        info=info,
+    )
+    for rid in radar_ids:
+        cal.residuals[rid] = residual_stats(dataset.sites[rid], alignments[rid], cal.bias(rid))
+    cal.warnings.extend(info.pop("warnings", []))
+    cal.warnings.extend(describe_weak_directions(labels, obs))
+    return cal
+
+
+def _skip_warning(rid: str, al: AdsbAlignment, needed: int) -> str:
+    return (
+        f"radar {rid}: only {len(al)} plots matched ADS-B ({al.n_unmatched} unmatched), "
+        f"fewer than the {needed} needed; not calibrated"
+    )
+
+
+def _run_ls(
+    method: str,
+    dataset: Dataset,
+    max_gap_s: float,
+    azimuth_precompensation: Callable[[Site, AdsbAlignment], tuple[float, dict]] | None,
+) -> Calibration:
+    alignments = _alignments(dataset, max_gap_s)
+    layout = ParameterLayout.for_sites(list(dataset.sites.values()))
+    per_radar, warnings, details = {}, [], {}
+    for rid, al in alignments.items():
+        site = dataset.sites[rid]
+        names = [PARAMETER_NAMES[k] for k in layout.columns(rid)[1]]
+        if len(al) < max(len(names), 3):
+            warnings.append(_skip_warning(rid, al, max(len(names), 3)))
+            continue
+        compensation, detail = 0.0, {}
+        if azimuth_precompensation is not None:
+            try:
+                compensation, detail = azimuth_precompensation(site, al)
+            except EstimationError as exc:
+                warnings.append(f"radar {rid}: {exc}; LS without FL compensation")
+        est, cov, inf = ls_radar(site, al, names, compensation)
+        if "azimuth_bias" in names:
+            est[names.index("azimuth_bias")] += compensation
+        per_radar[rid] = (names, est, cov, inf)
+        details[rid] = {"fl_azimuth_mrad": compensation * 1e3, **detail} if detail else {}
+    if not per_radar:
+        raise EstimationError("no radar has enough plots matched to ADS-B: " + "; ".join(warnings))
+    info = {"max_gap_s": max_gap_s, "per_radar": details, "warnings": warnings}
+    return _assemble(method, dataset, per_radar, alignments, info)
+
+
+@fills_missing_sigmas
+def ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
+    """Paper 003 LS (eq. 11-19) against ADS-B, every radar on its own."""
+    return _run_ls("ls", dataset, max_gap_s, None)
+
+
+# --------------------------------------------------------------------------- FL
+def _fit_line(points: FloatArray) -> tuple[float, float, float]:
+    """Orthogonal-regression line through 2-D points ordered in time.
+
+    Returns ``(direction angle [rad] counter-clockwise from east, oriented along
+    the motion; its variance [rad^2]; RMS perpendicular residual [m])``.
+    """
+    centred = points - points.mean(axis=0)
+    _, singular, vt = np.linalg.svd(centred, full_matrices=False)
+    direction = vt[0]
+    if np.dot(direction, points[-1] - points[0]) < 0:
+        direction = -direction
+    along = centred @ direction
+    perp = centred @ np.array([-direction[1], direction[0]])
+    n = len(points)
+    perp_var = float(np.sum(perp**2) / max(n - 2, 1))
+    spread = float(np.sum(along**2))
+    return float(np.arctan2(direction[1], direction[0])), perp_var / spread, np.sqrt(perp_var)
+
+
+def _windows(al: AdsbAlignment, max_gap_s: float) -> list[NDArray[np.int64]]:
+    """Index windows of consecutive plots of one aircraft without long gaps."""
+    windows = []
+    targets = al.plots.target_id.astype(str)
+    for target in np.unique(targets):
+        rows = np.flatnonzero(targets == target)
+        rows = rows[np.argsort(al.plots.time_s[rows], kind="stable")]
+        breaks = np.flatnonzero(np.diff(al.plots.time_s[rows]) > max_gap_s) + 1
+        for segment in np.split(rows, breaks):
+            n_windows = max(1, len(segment) // FL_WINDOW_PLOTS)
+            for window in np.array_split(segment, n_windows):
+                if len(window) >= FL_MIN_WINDOW_PLOTS:
+                    windows.append(window)
+    return windows
+
+
+def fl_azimuth(site: Site, al: AdsbAlignment, max_gap_s: float = 60.0) -> tuple[float, float, dict]:
+    """FL azimuth bias (paper 003 eq. 8-9, sign kept) with its variance [rad, rad^2]."""
+    radar_xy = frames.polar_to_enu(*_plane_polar(site, _measured_polar(al)).T)[:, :2]
+    adsb_xy = frames.polar_to_enu(*_plane_polar(site, al.reference_polar).T)[:, :2]
+    angles, variances = [], []
+    skipped = 0
+    for window in _windows(al, max_gap_s):
+        alpha_a, var_a, rms_a = _fit_line(adsb_xy[window])
+        if rms_a > FL_MAX_LINE_RMS_M:
+            skipped += 1
+            continue
+        alpha_r, var_r, _ = _fit_line(radar_xy[window])
+        angles.append(frames.wrap_to_pi(alpha_a - alpha_r))
+        variances.append(var_a + var_r)
+    if not angles:
+        raise EstimationError("no straight track segment for the line fit (FL)")
+    angles_arr, var_arr = np.asarray(angles), np.asarray(variances)
+    weights = 1.0 / var_arr
+    mean = float(np.sum(weights * angles_arr) / np.sum(weights))
+    variance = float(1.0 / np.sum(weights))
+    birge = 1.0
+    if len(angles_arr) > 1:
+        birge = float(np.sum(weights * (angles_arr - mean) ** 2) / (len(angles_arr) - 1))
+        variance *= max(1.0, birge)
+    detail = {"fl_windows": len(angles_arr), "fl_windows_skipped": skipped, "fl_birge": birge}
+    return mean, variance, detail
+
+
+@fills_missing_sigmas
+def fl(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
+    """Paper 003 FL: line-fit azimuth bias, mean range (and elevation) difference."""
+    alignments = _alignments(dataset, max_gap_s)
+    allowed = ("range_offset", "azimuth_bias", "elevation_bias")
+    layout = ParameterLayout.for_sites(list(dataset.sites.values()), allowed)
+    per_radar, warnings, details = {}, [], {}
+    for rid, al in alignments.items():
+        site = dataset.sites[rid]
+        names = [PARAMETER_NAMES[k] for k in layout.columns(rid)[1]]
+        if len(al) < FL_MIN_WINDOW_PLOTS:
+            warnings.append(_skip_warning(rid, al, FL_MIN_WINDOW_PLOTS))
+            continue
+        estimates, variances = {}, {}
+        if "azimuth_bias" in names:
+            try:
+                az, var_az, detail = fl_azimuth(site, al)
+            except EstimationError as exc:
+                warnings.append(f"radar {rid}: {exc}; not calibrated")
+                continue
+            estimates["azimuth_bias"], variances["azimuth_bias"] = az, var_az
+            details[rid] = detail
+        measured = _measured_polar(al)
+        for name, k in (("range_offset", 0), ("elevation_bias", 2)):
+            if name in names:
+                diff = measured[:, k] - al.reference_polar[:, k]
+                estimates[name] = float(np.mean(diff))
+                variances[name] = float(np.var(diff, ddof=1) / len(diff))
+        est = np.array([estimates[n] for n in names])
+        var = np.array([variances[n] for n in names])
+        per_radar[rid] = (names, est, np.diag(var), np.diag(1.0 / var))
+    if not per_radar:
+        raise EstimationError("no radar could be calibrated by FL: " + "; ".join(warnings))
+    info = {"max_gap_s": max_gap_s, "per_radar": details, "warnings": warnings}
+    return _assemble("fl", dataset, per_radar, alignments, info)
+
+
+@fills_missing_sigmas
+def fl_ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
+    """Paper 003 FL-LS: FL azimuth compensation (eq. 10, sign corrected), then LS."""
+
+    def precompensate(site: Site, al: AdsbAlignment) -> tuple[float, dict]:
+        az, _, detail = fl_azimuth(site, al)
+        return az, detail
+
+    return _run_ls("fl-ls", dataset, max_gap_s, precompensate)

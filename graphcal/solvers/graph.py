@@ -1,0 +1,810 @@
+"""The factor-graph calibrator (``graph``): every radar's biases estimated jointly with GTSAM.
+
+One GTSAM variable per radar holds its free bias terms (range offset, range
+gain, azimuth bias, and elevation bias for 3-D radars; which ones is set per
+radar by its ``estimate`` list, and terms can be fixed at known values).  The
+factors:
+
+* **ADS-B factors** (:class:`~graphcal.model.factors.AdsbFactor`): each
+  plot matched to an ADS-B position of its aircraft, residual in the radar's
+  measurement space, noise = radar noise + ADS-B noise through the Jacobian.
+* **Cross-radar factors**, in one of two formulations (``cross``):
+
+  - ``pairwise`` (default, fast): paper 001's differences of converted
+    positions of two radars' plots of the same aircraft, target eliminated,
+    evaluated exactly at each iteration
+    (:class:`~graphcal.model.factors.PairwiseFactor`).  Plots matched to
+    ADS-B are not paired, so no plot's noise is counted twice; a plot still
+    enters several pairs, and the covariance is corrected for that shared
+    noise by a sandwich ``A^-1 (A - A_pair + M_pair) A^-1``.
+  - ``target-state``: each aircraft's trajectory is in the graph
+    (:mod:`graphcal.solvers.target_state`); every plot is a factor between
+    its radar's biases and the trajectory at its own time, ADS-B reports are
+    factors on the trajectory, and motion factors tie consecutive states.
+    Exact and free of interpolation, and slower.
+  - ``none``: ADS-B factors only.
+
+* **Weak priors** ``N(0, sigma_prior)`` on every free term keep it in a
+  physically plausible range (:func:`prior_sigmas`); they are reported, and a
+  term whose posterior variance is more than a quarter of its prior variance
+  is flagged as not determined by the data.
+
+Every measurement goes through a robust kernel (:mod:`graphcal.model.robust`).
+The problem is solved by Levenberg-Marquardt from the closed-form estimates
+(``fl-ls``/``ls`` with ADS-B, ``wls`` without; zero if they fail), and the
+joint covariance of all biases comes from GTSAM's marginals.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graphcal.core import frames
+from graphcal.core.errors import EstimationError
+from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_adsb, pair_plots
+from graphcal.data.bias import CONTRACT_KEYS, PARAMETER_NAMES, RadarBias, from_contract_units
+from graphcal.data.calibration import Calibration
+from graphcal.data.dataset import Dataset, Site
+from graphcal.data.sensor_models import load_sensor_model
+from graphcal.model.cross_radar import gradient_noise_middle
+from graphcal.model.factors import (
+    TERM_NAMES,
+    AdsbFactor,
+    PairwiseFactor,
+    RadarTerms,
+    adsb_factor,
+    pairwise_factor,
+)
+from graphcal.model.information import describe_weak_directions, observability
+from graphcal.model.robust import RobustKernel
+from graphcal.noise import fills_missing_sigmas
+from graphcal.solvers.adsb_reference import _reference_polar_cov, residual_stats
+from graphcal.solvers.gtsam_adapter import FactorGraph, symbol
+
+FloatArray = NDArray[np.float64]
+Progress = Callable[..., None]
+
+#: Cross-radar formulations.
+CROSS_MODES: tuple[str, ...] = ("pairwise", "target-state", "none")
+#: Prior 1-sigma of each term [SI] when the radar's sensor model gives no typical size.
+DEFAULT_PRIOR_SIGMA: dict[str, float] = {
+    "range_offset": 2000.0,
+    "range_gain": 0.02,
+    "azimuth_bias": 0.05,
+    "elevation_bias": 0.02,
+    "time_offset": 10.0,
+}
+#: With a sensor model, the prior sigma is at least this multiple of its typical bias.
+PRIOR_TYPICAL_MULTIPLE = 25.0
+#: A term whose posterior variance exceeds this fraction of its prior variance is
+#: reported as not determined by the data.
+UNDETERMINED_VARIANCE_RATIO = 0.25
+#: ``time_offset=None`` (auto) keeps a radar's time offset only if its sigma is at most
+#: this [s] ...
+AUTO_TIME_OFFSET_MAX_SIGMA_S = 0.5
+#: ... and it inflates no other parameter's sigma by more than this factor.
+AUTO_TIME_OFFSET_MAX_INFLATION = 1.5
+#: The ADS-B alignment is redone at the latest time offsets until they move less than
+#: this [s] (the factors are first order in the change), at most
+#: :data:`TIME_OFFSET_MAX_REALIGNMENTS` times.
+TIME_OFFSET_REALIGN_TOLERANCE_S = 0.01
+TIME_OFFSET_MAX_REALIGNMENTS = 5
+#: Fastest plausible aircraft ground speed [m/s]; a faster ADS-B segment holds an outlier.
+ADSB_MAX_SPEED_M_S = 600.0
+
+
+# --------------------------------------------------------------------------- set-up
+def radar_terms(
+    site: Site, fixed: dict[tuple[str, str], float], time_offset: bool = False
+) -> RadarTerms:
+    """Free and fixed terms of one radar: its ``estimate`` list minus the fixed ones.
+
+    ``time_offset``: also estimate its time-stamping bias (unless fixed).
+    """
+    own_fixed = {name: value for (rid, name), value in fixed.items() if rid == site.id}
+    for name in own_fixed:
+        if name == "elevation_bias" and not site.is_3d:
+            raise ValueError(f"radar {site.id} is 2-D: it has no elevation bias to fix")
+    free = tuple(
+        name for name in PARAMETER_NAMES
+        if name in site.estimate and name not in own_fixed
+        and (site.is_3d or name != "elevation_bias")
+    )
+    if time_offset and "time_offset" not in own_fixed:
+        free = (*free, "time_offset")
+    return RadarTerms(site.id, free, own_fixed)
+
+
+def prior_sigmas(site: Site, terms: RadarTerms) -> FloatArray:
+    """Prior 1-sigma [SI] of each free term.
+
+    ``max(DEFAULT_PRIOR_SIGMA, PRIOR_TYPICAL_MULTIPLE x typical bias)``, the
+    typical bias coming from the radar's sensor model when it names one.
+    """
+    typical: dict[str, float] = {}
+    if site.model is not None:
+        for key, value in load_sensor_model(site.model).typical_bias.items():
+            for name, (contract_key, _) in CONTRACT_KEYS.items():
+                if contract_key == key:
+                    typical[name] = from_contract_units(name, value)
+    return np.array([
+        max(DEFAULT_PRIOR_SIGMA[name], PRIOR_TYPICAL_MULTIPLE * typical.get(name, 0.0))
+        for name in terms.free
+    ])
+
+
+@dataclass
+class _Problem:
+    """Factors and variables of one calibration."""
+
+    terms: dict[str, RadarTerms]
+    keys: dict[str, int]
+    adsb: dict[str, AdsbFactor] = field(default_factory=dict)
+    alignments: dict[str, AdsbAlignment] = field(default_factory=dict)
+    pairs: list[PairwiseFactor] = field(default_factory=list)
+    target_state: Any = None
+
+    def variable_radars(self) -> list[str]:
+        """Radars with at least one factor and one free term, in dataset order."""
+        seen = set(self.adsb)
+        for f in self.pairs:
+            seen.update([f.terms_a.radar_id, f.terms_b.radar_id])
+        if self.target_state is not None:
+            seen.update(self.target_state.radars_seen)
+        return [rid for rid in self.terms if rid in seen and self.terms[rid].free]
+
+
+def _reduced(dataset: Dataset, exclude_rows: NDArray[np.int64]) -> Dataset:
+    """``dataset`` without the plot rows ``exclude_rows``."""
+    if len(exclude_rows) == 0:
+        return dataset
+    plots = dataset.plots.drop(index=exclude_rows)
+    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path)
+
+
+def _polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
+    """Time derivative of the aligned ADS-B reference in the radar's polar frame ``(n, 3)``.
+
+    A bracketing ADS-B segment faster than :data:`ADSB_MAX_SPEED_M_S` holds an
+    outlier report; its plots get a zero rate (they do not inform the time offset),
+    so that the outlier cannot lever the time offset through its Jacobian.
+    """
+    enu = site.enu_from_ecef(al.reference_ecef_m)
+    velocity = al.reference_velocity_ecef_m_s
+    plausible = np.linalg.norm(velocity, axis=1) <= ADSB_MAX_SPEED_M_S
+    velocity_enu = np.where(plausible[:, None], velocity, 0.0) @ site.ecef_to_enu.T
+    return np.einsum("nij,nj->ni", frames.enu_to_polar_jacobian(enu), velocity_enu)
+
+
+def _build_factors(
+    dataset: Dataset,
+    problem: _Problem,
+    use_adsb: bool,
+    cross: str,
+    kernel: RobustKernel,
+    adsb_max_gap_s: float,
+    pair_max_gap_s: float | None,
+    progress: Progress | None,
+    tau0: dict[str, float] | None = None,
+) -> None:
+    """ADS-B and pairwise factors, aligned at the time offsets ``tau0`` [s] (default 0)."""
+    radar_ids = list(dataset.radar_ids)
+    tau0 = {rid: (tau0 or {}).get(rid, 0.0) for rid in radar_ids}
+    problem.adsb.clear()
+    problem.alignments.clear()
+    problem.pairs.clear()
+    matched: list[NDArray[np.int64]] = []
+    if use_adsb:
+        for i, rid in enumerate(radar_ids):
+            al = align_adsb(dataset, rid, adsb_max_gap_s, time_offset_s=tau0[rid])
+            if progress is not None:
+                progress("ADS-B association", i + 1, len(radar_ids))
+            if len(al) == 0:
+                continue
+            problem.alignments[rid] = al
+            site = dataset.sites[rid]
+            rate = _polar_rate(site, al) if "time_offset" in problem.terms[rid].free else None
+            problem.adsb[rid] = adsb_factor(
+                site, problem.terms[rid], problem.keys[rid], al.plots,
+                al.reference_polar, _reference_polar_cov(al), kernel, rate, tau0[rid],
+            )
+            matched.append(al.plots.index)
+    if cross != "pairwise":
+        return
+    rest = _reduced(dataset, np.concatenate(matched) if matched else np.zeros(0, np.int64))
+    todo = [(a, b) for i, a in enumerate(radar_ids) for b in radar_ids[i + 1:]]
+    for n, (ra, rb) in enumerate(todo):
+        pairs = pair_plots(rest, ra, rb, pair_max_gap_s, shift_s=tau0[ra] - tau0[rb])
+        if progress is not None:
+            progress("cross-radar pairs", n + 1, len(todo))
+        if len(pairs) == 0:
+            continue
+        factor = pairwise_factor(
+            dataset.sites[ra], dataset.sites[rb], problem.terms[ra], problem.terms[rb],
+            problem.keys[ra], problem.keys[rb], pairs.a_plots, pairs.b_plots,
+            pairs.a_index0, pairs.weight, pairs.b_index, kernel, tau0[ra], tau0[rb],
+        )
+        if factor is not None:
+            problem.pairs.append(factor)
+
+
+# --------------------------------------------------------------------------- initial values
+def initial_biases(
+    dataset: Dataset, use_adsb: bool, cross: str, init: str
+) -> tuple[dict[str, RadarBias], str, list[str]]:
+    """Initial biases from the closed-form estimators, or zero.
+
+    ``init``: ``auto`` (``fl-ls`` then ``ls`` with ADS-B; ``wls`` without),
+    a method name, or ``zero``.  Returns the biases, the method used and notes
+    on the methods that failed.
+    """
+    from graphcal.solvers.registry import METHODS
+
+    if init == "zero":
+        return {}, "zero", []
+    if init == "auto":
+        candidates = ["fl-ls", "ls"] if use_adsb else (["wls"] if cross != "none" else [])
+    else:
+        if init not in METHODS:
+            raise ValueError(
+                f"unknown initialisation '{init}'; use auto, zero or a closed-form method"
+            )
+        candidates = [init]
+    notes = []
+    for method in candidates:
+        try:
+            cal = METHODS[method](dataset)
+        except (EstimationError, ValueError, np.linalg.LinAlgError) as exc:
+            notes.append(f"initialisation by {method} failed ({exc}); trying the next")
+            continue
+        biases = {}
+        for rid in cal.radar_ids:
+            vector = np.nan_to_num(cal.bias(rid).as_vector(), nan=0.0, posinf=0.0, neginf=0.0)
+            biases[rid] = RadarBias.from_vector(vector)
+        return biases, method, notes
+    return {}, "zero", notes
+
+
+def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) -> FloatArray:
+    if bias is None:
+        return np.zeros(len(terms.free))
+    values = np.append(bias.as_vector(), bias.time_offset_s)[terms.positions]
+    # A closed-form estimate far outside the prior is not a useful start.
+    return np.where(np.abs(values) <= 3.0 * prior, values, 0.0)
+
+
+# --------------------------------------------------------------------------- covariance
+def _pairwise_sandwich_terms(
+    problem: _Problem, values: dict[str, FloatArray], columns: dict[str, list[int]], p: int
+) -> tuple[FloatArray, FloatArray]:
+    """``A_pair = sum w J^T J`` and the shared-noise ``M_pair`` over the pairwise factors.
+
+    ``M_pair`` is :func:`~graphcal.model.cross_radar.gradient_noise_middle` of
+    ``w_k J_k^T W_k = w_k H_k^T Q_k`` (``J = W H`` whitened, ``Q = W^T W``): every
+    plot's share of the gradient noise across all the pairs it enters (paper
+    001's observations share plots), with the robust weights ``w_k`` at the solution.
+    """
+    information = np.zeros((p, p))
+    ht_q, plot_rows, coefficients = [], [], []
+    plot_cov: dict[int, FloatArray] = {}
+    for f in problem.pairs:
+        ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
+        e, (ja, jb) = f.whitened([values[ra], values[rb]])
+        w = f.kernel.weight(np.linalg.norm(e, axis=1), 3)
+        cols = columns[ra] + columns[rb]
+        jac = np.concatenate([ja, jb], axis=2)  # (n, 3, k): this pair's own columns
+        information[np.ix_(cols, cols)] += np.einsum("nip,niq,n->pq", jac, jac, w)
+        share = np.zeros((len(f), p, 3))
+        share[:, cols, :] = w[:, None, None] * np.swapaxes(jac, 1, 2) @ f.whitening
+        positions, coefficient = f.plot_noise()
+        labels = np.concatenate([f.a_plots.index, f.b_plots.index])
+        ht_q.append(share)
+        plot_rows.append(labels[positions])
+        coefficients.append(coefficient)
+        plot_cov.update(zip(labels.tolist(), np.concatenate([f.a_cov_m2, f.b_cov_m2]),
+                            strict=True))
+    middle = gradient_noise_middle(
+        np.concatenate(ht_q), np.concatenate(plot_rows), np.concatenate(coefficients), plot_cov
+    )
+    return information, middle
+
+
+# --------------------------------------------------------------------------- solving
+@dataclass
+class _Settings:
+    """Options of one solve, passed unchanged to every (re-)solve."""
+
+    have_adsb: bool
+    cross: str
+    kernel: RobustKernel
+    max_gap_s: float
+    pair_max_gap_s: float | None
+    process_noise_m2_s3: float | None
+    max_iterations: int
+    progress: Progress | None
+
+
+@dataclass
+class _Solved:
+    """One Levenberg-Marquardt solution with its factors."""
+
+    terms: dict[str, RadarTerms]
+    problem: _Problem
+    fg: FactorGraph
+    result: Any
+    radars: list[str]
+    values: dict[str, FloatArray]
+    priors: dict[str, FloatArray]
+    variable: set[str]
+    realignments: int
+
+
+def _radars_with_adsb(dataset: Dataset) -> set[str]:
+    """Radars with at least one plot whose ``target_id`` has ADS-B reports."""
+    if dataset.adsb is None or len(dataset.adsb) == 0:
+        return set()
+    targets = set(dataset.adsb["target_id"].astype(str)) - {""}
+    plots = dataset.plots
+    seen = plots.loc[plots["target_id"].astype(str).isin(targets), "radar_id"]
+    return set(seen.astype(str))
+
+
+def _solve(
+    dataset: Dataset,
+    fixed: dict[tuple[str, str], float],
+    tau_radars: set[str],
+    keys: dict[str, int],
+    init_biases: dict[str, RadarBias],
+    settings: _Settings,
+    timing: dict[str, float],
+) -> _Solved:
+    """Build the factors and solve; with time offsets, re-align ADS-B at the estimates.
+
+    The ADS-B reference and the cross-radar pairs are interpolated at the current
+    time offsets ``tau0`` and the factors are first order in ``tau - tau0``, so
+    the alignment is redone at the new estimates until they move less than
+    :data:`TIME_OFFSET_REALIGN_TOLERANCE_S` (usually once or twice).
+    """
+    s = settings
+    radar_ids = list(dataset.radar_ids)
+    terms = {
+        rid: radar_terms(dataset.sites[rid], fixed, rid in tau_radars) for rid in radar_ids
+    }
+    problem = _Problem(terms, keys)
+    tau0 = {rid: terms[rid].time_offset(np.zeros(len(terms[rid].free))) for rid in radar_ids}
+    start_values: dict[str, FloatArray] = {}
+    iterations = realignments = 0
+    for _ in range(TIME_OFFSET_MAX_REALIGNMENTS + 1):
+        t0 = time.perf_counter()
+        if s.cross == "target-state":
+            from graphcal.solvers.target_state import build_target_state
+
+            problem.target_state = build_target_state(
+                dataset, terms, keys, s.kernel, use_adsb=s.have_adsb,
+                adsb_max_gap_s=s.max_gap_s, process_noise_m2_s3=s.process_noise_m2_s3,
+                progress=s.progress,
+            )
+            if s.have_adsb:
+                # Residual statistics against ADS-B, for the report only.
+                for rid in radar_ids:
+                    al = align_adsb(dataset, rid, s.max_gap_s)
+                    if len(al):
+                        problem.alignments[rid] = al
+        else:
+            _build_factors(dataset, problem, s.have_adsb, s.cross, s.kernel, s.max_gap_s,
+                           s.pair_max_gap_s, s.progress, tau0)
+        timing["factors_s"] = timing.get("factors_s", 0.0) + time.perf_counter() - t0
+        radars = problem.variable_radars()
+        if not radars:
+            raise EstimationError(
+                "nothing to calibrate: no plot matched ADS-B and no two radars saw the same "
+                "target_id within the time-gap limit (2-D plots need an altitude to be paired)"
+            )
+        priors = {rid: prior_sigmas(dataset.sites[rid], terms[rid]) for rid in radars}
+        fg = FactorGraph()
+        initial_free: dict[str, FloatArray] = {}
+        for rid in radars:
+            start = start_values.get(rid)
+            if start is None:
+                start = _initial_free(terms[rid], init_biases.get(rid), priors[rid])
+            initial_free[rid] = start
+            fg.add_variable(keys[rid], start)
+            fg.add_prior(keys[rid], np.zeros(len(terms[rid].free)), priors[rid])
+        variable = set(radars)
+        for factor in [*problem.adsb.values(), *problem.pairs]:
+            _add_factor(fg, factor, variable)
+        if problem.target_state is not None:
+            problem.target_state.add_to(fg, variable, initial_free)
+        t0 = time.perf_counter()
+        if s.progress is not None:
+            s.progress("optimising", 0, 1)
+        result = fg.optimize(max_iterations=s.max_iterations)
+        iterations += result.iterations
+        timing["optimisation_s"] = timing.get("optimisation_s", 0.0) + time.perf_counter() - t0
+        values = {rid: result.vector(keys[rid]) for rid in radars}
+        moved = [
+            abs(terms[rid].time_offset(values[rid]) - tau0[rid])
+            for rid in radars if "time_offset" in terms[rid].free
+        ]
+        if not moved or max(moved) < TIME_OFFSET_REALIGN_TOLERANCE_S:
+            break
+        tau0.update({rid: terms[rid].time_offset(values[rid]) for rid in radars})
+        start_values = values
+        realignments += 1
+    result = dataclasses.replace(result, iterations=iterations)
+    return _Solved(terms, problem, fg, result, radars, values, priors, variable, realignments)
+
+
+def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
+    """Radars whose time offset the data do not determine well, with the reason.
+
+    A time offset is kept when its sigma is at most
+    :data:`AUTO_TIME_OFFSET_MAX_SIGMA_S` and estimating it inflates no other
+    parameter's sigma by more than :data:`AUTO_TIME_OFFSET_MAX_INFLATION`
+    (e.g. one straight flight: a time offset then looks like a range offset
+    and an azimuth bias).
+    """
+    keys = [solved.problem.keys[rid] for rid in solved.radars]
+    marginal = solved.fg.joint_covariance(solved.result.values, keys)
+    labels = [(rid, name) for rid in solved.radars for name in solved.terms[rid].free]
+    information = np.linalg.inv(marginal)
+    sigma = np.sqrt(np.diag(marginal))
+    poor: dict[str, str] = {}
+    for i, (rid, name) in enumerate(labels):
+        if name != "time_offset":
+            continue
+        if sigma[i] > AUTO_TIME_OFFSET_MAX_SIGMA_S:
+            poor[rid] = f"its sigma would be {sigma[i]:.2f} s"
+            continue
+        others = [j for j in range(len(labels)) if j != i]
+        fixed_sigma = np.sqrt(np.diag(np.linalg.inv(information[np.ix_(others, others)])))
+        inflation = sigma[others] / fixed_sigma
+        worst = int(np.argmax(inflation))
+        if inflation[worst] > AUTO_TIME_OFFSET_MAX_INFLATION:
+            other_rid, other_name = labels[others[worst]]
+            poor[rid] = (
+                f"this traffic cannot tell it from {other_rid} {other_name.replace('_', ' ')} "
+                f"(whose sigma it would multiply by {inflation[worst]:.1f})"
+            )
+    return poor
+
+
+# --------------------------------------------------------------------------- the estimator
+@fills_missing_sigmas
+def graph(
+    dataset: Dataset,
+    *,
+    cross: str = "pairwise",
+    robust: str = "huber",
+    robust_scale: float = 1.0,
+    use_adsb: bool = True,
+    init: str = "auto",
+    fixed: dict[tuple[str, str], float] | None = None,
+    max_iterations: int = 100,
+    max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
+    pair_max_gap_s: float | None = None,
+    process_noise_m2_s3: float | None = None,
+    time_offset: bool | None = None,
+    bound: bool = True,
+    progress: Progress | None = None,
+) -> Calibration:
+    """Joint calibration of every radar with a GTSAM factor graph.
+
+    Parameters
+    ----------
+    dataset : Dataset
+    cross : {"pairwise", "target-state", "none"}
+        Cross-radar formulation (see the module docstring).
+    robust : {"huber", "cauchy", "none"}
+        Robust kernel on every measurement; ``robust_scale`` multiplies its
+        default threshold (the chi 95 % point of the measurement dimension).
+    use_adsb : bool
+        Use the ADS-B table when the dataset has one.
+    init : str
+        ``auto``, ``zero`` or a closed-form method for the initial values.
+    fixed : dict, optional
+        ``{(radar_id, parameter_name): value_si}``: terms held at a known value.
+    max_iterations : int
+        Levenberg-Marquardt iteration limit.
+    max_gap_s : float
+        Longest ADS-B gap bridged by interpolation [s].
+    pair_max_gap_s : float, optional
+        Longest gap between a radar's bracketing plots in pairwise mode [s]
+        (default 2.5 scans).
+    process_noise_m2_s3 : float, optional
+        Target-state mode: white-acceleration spectral density of the
+        constant-velocity motion factors.
+    time_offset : bool or None
+        Estimate each radar's time-stamping bias ``time_offset_s`` (CONTRACT.md:
+        ``time_reported = time_true + time_offset_s``) for the radars with ADS-B.
+        ``None`` (default): yes when ADS-B is used and ``cross`` is not
+        ``target-state``, but a radar whose time offset the traffic does not
+        determine (sigma above :data:`AUTO_TIME_OFFSET_MAX_SIGMA_S`, or it would
+        inflate another parameter's sigma more than
+        :data:`AUTO_TIME_OFFSET_MAX_INFLATION` times) keeps 0, with a warning.
+        ``True``: always (needs ADS-B, not in target-state mode); ``False``: never.
+    bound : bool
+        Also compute the Cramér-Rao lower bound of the same parameters
+        (:func:`graphcal.analysis.crlb.crlb`, with the same priors) and record, per
+        parameter, the CRLB sigma (``info["crlb_sigma"]``) and the efficiency
+        figure reported sigma / CRLB sigma (``info["efficiency"]``).
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+
+    Returns
+    -------
+    Calibration
+        ``info`` holds the iterations, errors, convergence, priors, robust
+        down-weighting per radar, the CRLB and timings.
+    """
+    if cross not in CROSS_MODES:
+        raise ValueError(
+            f"unknown cross-radar mode '{cross}'; use one of: {', '.join(CROSS_MODES)}"
+        )
+    if max_iterations < 1:
+        raise ValueError("max_iterations must be at least 1")
+    kernel = RobustKernel(robust, robust_scale)
+    fixed = dict(fixed or {})
+    for rid, name in fixed:
+        if rid not in dataset.sites:
+            raise ValueError(f"cannot fix a term of unknown radar '{rid}'")
+        if name not in TERM_NAMES:
+            raise ValueError(f"cannot fix unknown parameter '{name}'")
+    timing: dict[str, float] = {}
+    start = time.perf_counter()
+    have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
+    radar_ids = list(dataset.radar_ids)
+    auto_time = time_offset is None
+    if time_offset and not have_adsb:
+        raise ValueError("time offsets need ADS-B: the dataset has none (or use_adsb=False)")
+    if time_offset and cross == "target-state":
+        raise ValueError("time offsets are not estimated in target-state mode; use pairwise")
+    want_time = have_adsb and cross != "target-state" if auto_time else bool(time_offset)
+    tau_radars = _radars_with_adsb(dataset) if want_time else set()
+    keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
+    # ---------------------------------------------------------------- initial values
+    t0 = time.perf_counter()
+    init_biases, init_method, init_notes = initial_biases(
+        dataset, have_adsb, "none" if cross == "none" else cross, init
+    )
+    timing["initialisation_s"] = time.perf_counter() - t0
+    settings = _Settings(have_adsb, cross, kernel, max_gap_s, pair_max_gap_s,
+                         process_noise_m2_s3, max_iterations, progress)
+    solved = _solve(dataset, fixed, tau_radars, keys, init_biases, settings, timing)
+    time_notes: list[str] = []
+    if auto_time and tau_radars:
+        poor = _poorly_determined_time_offsets(solved)
+        if poor:
+            time_notes = [
+                f"{rid} time offset not estimated: {why}; assumed 0 s"
+                for rid, why in poor.items()
+            ]
+            tau_radars = tau_radars - set(poor)
+            solved = _solve(dataset, fixed, tau_radars, keys, init_biases, settings, timing)
+    terms, problem, fg, result = solved.terms, solved.problem, solved.fg, solved.result
+    radars, values, priors, variable = solved.radars, solved.values, solved.priors, solved.variable
+    full_values = {
+        rid: values[rid] if rid in values else np.zeros(0) for rid in radar_ids
+    }
+    # ---------------------------------------------------------------- covariance
+    t0 = time.perf_counter()
+    if progress is not None:
+        progress("marginals", 0, 1)
+    marginal = fg.joint_covariance(result.values, [keys[rid] for rid in radars])
+    labels = [(rid, name) for rid in radars for name in terms[rid].free]
+    p = len(labels)
+    columns: dict[str, list[int]] = {rid: [] for rid in radar_ids}
+    for i, (rid, _) in enumerate(labels):
+        columns[rid].append(i)
+    prior_information = np.diag(np.concatenate([priors[rid] for rid in radars]) ** -2.0)
+    information = np.linalg.inv(marginal)
+    information = 0.5 * (information + information.T)
+    covariance = marginal
+    covariance_note = "GTSAM marginals"
+    if problem.pairs:
+        a_pair, m_pair = _pairwise_sandwich_terms(problem, full_values, columns, p)
+        covariance = marginal @ (information - a_pair + m_pair) @ marginal
+        covariance = 0.5 * (covariance + covariance.T)
+        covariance_note = "GTSAM marginals, corrected for plots shared between pairs"
+    timing["marginals_s"] = time.perf_counter() - t0
+    data_information = information - prior_information
+    obs = observability(data_information)
+    # ---------------------------------------------------------------- result
+    estimate = np.concatenate([values[rid] for rid in radars])
+    prior_vector = np.concatenate([priors[rid] for rid in radars])
+    ratio = np.diag(covariance) / prior_vector**2
+    undetermined = [labels[i] for i in np.flatnonzero(ratio > UNDETERMINED_VARIANCE_RATIO)]
+    cleaning = getattr(dataset, "cleaning", None)
+    warnings = (list(cleaning.warnings) if cleaning is not None else []) + init_notes + time_notes
+    for rid, name in undetermined:
+        warnings.append(
+            f"{rid} {name.replace('_', ' ')} is not determined by the data: its estimate "
+            "and sigma come from the weak prior"
+        )
+    warnings.extend(describe_weak_directions(labels, obs))
+    warnings.extend(_poorly_excited(labels, data_information))
+    if not result.converged:
+        warnings.append(
+            f"Levenberg-Marquardt stopped at the iteration limit ({max_iterations}) "
+            "before converging"
+        )
+    for rid in radar_ids:
+        if rid not in variable and terms[rid].free:
+            warnings.append(f"radar {rid} has no usable observations; not calibrated")
+    n_plots = _plots_used(problem, radars)
+    total_dimension = sum(f.dimension for f in [*problem.adsb.values(), *problem.pairs])
+    if problem.target_state is not None:
+        total_dimension += problem.target_state.dimension
+    info: dict[str, Any] = {
+        "cross": cross,
+        "robust": {"kernel": kernel.name, "scale": kernel.scale,
+                   "threshold_sigma_2d": kernel.threshold(2),
+                   "threshold_sigma_3d": kernel.threshold(3)},
+        "initialisation": init_method,
+        "optimizer": "Levenberg-Marquardt (GTSAM)",
+        "iterations": result.iterations,
+        "initial_error": result.initial_error,
+        "final_error": result.final_error,
+        "converged": result.converged,
+        "chi2_per_dof": 2.0 * result.final_error / max(total_dimension - p, 1),
+        "covariance": covariance_note,
+        "n_factors": len(fg),
+        "n_adsb_plots": int(sum(len(f.measured) for f in problem.adsb.values())),
+        "n_pairs": int(sum(len(f) for f in problem.pairs)),
+        "priors": {
+            rid: {CONTRACT_KEYS[name][0]: float(s * CONTRACT_KEYS[name][1])
+                  for name, s in zip(terms[rid].free, priors[rid], strict=True)}
+            for rid in radars
+        },
+        "fixed": {
+            rid: {CONTRACT_KEYS[name][0]: float(v * CONTRACT_KEYS[name][1])
+                  for name, v in terms[rid].fixed.items()}
+            for rid in radar_ids if terms[rid].fixed
+        },
+        "undetermined": [f"{rid}.{CONTRACT_KEYS[name][0]}" for rid, name in undetermined],
+        "cleaning": cleaning.to_dict() if cleaning is not None else None,
+        "time_offset": {
+            "estimated": [rid for rid in radars if "time_offset" in terms[rid].free],
+            "not_estimated": time_notes,
+            "realignments": solved.realignments,
+        },
+        "downweighted": _downweighted(problem, full_values, radars, result),
+    }
+    if problem.target_state is not None:
+        info["target_state"] = problem.target_state.summary()
+    if bound and labels:
+        t0 = time.perf_counter()
+        if progress is not None:
+            progress("Cramér-Rao bound", 0, 1)
+        info.update(_crlb_info(dataset, labels, priors, covariance, have_adsb, cross, max_gap_s))
+        timing["crlb_s"] = time.perf_counter() - t0
+    timing["total_s"] = time.perf_counter() - start
+    info["timing_s"] = timing
+    cal = Calibration(
+        method="graph",
+        radar_ids=radars,
+        is_3d={rid: dataset.sites[rid].is_3d for rid in radars},
+        labels=labels,
+        estimate=estimate,
+        covariance=covariance,
+        n_plots=n_plots,
+        observability=obs,
+        warnings=warnings,
+        info=info,
+        fixed={(rid, name): v for rid in radars for name, v in terms[rid].fixed.items()},
+    )
+    for rid, al in problem.alignments.items():
+        if rid in radars:
+            bias = RadarBias.from_vector(terms[rid].full(values[rid]))
+            cal.residuals[rid] = residual_stats(dataset.sites[rid], al, bias)
+    return cal
+
+
+def _poorly_excited(labels: list[tuple[str, str]], data_information: FloatArray) -> list[str]:
+    """Plain-words warnings for parameters the traffic hardly excites on their own:
+    variance inflation above :data:`graphcal.analysis.observability.VIF_WARNING` (issue of
+    :meth:`graphcal.analysis.observability.ObservabilityReport.confounded`)."""
+    from graphcal.analysis.observability import report_from_information
+
+    if not labels or np.any(np.diag(data_information) <= 0):
+        return []
+    return report_from_information(labels, data_information).confounded()
+
+
+def _crlb_info(
+    dataset: Dataset,
+    labels: list[tuple[str, str]],
+    priors: dict[str, FloatArray],
+    covariance: FloatArray,
+    have_adsb: bool,
+    cross: str,
+    max_gap_s: float,
+) -> dict[str, Any]:
+    """``crlb_sigma`` and ``efficiency`` (reported sigma / CRLB sigma) per contract key."""
+    from graphcal.analysis.crlb import crlb
+
+    prior_of: dict[tuple[str, str], float] = {}
+    position: dict[str, int] = {}
+    for rid, name in labels:
+        prior_of[(rid, name)] = float(priors[rid][position.setdefault(rid, 0)])
+        position[rid] += 1
+    result = crlb(dataset, use_adsb=have_adsb, cross=cross != "none", labels=labels,
+                  priors=prior_of, max_gap_s=max_gap_s)
+    sigma, efficiency = {}, {}
+    for i, (rid, name) in enumerate(labels):
+        key = CONTRACT_KEYS[name][0]
+        bound_sigma = result.sigma(rid, key)
+        sigma[f"{rid}.{key}"] = float(bound_sigma)
+        reported = float(np.sqrt(covariance[i, i])) * CONTRACT_KEYS[name][1]
+        efficiency[f"{rid}.{key}"] = float(reported / bound_sigma) if bound_sigma > 0 else None
+    note = "targets from ADS-B" if have_adsb else "targets estimated"
+    if cross != "none":
+        note += ", cross-radar events with straight-line target segments"
+    return {"crlb_sigma": sigma, "efficiency": efficiency, "crlb_model": note}
+
+
+def _add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: set[str]) -> None:
+    """Add a vectorised factor; radars without free terms enter as constants."""
+    radar_ids = (
+        [factor.terms.radar_id] if isinstance(factor, AdsbFactor)
+        else [factor.terms_a.radar_id, factor.terms_b.radar_id]
+    )
+    is_variable = [rid in variable for rid in radar_ids]
+    if not any(is_variable):
+        return
+    keys = [k for k, v in zip(factor.keys, is_variable, strict=True) if v]
+
+    def error(current: list[FloatArray], want: bool):
+        it = iter(current)
+        full = [next(it) if v else np.zeros(0) for v in is_variable]
+        e, jac = factor.error(full, want)
+        if jac is not None:
+            jac = [j for j, v in zip(jac, is_variable, strict=True) if v]
+        return e, jac
+
+    fg.add_custom(keys, factor.dimension, error)
+
+
+def _plots_used(problem: _Problem, radars: list[str]) -> dict[str, int]:
+    used: dict[str, set[int]] = {rid: set() for rid in problem.terms}
+    for rid, f in problem.adsb.items():
+        used[rid].update(f.plot_rows.tolist())
+    for f in problem.pairs:
+        used[f.terms_a.radar_id].update(f.a_plots.index.tolist())
+        used[f.terms_b.radar_id].update(f.b_plots.index.tolist())
+    counts = {rid: len(used[rid]) for rid in radars}
+    if problem.target_state is not None:
+        counts.update({
+            rid: n for rid, n in problem.target_state.plots_per_radar().items() if rid in counts
+        })
+    return counts
+
+
+def _downweighted(
+    problem: _Problem, values: dict[str, FloatArray], radars: list[str], result
+) -> dict[str, dict[str, int]]:
+    """Measurements with a final robust weight below 0.5, per radar and factor type."""
+    out: dict[str, dict[str, int]] = {rid: {} for rid in radars}
+    for rid, f in problem.adsb.items():
+        if rid in out:
+            e, _ = f.whitened([values[rid]])
+            out[rid]["adsb_plots"] = int(f.kernel.downweighted(e).sum())
+    for f in problem.pairs:
+        ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
+        e, _ = f.whitened([values[ra], values[rb]])
+        n = int(f.kernel.downweighted(e).sum())
+        for rid in (ra, rb):
+            if rid in out:
+                out[rid]["pairs"] = out[rid].get("pairs", 0) + n
+    if problem.target_state is not None:
+        for rid, counts in problem.target_state.downweighted(values, result).items():
+            if rid in out:
+                out[rid].update(counts)
+    return out

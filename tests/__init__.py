@@ -1,0 +1,1 @@
+"""graphcal's test suite; its folders mirror the package."""

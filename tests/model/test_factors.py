@@ -1,0 +1,233 @@
+"""Every factor of the graph calibrator: analytic Jacobians against numerical derivatives,
+robust kernels against GTSAM's own M-estimators, motion factors against their definition."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from graphcal.data.align import align_adsb, pair_plots
+from graphcal.data.bias import RadarBias
+from graphcal.model.factors import RadarTerms, adsb_factor, pairwise_factor
+from graphcal.model.robust import RobustKernel, default_threshold
+from graphcal.solvers.adsb_reference import _reference_polar_cov
+from graphcal.solvers.target_state import build_target_state, motion_blocks
+from tests.synthetic import Track, make_dataset, site_at
+
+BIAS_2D = RadarBias(120.0, 0.002, 0.004)
+BIAS_3D = RadarBias(-80.0, -0.001, -0.003, 0.002)
+
+
+@pytest.fixture(scope="module")
+def dataset():
+    rng = np.random.default_rng(7)
+    radars = [
+        (site_at("A", -40e3, 0.0), BIAS_2D),
+        (site_at("B", 40e3, 10e3, sigma_elevation_mrad=2.0), BIAS_3D),
+    ]
+    tracks = [
+        Track("aa0001", (-60e3, 50e3, 8000.0), (180.0, -20.0, 0.0), 0.0, 120.0),
+        Track("aa0002", (30e3, -70e3, 5000.0), (-30.0, 200.0, 3.0), 0.0, 120.0),
+    ]
+    return make_dataset(rng, radars, tracks)
+
+
+def numerical_jacobian(function, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Central differences of a vector function, one column per component of ``x``."""
+    columns = []
+    for i in range(len(x)):
+        dx = np.zeros_like(x)
+        dx[i] = steps[i]
+        columns.append((function(x + dx) - function(x - dx)) / (2 * steps[i]))
+    return np.stack(columns, axis=-1)
+
+
+BIAS_STEPS = np.array([1.0, 1e-5, 1e-5, 1e-5])
+
+
+def _terms(site, names=None) -> RadarTerms:
+    free = tuple(names or (
+        ("range_offset", "range_gain", "azimuth_bias", "elevation_bias") if site.is_3d
+        else ("range_offset", "range_gain", "azimuth_bias")
+    ))
+    return RadarTerms(site.id, free)
+
+
+@pytest.mark.parametrize("radar", ["A", "B"])
+def test_adsb_factor_jacobian_matches_numerical(dataset, radar: str) -> None:
+    site = dataset.sites[radar]
+    al = align_adsb(dataset, radar)
+    terms = _terms(site)
+    f = adsb_factor(site, terms, 0, al.plots, al.reference_polar, _reference_polar_cov(al),
+                    RobustKernel("none"))
+    x = np.array([50.0, 0.001, 0.002, 0.001])[: len(terms.free)]
+    _, (jac,) = f.whitened([x])
+    numeric = numerical_jacobian(lambda v: f.whitened([v])[0], x, BIAS_STEPS[: len(x)])
+    np.testing.assert_allclose(jac, numeric, rtol=1e-6, atol=1e-8)
+
+
+def test_adsb_factor_residual_is_zero_at_truth_without_noise() -> None:
+    rng = np.random.default_rng(3)
+    site = site_at("C", 0.0, 0.0, sigma_elevation_mrad=1.0)
+    ds = make_dataset(rng, [(site, BIAS_3D)],
+                      [Track("cc0001", (20e3, 60e3, 9000.0), (150.0, 0.0, 0.0), 0.0, 60.0)],
+                      noise=False)
+    al = align_adsb(ds, "C")
+    f = adsb_factor(site, _terms(site), 0, al.plots, al.reference_polar,
+                    _reference_polar_cov(al), RobustKernel("none"))
+    e, _ = f.whitened([BIAS_3D.as_vector()])
+    # ADS-B interpolated linearly along a straight track: exact up to float rounding.
+    assert np.max(np.abs(e)) < 1e-4
+
+
+def test_pairwise_factor_jacobians_match_numerical(dataset) -> None:
+    pairs = pair_plots(dataset, "A", "B")
+    sa, sb = dataset.sites["A"], dataset.sites["B"]
+    ta, tb = _terms(sa), _terms(sb)
+    f = pairwise_factor(sa, sb, ta, tb, 0, 1, pairs.a_plots, pairs.b_plots, pairs.a_index0,
+                        pairs.weight, pairs.b_index, RobustKernel("none"))
+    assert f is not None and len(f) > 50
+    xa = np.array([100.0, 0.0015, 0.003])
+    xb = np.array([-60.0, -0.0008, -0.002, 0.0015])
+    _, (ja, jb) = f.whitened([xa, xb])
+    na = numerical_jacobian(lambda v: f.whitened([v, xb])[0], xa, BIAS_STEPS[:3])
+    nb = numerical_jacobian(lambda v: f.whitened([xa, v])[0], xb, BIAS_STEPS)
+    np.testing.assert_allclose(ja, na, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(jb, nb, rtol=1e-5, atol=1e-7)
+
+
+def test_pairwise_factor_vanishes_at_true_biases_without_noise() -> None:
+    rng = np.random.default_rng(4)
+    sa = site_at("A", -30e3, 0.0, sigma_elevation_mrad=1.0)
+    sb = site_at("B", 30e3, 0.0, sigma_elevation_mrad=1.0)
+    ds = make_dataset(rng, [(sa, BIAS_3D), (sb, RadarBias(40.0, 0.001, 0.002, -0.001))],
+                      [Track("bb0001", (0.0, 50e3, 7000.0), (200.0, 0.0, 0.0), 0.0, 200.0)],
+                      noise=False)
+    pairs = pair_plots(ds, "A", "B")
+    f = pairwise_factor(sa, sb, _terms(sa), _terms(sb), 0, 1, pairs.a_plots, pairs.b_plots,
+                        pairs.a_index0, pairs.weight, pairs.b_index, RobustKernel("none"))
+    res, _, _ = f.residual(BIAS_3D.as_vector(), np.array([40.0, 0.001, 0.002, -0.001]))
+    # Straight, constant-speed flight: interpolating radar A's plots is exact.
+    assert np.max(np.abs(res)) < 1e-3
+
+
+def test_fixed_terms_are_left_out_of_the_jacobian(dataset) -> None:
+    site = dataset.sites["B"]
+    al = align_adsb(dataset, "B")
+    terms = RadarTerms("B", ("range_offset", "azimuth_bias"), {"range_gain": -0.001})
+    f = adsb_factor(site, terms, 0, al.plots, al.reference_polar, _reference_polar_cov(al),
+                    RobustKernel("none"))
+    x = np.array([-80.0, -0.003])
+    _, (jac,) = f.whitened([x])
+    assert jac.shape[-1] == 2
+    np.testing.assert_allclose(terms.full(x), [-80.0, -0.001, -0.003, 0.0])
+    numeric = numerical_jacobian(lambda v: f.whitened([v])[0], x, np.array([1.0, 1e-5]))
+    np.testing.assert_allclose(jac, numeric, rtol=1e-6, atol=1e-8)
+
+
+@pytest.fixture(scope="module")
+def target_state(dataset):
+    terms = {rid: _terms(site) for rid, site in dataset.sites.items()}
+    keys = {"A": 0, "B": 1}
+    return build_target_state(dataset, terms, keys, RobustKernel("none"), use_adsb=True,
+                              adsb_max_gap_s=10.0)
+
+
+@pytest.mark.parametrize("which", [0, -1])
+def test_plot_factor_jacobians_match_numerical(target_state, which: int) -> None:
+    # The first factor is one radar's, the last the other's (2-D with height, 3-D).
+    factors = sorted(target_state.plot_factors, key=lambda f: f.terms.radar_id)
+    f = factors[which]
+    rng = np.random.default_rng(1)
+    k = len(f.terms.free)
+    bias = np.array([30.0, 0.001, 0.002, 0.001])[:k]
+    index = {int(key): i for i, key in enumerate(target_state.state_keys)}
+    states = [target_state.initial_states[index[key]] + rng.normal(0, [50, 50, 50, 5, 5, 1])
+              for key in f.state_keys]
+    e, d_bias, d_state = f.whitened(bias, states)
+    numeric = numerical_jacobian(lambda v: f.whitened(v, states)[0], bias, BIAS_STEPS[:k])
+    np.testing.assert_allclose(d_bias, numeric, rtol=1e-6, atol=1e-8)
+    # Per state: the rows of the plots that use it.
+    flat, blocks = f.error([bias, *states], True, True)
+    for j in range(len(states)):
+        def moved(v, j=j):
+            s = list(states)
+            s[j] = v
+            return f.error([bias, *s], False, True)[0]
+
+        numeric = numerical_jacobian(moved, states[j], np.array([1.0, 1.0, 1.0, 0.1, 0.1, 0.1]))
+        np.testing.assert_allclose(blocks[1 + j], numeric, rtol=1e-5, atol=1e-7)
+
+
+def test_adsb_track_factor_jacobian_matches_numerical(target_state) -> None:
+    g = target_state.adsb_factors[0]
+    index = {int(key): i for i, key in enumerate(target_state.state_keys)}
+    states = [target_state.initial_states[index[key]] for key in g.state_keys]
+    _, blocks = g.error(states, True)
+    for j in range(len(states)):
+        def moved(v, j=j):
+            s = list(states)
+            s[j] = v
+            return g.error(s, False)[0]
+
+        numeric = numerical_jacobian(moved, states[j], np.ones(6))
+        np.testing.assert_allclose(blocks[j], numeric, rtol=1e-6, atol=1e-9)
+
+
+def test_motion_factor_is_the_constant_velocity_model() -> None:
+    dt, q = 3.0, 4.0
+    a1, a2 = motion_blocks(dt, q)
+    rng = np.random.default_rng(0)
+    x1, x2 = rng.normal(size=6) * 100, rng.normal(size=6) * 100
+    innovation = np.r_[x2[:3] - x1[:3] - dt * x1[3:], x2[3:] - x1[3:]]
+    cov = q * np.block([[dt**3 / 3 * np.eye(3), dt**2 / 2 * np.eye(3)],
+                        [dt**2 / 2 * np.eye(3), dt * np.eye(3)]])
+    whitened = a1 @ x1 + a2 @ x2
+    # Same Mahalanobis norm as the innovation under Q.
+    assert whitened @ whitened == pytest.approx(innovation @ np.linalg.solve(cov, innovation))
+
+
+@pytest.mark.parametrize("name, gtsam_kernel", [
+    ("huber", gtsam.noiseModel.mEstimator.Huber),
+    ("cauchy", gtsam.noiseModel.mEstimator.Cauchy),
+])
+def test_robust_kernels_match_gtsam_m_estimators(name: str, gtsam_kernel) -> None:
+    kernel = RobustKernel(name)
+    k = kernel.threshold(3)
+    assert k == pytest.approx(default_threshold(3))
+    reference = gtsam_kernel.Create(k)
+    s = np.array([0.1, 1.0, 2.0, 3.5, 10.0, 100.0])
+    np.testing.assert_allclose(kernel.weight(s, 3), [reference.weight(v) for v in s], rtol=1e-12)
+    np.testing.assert_allclose(kernel.loss(s, 3), [reference.loss(v) for v in s], rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["huber", "cauchy", "none"])
+def test_robust_error_gives_the_kernel_cost_and_irls_linearisation(name: str) -> None:
+    kernel = RobustKernel(name)
+    rng = np.random.default_rng(2)
+    r = rng.normal(size=(200, 3)) * np.r_[np.ones(190), np.full(10, 30.0)][:, None]
+    s = np.linalg.norm(r, axis=1)
+    e, _ = kernel.apply(r, None)
+    assert 0.5 * np.sum(e**2) == pytest.approx(np.sum(kernel.loss(s, 3)))
+    jac = rng.normal(size=(200, 3, 2))
+    e_lin, (j_lin,) = kernel.apply(r, [jac])
+    w = kernel.weight(s, 3)
+    # Gradient of the cost: sum w J^T r (IRLS), identical in both forms.
+    np.testing.assert_allclose(np.einsum("nip,ni->p", j_lin, e_lin),
+                               np.einsum("n,nip,ni->p", w, jac, r))
+    # Weight is rho'(s) / s.
+    ds = 1e-6
+    derivative = (kernel.loss(s + ds, 3) - kernel.loss(s - ds, 3)) / (2 * ds)
+    np.testing.assert_allclose(w, derivative / s, rtol=1e-5)
+    # Weight below 0.5: s > 2k for Huber, s > k for Cauchy; the 10 outliers for Huber.
+    k = kernel.threshold(3)
+    expected = {"huber": s > 2 * k, "cauchy": s > k, "none": np.zeros_like(s, bool)}[name]
+    np.testing.assert_array_equal(kernel.downweighted(r), expected)
+    if name == "huber":
+        assert expected.sum() == 10
+
+
+def test_unknown_kernel_is_refused() -> None:
+    with pytest.raises(ValueError, match="unknown robust kernel 'tukey'"):
+        RobustKernel("tukey")

@@ -1,0 +1,150 @@
+"""The HTML report (graphcal.reporting.html) and the ``report`` command."""
+
+from __future__ import annotations
+
+import base64
+import io
+import re
+
+import numpy as np
+import pytest
+import typer
+from PIL import Image
+from typer.testing import CliRunner
+
+from graphcal.cli.report import report_command
+from graphcal.data.bias import RadarBias
+from graphcal.io.folder import load_dataset, write_dataset
+from graphcal.reporting.html import SECTIONS, build_report, write_report, write_report_for
+from graphcal.solvers.registry import METHODS
+from tests.synthetic import Track, make_dataset, site_at
+
+BIASES = {
+    "RA": RadarBias(range_offset_m=90.0, range_gain=3e-4, azimuth_bias_rad=2e-3),
+    "RB": RadarBias(range_offset_m=-60.0, range_gain=-2e-4, azimuth_bias_rad=-3e-3,
+                    elevation_bias_rad=1e-3),
+}
+TRACKS = [
+    Track("aa0001", (-60e3, 10e3, 9000.0), (220.0, 10.0, 0.0), 0.0, 600.0),
+    Track("aa0002", (20e3, -50e3, 7000.0), (-30.0, 200.0, 0.0), 0.0, 600.0),
+    Track("aa0003", (-40e3, 45e3, 6000.0), (150.0, -120.0, 0.0), 0.0, 600.0),
+]
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    sites = [site_at("RA", -20e3, 0.0), site_at("RB", 30e3, 5e3, sigma_elevation_mrad=2.0)]
+    dataset = make_dataset(np.random.default_rng(3), [(s, BIASES[s.id]) for s in sites], TRACKS)
+    cal = METHODS["graph"](dataset)
+    return dataset, cal
+
+
+@pytest.fixture(scope="module")
+def page(scenario):
+    dataset, cal = scenario
+    return build_report(cal, dataset, truth=BIASES, crlb=False)
+
+
+def _images(text: str) -> list[bytes]:
+    return [base64.b64decode(m, validate=True)
+            for m in re.findall(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)]
+
+
+def test_report_has_every_section(page) -> None:
+    assert page.startswith("<!DOCTYPE html>")
+    for sid, _ in SECTIONS:
+        assert re.search(rf'<h2 id="{sid}">', page), sid
+    for sid in ("estimates", "residuals", "histograms", "map", "correlation", "observability",
+                "data"):
+        assert f'id="{sid}"' in page
+
+
+def test_report_images_are_valid_embedded_pngs(page) -> None:
+    images = _images(page)
+    # residuals + histograms per radar, map, correlation
+    assert len(images) == 2 * 2 + 2
+    assert page.count("<img") == len(images)
+    for png in images:
+        assert png.startswith(PNG_SIGNATURE)
+        assert len(png) > 5000
+        with Image.open(io.BytesIO(png)) as image:
+            image.load()
+            assert image.size[0] > 200 and image.size[1] > 150
+    # Self-contained: no external resources.
+    assert not re.search(r'(src|href)="(https?:|//|file:)', page)
+
+
+def test_report_estimates_show_each_radar_with_truth(page, scenario) -> None:
+    _, cal = scenario
+    estimates = page.split('<h2 id="estimates">')[1].split("<h2 ")[0]
+    for rid in ("RA", "RB"):
+        assert f'<td class="l">{rid}</td>' in estimates
+    assert "azimuth_bias_mrad" in estimates and "elevation_bias_mrad" in estimates
+    assert "truth" in estimates and "error / σ" in estimates
+    value = cal.value("RA", "range_offset_m")
+    assert f"{value:.4g}" in estimates
+
+
+def test_report_without_adsb_still_builds(scenario) -> None:
+    dataset, cal = scenario
+    no_adsb = type(dataset)(dataset.sites, dataset.plots, None)
+    text = build_report(cal, no_adsb, crlb=False)
+    for sid, _ in SECTIONS:
+        assert f'<h2 id="{sid}">' in text
+    assert "No residuals against ADS-B" in text
+
+
+def test_write_report_and_pdf(tmp_path, scenario) -> None:
+    dataset, cal = scenario
+    out = write_report(tmp_path / "r.html", cal, dataset, crlb=False, pdf=tmp_path / "r.pdf")
+    assert out.read_text(encoding="utf-8").startswith("<!DOCTYPE html>")
+    assert (tmp_path / "r.pdf").read_bytes().startswith(b"%PDF")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.html", "r.pdf"]  # no temporaries
+
+
+@pytest.fixture()
+def runner_app():
+    app = typer.Typer()
+    app.command(name="report")(report_command)
+    app.command(name="noop")(lambda: None)  # keeps 'report' a named sub-command
+    return app
+
+
+def test_report_command(tmp_path, scenario, runner_app) -> None:
+    dataset, cal = scenario
+    folder = tmp_path / "ds"
+    write_dataset(dataset, folder)
+    cal.write_json(tmp_path / "result.json")
+    out = tmp_path / "report.html"
+    result = CliRunner().invoke(
+        runner_app, ["report", str(tmp_path / "result.json"), str(folder), "--out", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    text = out.read_text(encoding="utf-8")
+    assert all(f'<h2 id="{sid}">' in text for sid, _ in SECTIONS)
+    assert "RA" in text and "RB" in text
+
+
+def test_report_command_bad_result_exits_2(tmp_path, scenario, runner_app) -> None:
+    dataset, _ = scenario
+    folder = tmp_path / "ds"
+    write_dataset(dataset, folder)
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    out = tmp_path / "report.html"
+    result = CliRunner().invoke(runner_app, ["report", str(bad), str(folder), "--out", str(out)])
+    assert result.exit_code == 2
+    assert not out.exists()
+
+
+def test_write_report_for_picks_up_truth_json(tmp_path, scenario) -> None:
+    dataset, cal = scenario
+    folder = tmp_path / "ds"
+    write_dataset(dataset, folder)
+    (folder / "truth.json").write_text(
+        '{"radars": {"RA": {"range_offset_m": 90.0}, "RB": {"range_offset_m": -60.0}}}'
+    )
+    loaded = load_dataset(folder)
+    path = write_report_for(cal, loaded, tmp_path / "x.html")
+    assert "error / σ" in path.read_text(encoding="utf-8")
