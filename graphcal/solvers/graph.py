@@ -492,7 +492,6 @@ def graph(
     pair_max_gap_s: float | None = None,
     process_noise_m2_s3: float | None = None,
     time_offset: bool | None = None,
-    bound: bool = True,
     progress: Progress | None = None,
 ) -> Calibration:
     """Joint calibration of every radar with a GTSAM factor graph.
@@ -530,11 +529,6 @@ def graph(
         inflate another parameter's sigma more than
         :data:`AUTO_TIME_OFFSET_MAX_INFLATION` times) keeps 0, with a warning.
         ``True``: always (needs ADS-B, not in target-state mode); ``False``: never.
-    bound : bool
-        Also compute the Cramér-Rao lower bound of the same parameters
-        (:func:`graphcal.analysis.crlb.crlb`, with the same priors) and record, per
-        parameter, the CRLB sigma (``info["crlb_sigma"]``) and the efficiency
-        figure reported sigma / CRLB sigma (``info["efficiency"]``).
     progress : callable, optional
         ``progress(stage, done, total)``.
 
@@ -629,7 +623,6 @@ def graph(
             "and sigma come from the weak prior"
         )
     warnings.extend(describe_weak_directions(labels, obs))
-    warnings.extend(_poorly_excited(labels, data_information))
     if not result.converged:
         warnings.append(
             f"Levenberg-Marquardt stopped at the iteration limit ({max_iterations}) "
@@ -679,12 +672,6 @@ def graph(
     }
     if problem.target_state is not None:
         info["target_state"] = problem.target_state.summary()
-    if bound and labels:
-        t0 = time.perf_counter()
-        if progress is not None:
-            progress("Cramér-Rao bound", 0, 1)
-        info.update(_crlb_info(dataset, labels, priors, covariance, have_adsb, cross, max_gap_s))
-        timing["crlb_s"] = time.perf_counter() - t0
     timing["total_s"] = time.perf_counter() - start
     info["timing_s"] = timing
     cal = Calibration(
@@ -700,54 +687,12 @@ def graph(
         info=info,
         fixed={(rid, name): v for rid in radars for name, v in terms[rid].fixed.items()},
     )
+    cal.information = data_information
     for rid, al in problem.alignments.items():
         if rid in radars:
             bias = RadarBias.from_vector(terms[rid].full(values[rid]))
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, bias)
     return cal
-
-
-def _poorly_excited(labels: list[tuple[str, str]], data_information: FloatArray) -> list[str]:
-    """Plain-words warnings for parameters the traffic hardly excites on their own:
-    variance inflation above :data:`graphcal.analysis.observability.VIF_WARNING` (issue of
-    :meth:`graphcal.analysis.observability.ObservabilityReport.confounded`)."""
-    from graphcal.analysis.observability import report_from_information
-
-    if not labels or np.any(np.diag(data_information) <= 0):
-        return []
-    return report_from_information(labels, data_information).confounded()
-
-
-def _crlb_info(
-    dataset: Dataset,
-    labels: list[tuple[str, str]],
-    priors: dict[str, FloatArray],
-    covariance: FloatArray,
-    have_adsb: bool,
-    cross: str,
-    max_gap_s: float,
-) -> dict[str, Any]:
-    """``crlb_sigma`` and ``efficiency`` (reported sigma / CRLB sigma) per contract key."""
-    from graphcal.analysis.crlb import crlb
-
-    prior_of: dict[tuple[str, str], float] = {}
-    position: dict[str, int] = {}
-    for rid, name in labels:
-        prior_of[(rid, name)] = float(priors[rid][position.setdefault(rid, 0)])
-        position[rid] += 1
-    result = crlb(dataset, use_adsb=have_adsb, cross=cross != "none", labels=labels,
-                  priors=prior_of, max_gap_s=max_gap_s)
-    sigma, efficiency = {}, {}
-    for i, (rid, name) in enumerate(labels):
-        key = CONTRACT_KEYS[name][0]
-        bound_sigma = result.sigma(rid, key)
-        sigma[f"{rid}.{key}"] = float(bound_sigma)
-        reported = float(np.sqrt(covariance[i, i])) * CONTRACT_KEYS[name][1]
-        efficiency[f"{rid}.{key}"] = float(reported / bound_sigma) if bound_sigma > 0 else None
-    note = "targets from ADS-B" if have_adsb else "targets estimated"
-    if cross != "none":
-        note += ", cross-radar events with straight-line target segments"
-    return {"crlb_sigma": sigma, "efficiency": efficiency, "crlb_model": note}
 
 
 def _add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: set[str]) -> None:
