@@ -110,10 +110,6 @@ def simulate(
     )
 
 
-#: ``--time-offset`` values and graph's ``time_offset`` argument.
-TIME_OFFSET_CHOICES: dict[str, bool | None] = {"auto": None, "on": True, "off": False}
-
-
 @app.command()
 def calibrate(
     dataset_dir: Annotated[Path, typer.Argument(metavar="DIR", help="Dataset folder.")],
@@ -224,8 +220,8 @@ def calibrate(
 ) -> None:
     """Estimate every radar's biases from a dataset folder."""
     from graphcal.io.folder import load_dataset
+    from graphcal.pipeline.calibrate import calibrate as run_calibration
     from graphcal.reporting.tables import calibration_table
-    from graphcal.solvers.registry import get_estimator
 
     with _errors_to_exit():
         dataset = load_dataset(dataset_dir, clean=clean)
@@ -235,40 +231,20 @@ def calibrate(
         if method is None:
             method = "graph"
         try:
-            estimator = get_estimator(method)
+            fixed = _parse_fix_options(fix or [])
+            with progress_bar(_progress_label(method, select)) as callback:
+                cal = run_calibration(
+                    dataset, method, max_gap_s=max_gap_s, cross=cross, robust=robust,
+                    robust_scale=robust_scale, use_adsb=adsb, init=init, fixed=fixed,
+                    max_iterations=max_iterations, time_offset=time_offset,
+                    iterations=iterations, linearise=linearise, select=select, budget=budget,
+                    select_unit=select_unit, segment_s=segment_s, select_seed=select_seed,
+                    progress=callback,
+                )
         except ValueError as exc:
             _fail(str(exc), EXIT_BAD_INPUT)
-        selection = None
-        if select is not None:
-            dataset, selection = _select(dataset, method, select, budget, select_unit,
-                                         segment_s, adsb, select_seed)
-        options: dict = {}
-        if max_gap_s is not None:
-            options["max_gap_s"] = max_gap_s
-        if method.startswith("wls"):
-            options["iterations"] = iterations
-            options["linearise"] = linearise
-            with progress_bar("pruning" if method == "wls-pruned" else method) as callback:
-                cal = estimator(dataset, progress=callback, **options)
-        elif method == "graph":
-            try:
-                if time_offset not in TIME_OFFSET_CHOICES:
-                    raise ValueError(
-                        f"--time-offset must be auto, on or off, not '{time_offset}'"
-                    )
-                options.update(
-                    cross=cross, robust=robust, robust_scale=robust_scale, use_adsb=adsb,
-                    init=init, fixed=_parse_fixed(fix or [], dataset.sites),
-                    max_iterations=max_iterations, time_offset=TIME_OFFSET_CHOICES[time_offset],
-                )
-                with progress_bar("graph") as callback:
-                    cal = estimator(dataset, progress=callback, **options)
-            except ValueError as exc:
-                _fail(str(exc), EXIT_BAD_INPUT)
-        else:
-            cal = estimator(dataset, **options)
-        if selection is not None:
-            cal.info["selection"] = selection.to_dict()
+        if "selection" in cal.info:
+            _print_selection(cal.info["selection"])
         if cat063 is not None:
             from graphcal.io.asterix.cat063 import radar_kinds_from_sites, write_cat063
 
@@ -304,34 +280,22 @@ def calibrate(
             console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
 
 
-def _select(dataset, method: str, select: str, budget: int | None, unit: str,
-            segment_s: float, use_adsb: bool, seed: int):
-    """``calibrate --select``: the selected part of ``dataset`` and the selection."""
-    from graphcal.analysis.observability import report_from_information
-    from graphcal.analysis.selection import select_for_calibration
+def _progress_label(method: str, select: str | None) -> str:
+    if select is not None:
+        return f"selecting ({select}), {method}"
+    return "pruning" if method == "wls-pruned" else method
 
-    if method == "wls-pruned":
-        _fail("--select with wls-pruned would prune twice; use --method wls", EXIT_BAD_INPUT)
-    try:
-        with progress_bar(f"selecting ({select})") as callback:
-            subset, selection = select_for_calibration(
-                dataset, method, select, budget, unit=unit, segment_s=segment_s,
-                use_adsb=use_adsb, rng=np.random.default_rng(seed), progress=callback,
-            )
-    except ValueError as exc:
-        _fail(f"--select {select}: {exc}", EXIT_BAD_INPUT)
-    summary = selection.to_dict()
-    full = selection.units.information.sum(axis=0)
-    full_degree = report_from_information(selection.units.labels, full).degree
+
+def _print_selection(summary: dict) -> None:
+    """The one-line account of ``calibrate --select``."""
     err_console.print(
-        f"selection {select}: kept {summary['observations_kept']} of "
+        f"selection {summary['method']}: kept {summary['observations_kept']} of "
         f"{summary['observations_total']} observations ({summary['units_kept']} of "
-        f"{summary['units_total']} {unit}s), Deg {summary['degree']:.3g} (all: "
-        f"{full_degree:.3g}), {summary['seconds']:.1f} s", highlight=False,
+        f"{summary['units_total']} {summary['unit']}s), Deg {summary['degree']:.3g} (all: "
+        f"{summary['degree_all']:.3g}), {summary['seconds']:.1f} s", highlight=False,
     )
-    for note in selection.units.notes:
+    for note in summary.get("notes", []):
         err_console.print(f"selection: {note}", highlight=False)
-    return subset, selection
 
 
 def _radar_codes(sites) -> dict[str, tuple[int, int]]:
@@ -342,27 +306,17 @@ def _radar_codes(sites) -> dict[str, tuple[int, int]]:
     }
 
 
-def _parse_fixed(items: list[str], sites) -> dict[tuple[str, str], float]:
-    """``RADAR.KEY=VALUE`` (contract units) -> ``{(radar, parameter name): value SI}``."""
-    from graphcal.data.bias import NAME_FROM_KEY, from_contract_units
-
+def _parse_fix_options(items: list[str]) -> dict[str, float]:
+    """``--fix RADAR.KEY=VALUE`` (contract units) -> ``{"RADAR.KEY": value}``."""
     fixed = {}
     for item in items:
         target, sep, text = item.partition("=")
-        rid, dot, key = target.rpartition(".")
-        if not sep or not dot:
+        if not sep or "." not in target:
             raise ValueError(f"--fix {item!r}: expected RADAR.KEY=VALUE, e.g. NORD.range_gain=0")
-        if rid not in sites:
-            raise ValueError(f"--fix {item!r}: unknown radar '{rid}'")
-        if key not in NAME_FROM_KEY or key == "time_offset_s":
-            keys = ", ".join(k for k in NAME_FROM_KEY if k != "time_offset_s")
-            raise ValueError(f"--fix {item!r}: unknown key '{key}'; use one of: {keys}")
         try:
-            value = float(text)
+            fixed[target] = float(text)
         except ValueError:
             raise ValueError(f"--fix {item!r}: value '{text}' is not a number") from None
-        name = NAME_FROM_KEY[key]
-        fixed[(rid, name)] = from_contract_units(name, value)
     return fixed
 
 

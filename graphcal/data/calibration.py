@@ -241,6 +241,10 @@ class Calibration:
     fixed : dict
         ``{(radar_id, parameter name): value SI}``: terms held at a known value,
         not estimated (no sigma); :meth:`bias` and :meth:`value` include them.
+    information : ndarray or None
+        Fisher information the data alone give on the parameters (SI, ``labels``
+        order, priors excluded), when the estimator computes it; the pipeline's
+        analyses read it.  Not part of the result JSON.
     """
 
     method: str
@@ -255,6 +259,7 @@ class Calibration:
     warnings: list[str] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
     fixed: dict[tuple[str, str], float] = field(default_factory=dict)
+    information: NDArray[np.float64] | None = field(default=None, repr=False, compare=False)
 
     # ----------------------------------------------------------------- queries
     def _position(self, radar_id: str, name: str) -> int | None:

@@ -58,6 +58,7 @@ __all__ = [
     "LineFitResiduals",
     "NoiseEstimate",
     "describe_estimate",
+    "filled_with_notes",
     "estimate_noise",
     "estimate_noise_adsb",
     "estimate_noise_line_fit",
@@ -234,25 +235,45 @@ def estimated_sigmas_info(estimates: Mapping[str, NoiseEstimate]) -> dict[str, d
     return out
 
 
+def filled_with_notes(dataset: Dataset) -> tuple[Dataset, dict[str, Any] | None, list[str]]:
+    """:func:`fill_missing_sigmas`, with the record and warnings a calibration carries.
+
+    Returns
+    -------
+    dataset : Dataset
+        The dataset with every missing sigma estimated (unchanged if none is missing).
+    info : dict or None
+        ``info["estimated_sigmas"]`` of the calibration, ``None`` when nothing was estimated.
+    warnings : list of str
+        One line per radar whose sigmas were estimated.
+    """
+    missing = {rid: site.missing_sigmas for rid, site in dataset.sites.items()}
+    dataset, estimates = fill_missing_sigmas(dataset)
+    if not estimates:
+        return dataset, None, []
+    warnings = [
+        f"{rid}: sites.toml gives no {', '.join(missing[rid])}; used {describe_estimate(est)}"
+        for rid, est in estimates.items()
+    ]
+    return dataset, estimated_sigmas_info(estimates), warnings
+
+
 def fills_missing_sigmas(estimator: Callable[..., Calibration]) -> Callable[..., Calibration]:
     """Decorate an estimator ``f(dataset, **options)`` to fill missing site sigmas first.
 
     The sigmas ``sites.toml`` leaves out are estimated by :func:`fill_missing_sigmas`
     (ADS-B where there is enough, else straight-leg line fits); the result then
-    carries them in ``info["estimated_sigmas"]`` and says so in a warning.
+    carries them in ``info["estimated_sigmas"]`` and says so in a warning
+    (:func:`filled_with_notes`).
     """
 
     @functools.wraps(estimator)
     def run(dataset: Dataset, *args: Any, **options: Any) -> Calibration:
-        missing = {rid: site.missing_sigmas for rid, site in dataset.sites.items()}
-        dataset, estimates = fill_missing_sigmas(dataset)
+        dataset, info, warnings = filled_with_notes(dataset)
         cal = estimator(dataset, *args, **options)
-        if estimates:
-            cal.info["estimated_sigmas"] = estimated_sigmas_info(estimates)
-            cal.warnings.extend(
-                f"{rid}: sites.toml gives no {', '.join(missing[rid])}; used "
-                f"{describe_estimate(est)}" for rid, est in estimates.items()
-            )
+        if info is not None:
+            cal.info["estimated_sigmas"] = info
+            cal.warnings.extend(warnings)
         return cal
 
     return run

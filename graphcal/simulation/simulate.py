@@ -128,6 +128,11 @@ class SimulationResult:
     n_candidates: dict[str, int] = field(default_factory=dict)
     adsb_equipped: tuple[str, ...] = ()
 
+    @property
+    def truth(self) -> dict[str, RadarBias]:
+        """The true biases per radar (the same as :attr:`biases`)."""
+        return self.biases
+
     def n_plots(self) -> dict[str, int]:
         """Number of plots per radar."""
         counts = self.dataset.plots["radar_id"].value_counts()

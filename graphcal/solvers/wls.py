@@ -36,14 +36,15 @@ from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.model.cross_radar import CrossObservations, cross_observations, shared_noise_middle
 from graphcal.model.information import (
-    ParameterLayout,
     describe_weak_directions,
+    greedy_prune_information,
     jacobi_scale,
     observability,
     solve_normal_equations,
 )
+from graphcal.model.measurement import residual_stats
+from graphcal.model.parameters import ParameterLayout
 from graphcal.noise import fills_missing_sigmas
-from graphcal.solvers.adsb_reference import residual_stats
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[[int, int], None]
@@ -75,7 +76,6 @@ def greedy_prune(
     degree_trace : list of float
         ``Deg`` after each visit (length m).
     """
-    from graphcal.analysis.selection import greedy_prune_information
 
     information = np.einsum("mip,miq->pq", h_white, h_white)
     scaled_h = h_white * jacobi_scale(information)

@@ -73,7 +73,7 @@ def _assert_within_3_sigma(cal: Calibration, biases: dict[str, RadarBias] = BIAS
 
 
 def _graph(dataset: Dataset, **options) -> Calibration:
-    return graph(dataset, bound=False, **options)
+    return graph(dataset, **options)
 
 
 def _replace(dataset: Dataset, **tables) -> Dataset:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from graphcal.analysis.crlb import crlb
+from graphcal.pipeline.calibrate import calibrate
 from graphcal.simulation.scenario import load_scenario
 from graphcal.simulation.simulate import simulate
 from graphcal.solvers.graph import graph
@@ -84,7 +85,7 @@ def test_ignoring_the_offsets_gives_confidently_wrong_biases(runs) -> None:
 
 def test_bound_includes_the_time_offsets(runs) -> None:
     shifted, _ = runs
-    cal = graph(shifted.dataset)
+    cal = calibrate(shifted.dataset)
     for key, ratio in cal.info["efficiency"].items():
         assert 0.9 < ratio < 1.3, key
     res = crlb(shifted.dataset, time_offset=True)

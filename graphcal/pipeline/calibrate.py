@@ -1,0 +1,286 @@
+"""One calibration run: load -> select -> solve -> bound -> warnings.
+
+:func:`calibrate` is what ``graphcal calibrate`` and the Python API call.  The
+solvers estimate and nothing else; the analyses that judge an estimate (the
+Cramér-Rao bound, the parameters the traffic hardly excites) run here, once
+per calibration.
+
+Options are keyword arguments named as on the command line.  An option that
+the chosen method does not use, given a value other than its default, is an
+error rather than silently ignored.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+from graphcal.analysis.crlb import crlb
+from graphcal.analysis.observability import report_from_information
+from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY, from_contract_units
+from graphcal.data.calibration import Calibration
+from graphcal.data.dataset import Dataset
+from graphcal.io.folder import load_dataset
+from graphcal.noise import filled_with_notes
+from graphcal.solvers.registry import METHODS, get_estimator
+
+Progress = Callable[..., None]
+
+#: ``time_offset`` choices (``graphcal calibrate --time-offset``) and graph's argument.
+TIME_OFFSET_CHOICES: dict[str, bool | None] = {"auto": None, "on": True, "off": False}
+
+#: Options of each method, with their defaults (those of the command line).
+METHOD_OPTIONS: dict[str, dict[str, Any]] = {
+    "graph": {
+        "cross": "pairwise", "robust": "huber", "robust_scale": 1.0, "use_adsb": True,
+        "init": "auto", "fixed": None, "max_iterations": 100, "time_offset": "auto",
+    },
+    "wls": {"iterations": 1, "linearise": "plots"},
+    "wls-pruned": {"iterations": 1, "linearise": "plots"},
+}
+
+
+def parse_fixed(
+    fixed: Mapping[str, float] | None, sites: Mapping[str, Any]
+) -> dict[tuple[str, str], float]:
+    """Contract-keyed fixed values -> the solver's ``{(radar, parameter): value SI}``.
+
+    Parameters
+    ----------
+    fixed : mapping of str to float
+        ``{"RADAR.key": value}`` in contract units, e.g. ``{"NORD.range_gain": 0.0,
+        "SUD.azimuth_bias_mrad": 1.5}``.
+    sites : mapping
+        The dataset's sites (to check the radar ids).
+
+    Raises
+    ------
+    ValueError
+        For an unknown radar or key, naming the entry and the valid keys.
+    """
+    out: dict[tuple[str, str], float] = {}
+    for target, value in (fixed or {}).items():
+        rid, dot, key = str(target).rpartition(".")
+        if not dot:
+            raise ValueError(f"fixed {target!r}: expected RADAR.KEY, e.g. NORD.range_gain")
+        if rid not in sites:
+            raise ValueError(f"fixed {target!r}: unknown radar '{rid}'")
+        if key not in NAME_FROM_KEY or key == "time_offset_s":
+            keys = ", ".join(k for k in NAME_FROM_KEY if k != "time_offset_s")
+            raise ValueError(f"fixed {target!r}: unknown key '{key}'; use one of: {keys}")
+        name = NAME_FROM_KEY[key]
+        out[(rid, name)] = from_contract_units(name, float(value))
+    return out
+
+
+def _method_options(method: str, given: Mapping[str, Any], sites: Mapping[str, Any]) -> dict:
+    """The solver's keyword arguments; options of other methods given non-default are errors."""
+    own = METHOD_OPTIONS.get(method, {})
+    for other, defaults in METHOD_OPTIONS.items():
+        if other == method:
+            continue
+        for key, default in defaults.items():
+            if key not in own and given.get(key, default) != default:
+                users = sorted(m for m, o in METHOD_OPTIONS.items() if key in o)
+                raise ValueError(
+                    f"option {key} applies to {' and '.join(users)}, not to method '{method}'"
+                )
+    options = {key: given.get(key, default) for key, default in own.items()}
+    if method == "graph":
+        choice = options["time_offset"]
+        if isinstance(choice, str):
+            if choice not in TIME_OFFSET_CHOICES:
+                raise ValueError(f"time_offset must be auto, on or off, not '{choice}'")
+            options["time_offset"] = TIME_OFFSET_CHOICES[choice]
+        options["fixed"] = parse_fixed(options["fixed"], sites)
+    return options
+
+
+def calibrate(
+    dataset: Dataset | str | os.PathLike[str],
+    method: str = "graph",
+    *,
+    max_gap_s: float | None = None,
+    clean: bool = True,
+    cross: str = "pairwise",
+    robust: str = "huber",
+    robust_scale: float = 1.0,
+    use_adsb: bool = True,
+    init: str = "auto",
+    fixed: Mapping[str, float] | None = None,
+    max_iterations: int = 100,
+    time_offset: str | bool | None = "auto",
+    iterations: int = 1,
+    linearise: str = "plots",
+    select: str | None = None,
+    budget: int | None = None,
+    select_unit: str = "segment",
+    segment_s: float = 60.0,
+    select_seed: int = 0,
+    bound: bool | None = None,
+    progress: Progress | None = None,
+) -> Calibration:
+    """Estimate every radar's biases: select, solve, bound and judge, once.
+
+    Parameters
+    ----------
+    dataset : Dataset or path
+        A loaded :class:`~graphcal.data.dataset.Dataset`, or a dataset folder
+        (read with :func:`graphcal.io.folder.load_dataset`).
+    method : str
+        An estimator of :data:`graphcal.solvers.registry.METHODS`: ``graph``
+        (default), ``ls``, ``fl``, ``fl-ls``, ``wls``, ``wls-pruned``.
+    max_gap_s : float, optional
+        Longest time gap bridged by interpolation [s] (every method).
+    clean : bool
+        With a folder: drop duplicate, non-finite, stale and jumping records
+        first (:func:`graphcal.data.cleaning.clean_dataset`; files untouched).
+    cross, robust, robust_scale, use_adsb, init, max_iterations
+        ``graph``: cross-radar formulation (``pairwise``, ``target-state``,
+        ``none``), robust kernel (``huber``, ``cauchy``, ``none``) and the
+        multiple of its threshold, whether to use ADS-B, initial values
+        (``auto``, ``zero`` or a closed-form method), Levenberg-Marquardt
+        iteration limit (see :func:`graphcal.solvers.graph.graph`).
+    fixed : mapping of str to float, optional
+        ``graph``: biases held at known values, contract keys and units:
+        ``{"NORD.range_gain": 0.0}``.
+    time_offset : {"auto", "on", "off"}
+        ``graph``: estimate each radar's time-stamping bias ``time_offset_s``.
+    iterations, linearise
+        ``wls``/``wls-pruned``: re-linearisations (1 = paper 001) and where the
+        Jacobians are evaluated (``plots`` or ``neighbours``).
+    select : {"greedy", "e-optimal", "d-optimal", "random"}, optional
+        Estimate on a selected part of the data
+        (:func:`graphcal.analysis.selection.select_for_calibration`).
+    budget : int, optional
+        Observations to keep with ``select``.
+    select_unit : {"segment", "track", "observation"}
+        What ``select`` chooses.
+    segment_s : float
+        Segment length [s] with ``select_unit="segment"``.
+    select_seed : int
+        Seed of the random draw with ``select="random"``.
+    bound : bool, optional
+        Compute the Cramér-Rao bound of the estimated parameters and record,
+        per parameter, ``info["crlb_sigma"]`` and ``info["efficiency"]`` (sigma
+        over bound).  Default: for ``graph``.
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+
+    Returns
+    -------
+    Calibration
+        With ``info["selection"]`` when selecting and the bound when asked.
+
+    Raises
+    ------
+    GraphcalInputError
+        Bad dataset folder.
+    EstimationError
+        The data do not allow an estimate.
+    ValueError
+        Unknown method or option value, or an option the method does not use.
+    """
+    start = time.perf_counter()
+    if not isinstance(dataset, Dataset):
+        dataset = load_dataset(dataset, clean=clean)
+    estimator = get_estimator(method)
+    given = {
+        "cross": cross, "robust": robust, "robust_scale": robust_scale, "use_adsb": use_adsb,
+        "init": init, "fixed": fixed or None, "max_iterations": max_iterations,
+        "time_offset": time_offset, "iterations": iterations, "linearise": linearise,
+    }
+    options = _method_options(method, given, dataset.sites)
+    if max_gap_s is not None:
+        options["max_gap_s"] = max_gap_s
+    if budget is not None and select is None:
+        raise ValueError("budget applies to a selection: give select as well")
+    selection = None
+    if select is not None:
+        from graphcal.analysis.selection import select_for_calibration
+
+        if method == "wls-pruned":
+            raise ValueError("selecting for wls-pruned would prune twice; use method wls")
+        dataset, selection = select_for_calibration(
+            dataset, method, select, budget, unit=select_unit, segment_s=segment_s,
+            use_adsb=use_adsb, rng=np.random.default_rng(select_seed), progress=progress,
+        )
+    if method in ("graph", "wls", "wls-pruned"):
+        options["progress"] = progress
+    dataset, sigma_info, sigma_warnings = filled_with_notes(dataset)
+    cal = estimator(dataset, **options)
+    if sigma_info is not None:
+        cal.info["estimated_sigmas"] = sigma_info
+        cal.warnings.extend(sigma_warnings)
+    if selection is not None:
+        summary = selection.to_dict()
+        full = selection.units.information.sum(axis=0)
+        summary["degree_all"] = report_from_information(selection.units.labels, full).degree
+        cal.info["selection"] = summary
+    if cal.information is not None:
+        cal.warnings.extend(_poorly_excited(cal.labels, cal.information))
+    if (method == "graph" if bound is None else bound) and cal.labels:
+        t0 = time.perf_counter()
+        if progress is not None:
+            progress("Cramér-Rao bound", 0, 1)
+        have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
+        cal.info.update(bound_info(cal, dataset, use_adsb=have_adsb,
+                                   cross=cross != "none" or method != "graph",
+                                   max_gap_s=options.get("max_gap_s")))
+        timing = cal.info.setdefault("timing_s", {})
+        timing["crlb_s"] = time.perf_counter() - t0
+        timing["total_s"] = time.perf_counter() - start
+    return cal
+
+
+def _poorly_excited(labels: list[tuple[str, str]], data_information: np.ndarray) -> list[str]:
+    """Plain-words warnings for parameters the traffic hardly excites on their own
+    (variance inflation above :data:`graphcal.analysis.observability.VIF_WARNING`)."""
+    if not labels or np.any(np.diag(data_information) <= 0):
+        return []
+    return report_from_information(labels, data_information).confounded()
+
+
+def bound_info(
+    cal: Calibration,
+    dataset: Dataset,
+    *,
+    use_adsb: bool,
+    cross: bool,
+    max_gap_s: float | None = None,
+) -> dict[str, Any]:
+    """``crlb_sigma``, ``efficiency`` (reported sigma / CRLB sigma) and ``crlb_model``.
+
+    The bound is computed for the calibration's own labels, with the weak priors
+    the estimator recorded in ``info["priors"]`` (contract units), so that the
+    two are comparable.
+    """
+    priors: dict[tuple[str, str], float] = {}
+    for rid, entries in (cal.info.get("priors") or {}).items():
+        for key, value in entries.items():
+            name = NAME_FROM_KEY[key]
+            priors[(rid, name)] = from_contract_units(name, value)
+    options: dict[str, Any] = {"use_adsb": use_adsb, "cross": cross, "labels": cal.labels,
+                               "priors": priors or None}
+    if max_gap_s is not None:
+        options["max_gap_s"] = max_gap_s
+    result = crlb(dataset, **options)
+    sigma, efficiency = {}, {}
+    for i, (rid, name) in enumerate(cal.labels):
+        key, scale = CONTRACT_KEYS[name]
+        bound_sigma = result.sigma(rid, key)
+        sigma[f"{rid}.{key}"] = float(bound_sigma)
+        reported = float(np.sqrt(cal.covariance[i, i])) * scale
+        efficiency[f"{rid}.{key}"] = float(reported / bound_sigma) if bound_sigma > 0 else None
+    note = "targets from ADS-B" if use_adsb else "targets estimated"
+    if cross:
+        note += ", cross-radar events with straight-line target segments"
+    return {"crlb_sigma": sigma, "efficiency": efficiency, "crlb_model": note}
+
+
+__all__ = ["METHODS", "METHOD_OPTIONS", "TIME_OFFSET_CHOICES", "bound_info", "calibrate",
+           "parse_fixed"]
