@@ -1,0 +1,301 @@
+"""The manual's examples run, so that they cannot go stale.
+
+Pages: ``README.md``, every ``docs/**/*.md`` and ``scenarios/README.md``.  In each page:
+
+- a fenced ``sh`` block's lines that start with ``graphcal `` are run with the installed
+  ``graphcal`` script (the one beside ``sys.executable``) and must exit with status 0;
+- a fenced ``python`` block is executed with ``exec``;
+- a block whose fence has ``<!-- no-run -->`` on the line just above it is not run (for
+  commands that need files the manual does not create, such as ASTERIX recordings, and for
+  long Monte-Carlo runs);
+- ``<!-- expect: TEXT -->`` lines right after a block's closing fence check its output: the
+  output must contain TEXT, or, when TEXT ends with ``NUMBER ± TOLERANCE``, the first number
+  after the label in the output must lie within the tolerance of NUMBER.
+
+The blocks of one page run in order in one temporary folder that links to the bundled
+``scenarios/`` and ``models/``, so later blocks use what earlier ones wrote.  A page that uses
+``demo-out`` without simulating it gets a copy of the demo network simulated with seed 1, as in
+the README's tour.
+
+Every ``graphcal`` command line of every block, run or not (synopses in ``text`` blocks
+included), must name an existing command and only options that command has.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from tests.paths import MODELS, ROOT, SCENARIOS
+
+DOCS = ROOT / "docs"
+PAGES = [ROOT / "README.md", *sorted(DOCS.rglob("*.md")), SCENARIOS / "README.md"]
+GRAPHCAL = Path(sys.executable).with_name("graphcal")
+DEMO_COMMAND = "graphcal simulate scenarios/demo_network.toml --out demo-out --seed 1"
+COMMAND_TIMEOUT_S = 300
+
+FENCE = re.compile(r"^(?P<indent>[ \t]*)(?P<fence>`{3,})(?P<lang>[\w+-]*)")
+NO_RUN = "<!-- no-run -->"
+EXPECT = re.compile(r"^\s*<!--\s*expect:\s*(?P<text>.*?)\s*-->\s*$")
+NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+NUMBER_CHECK = re.compile(rf"^(?:(?P<label>.*?)\s+)?(?P<value>{NUMBER})\s*±\s*(?P<tol>{NUMBER})$")
+
+
+@dataclass
+class Block:
+    """One fenced code block of a page."""
+
+    page: Path
+    line: int  # 1-based line of the opening fence
+    lang: str
+    code: str
+    run: bool
+    expects: list[str] = field(default_factory=list)
+
+    @property
+    def where(self) -> str:
+        return f"{self.page.relative_to(ROOT)}:{self.line}"
+
+    def commands(self) -> list[str]:
+        """The block's ``graphcal`` command lines (continuation lines joined)."""
+        joined: list[str] = []
+        pending = ""
+        for raw in self.code.splitlines():
+            line = pending + raw.strip()
+            if line.endswith("\\"):
+                pending = line[:-1] + " "
+                continue
+            pending = ""
+            if line.startswith("graphcal "):
+                joined.append(line)
+        return joined
+
+
+def read_blocks(page: Path) -> list[Block]:
+    """Every fenced code block of a Markdown page, with its run flag and expectations."""
+    lines = page.read_text(encoding="utf-8").splitlines()
+    found: list[Block] = []
+    i = 0
+    while i < len(lines):
+        opening = FENCE.match(lines[i])
+        if not opening:
+            i += 1
+            continue
+        start, fence, indent = i, opening["fence"], len(opening["indent"])
+        body: list[str] = []
+        i += 1
+        while i < len(lines) and not (
+            lines[i].strip().startswith(fence) and lines[i].strip().strip("`") == ""
+        ):
+            body.append(lines[i][indent:] if lines[i][:indent].strip() == "" else lines[i])
+            i += 1
+        expects: list[str] = []
+        j = i + 1
+        while j < len(lines) and (match := EXPECT.match(lines[j])):
+            expects.append(match["text"])
+            j += 1
+        run = not (start > 0 and lines[start - 1].strip() == NO_RUN)
+        found.append(Block(page, start + 1, opening["lang"], "\n".join(body), run, expects))
+        i = j
+    return found
+
+
+def runnable(block: Block) -> bool:
+    if not block.run:
+        return False
+    if block.lang == "python":
+        return True
+    return block.lang == "sh" and bool(block.commands())
+
+
+def check_expectations(block: Block, output: str) -> None:
+    output = " ".join(output.split())  # runs of spaces and line breaks count as one space
+    for text in (" ".join(expect.split()) for expect in block.expects):
+        numeric = NUMBER_CHECK.match(text)
+        if numeric is None:
+            assert text in output, f"{block.where}: output lacks {text!r}:\n{output}"
+            continue
+        label = numeric["label"] or ""
+        at = output.find(label)
+        assert at >= 0, f"{block.where}: output lacks {label!r}:\n{output}"
+        found = re.search(NUMBER, output[at + len(label):])
+        assert found, f"{block.where}: no number after {label!r}:\n{output}"
+        value, expected, tol = float(found[0]), float(numeric["value"]), float(numeric["tol"])
+        assert abs(value - expected) <= tol, (
+            f"{block.where}: {label} printed {value}, the page says {expected} ± {tol}"
+        )
+
+
+def run_command(block: Block, command: str, cwd: Path) -> str:
+    args = shlex.split(command, comments=True)
+    env = {**os.environ, "COLUMNS": "160", "NO_COLOR": "1", "TERM": "dumb"}
+    done = subprocess.run(
+        [str(GRAPHCAL), *args[1:]], cwd=cwd, env=env, capture_output=True, text=True,
+        timeout=COMMAND_TIMEOUT_S, check=False,
+    )
+    output = done.stdout + done.stderr
+    assert done.returncode == 0, (
+        f"{block.where}: `{command}` exited with {done.returncode}:\n{output}"
+    )
+    return output
+
+
+def run_python(block: Block, namespace: dict[str, object], cwd: Path) -> str:
+    buffer = io.StringIO()
+    previous = Path.cwd()
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stdout(buffer):
+            exec(compile(block.code, block.where, "exec"), namespace)  # noqa: S102
+    finally:
+        os.chdir(previous)
+    return buffer.getvalue()
+
+
+EXECUTED = {
+    str(page.relative_to(ROOT)): page
+    for page in PAGES
+    if any(runnable(block) for block in read_blocks(page))
+}
+#: Pages run side by side; the commands are subprocesses, the Python blocks take turns.
+WORKERS = min(2, os.cpu_count() or 1)
+_PYTHON_TURN = threading.Lock()  # exec changes the working directory and sys.stdout
+
+
+def simulate_demo(folder: Path) -> Path:
+    """The README tour's demo network (seed 1) in ``folder/demo-out``."""
+    (folder / "scenarios").symlink_to(SCENARIOS)
+    subprocess.run(
+        [str(GRAPHCAL), *shlex.split(DEMO_COMMAND)[1:]], cwd=folder, check=True,
+        capture_output=True, timeout=COMMAND_TIMEOUT_S,
+    )
+    return folder / "demo-out"
+
+
+def run_page(page: Path, folder: Path, demo_out: Path | None) -> None:
+    """Run a page's blocks in order in ``folder``; raise on the first failure."""
+    blocks = [block for block in read_blocks(page) if runnable(block)]
+    folder.mkdir(parents=True)
+    (folder / "scenarios").symlink_to(SCENARIOS)
+    (folder / "models").symlink_to(MODELS)
+    if uses_tour_demo(blocks):
+        assert demo_out is not None
+        shutil.copytree(demo_out, folder / "demo-out")
+    namespace: dict[str, object] = {"__name__": "__docs__"}
+    for block in blocks:
+        if block.lang == "python":
+            with _PYTHON_TURN:
+                output = run_python(block, namespace, folder)
+        else:
+            output = "".join(run_command(block, c, folder) for c in block.commands())
+        check_expectations(block, output)
+
+
+def uses_tour_demo(blocks: list[Block]) -> bool:
+    """Whether a page uses ``demo-out`` without simulating it itself."""
+    makes_demo = any("--out demo-out" in command for b in blocks for command in b.commands())
+    return not makes_demo and any("demo-out" in block.code for block in blocks)
+
+
+@pytest.fixture(scope="session")
+def page_failures(tmp_path_factory: pytest.TempPathFactory) -> dict[str, BaseException | None]:
+    """Run every page with examples (longest first), WORKERS at a time."""
+    root = tmp_path_factory.mktemp("docs")
+    pages = {name: [b for b in read_blocks(page) if runnable(b)] for name, page in EXECUTED.items()}
+    demo_out = None
+    if any(uses_tour_demo(blocks) for blocks in pages.values()):
+        (root / "tour").mkdir()
+        demo_out = simulate_demo(root / "tour")
+    order = sorted(pages, key=lambda name: -sum(len(b.commands()) + 1 for b in pages[name]))
+    with ThreadPoolExecutor(max_workers=WORKERS) as pool:
+        futures = {
+            name: pool.submit(run_page, EXECUTED[name], root / f"page{i}", demo_out)
+            for i, name in enumerate(order)
+        }
+    return {name: future.exception() for name, future in futures.items()}
+
+
+@pytest.mark.parametrize("name", sorted(EXECUTED))
+def test_page_examples_run(name: str, page_failures: dict[str, BaseException | None]) -> None:
+    failure = page_failures[name]
+    if failure is not None:
+        raise failure
+
+
+def _cli_options() -> dict[str, set[str]]:
+    """Every command of the CLI and the option names it takes."""
+    import typer
+
+    from graphcal.cli.app import app
+
+    group = typer.main.get_command(app)
+    options: dict[str, set[str]] = {}
+    for name, command in group.commands.items():  # type: ignore[attr-defined]
+        names = {"--help"}
+        for param in command.params:
+            names.update(param.opts)
+            names.update(param.secondary_opts)
+        options[name] = names
+    return options
+
+
+def test_documented_commands_exist() -> None:
+    """Every documented ``graphcal`` line names a real command and only its options."""
+    options = _cli_options()
+    problems = []
+    for page in PAGES:
+        for block in read_blocks(page):
+            if block.lang not in ("sh", "text", ""):
+                continue
+            for command in block.commands():
+                words = shlex.split(command.replace("|", " "), comments=True)
+                if len(words) < 2 or words[1].startswith("-"):
+                    continue
+                known = options.get(words[1])
+                if known is None:
+                    problems.append(f"{block.where}: unknown command {words[1]!r}")
+                    continue
+                for word in words[2:]:
+                    flag = word.strip("[]").split("=")[0]
+                    if flag.startswith("--") and flag not in known:
+                        problems.append(f"{block.where}: {words[1]} has no option {flag}")
+    assert not problems, "\n".join(problems)
+
+
+def test_api_reference_covers_every_module() -> None:
+    """Each module of graphcal appears in a ``::: module`` block under docs/api/."""
+    documented = set()
+    for page in (DOCS / "api").glob("*.md"):
+        documented.update(re.findall(r"^::: ([\w.]+)", page.read_text(), flags=re.MULTILINE))
+    missing = []
+    for path in sorted((ROOT / "graphcal").rglob("*.py")):
+        module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        if path.name == "__main__.py":
+            continue
+        if path.name == "__init__.py":
+            module = module.removesuffix(".__init__")
+            if module != "graphcal" and not path.read_text().strip():
+                continue
+        if module not in documented:
+            missing.append(module)
+    assert not missing, f"modules missing from docs/api/: {missing}"
+
+
+def test_readme_is_short_and_its_links_resolve() -> None:
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(text.encode("utf-8")) < 15_000  # bytes, as `wc -c` counts
+    for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", text):
+        if "://" not in target:
+            assert (ROOT / target).exists(), f"README links to missing {target}"
