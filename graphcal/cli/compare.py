@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 
 from graphcal.cli.common import (
@@ -76,6 +75,8 @@ def compare_command(
 
 
 def _num(value: float, digits: int = 4) -> str:
+    import numpy as np
+
     return f"{value:.{digits}g}" if value is not None and np.isfinite(value) else "–"
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 
 from graphcal.cli.common import EXIT_BAD_INPUT, console, err_console, errors_to_exit, fail
@@ -45,6 +44,7 @@ def observability_command(
     """How well the traffic determines each bias: rank, condition, Deg, weak directions."""
     import json
 
+    import numpy as np
     from rich.table import Table
 
     from graphcal.analysis.observability import analyse, degree_curve, observation_blocks
@@ -110,6 +110,8 @@ def observability_command(
 def _compare(dataset, method: str, adsb: bool, budget: int, unit: str, segment_s: float,
              draws: int, seed: int):
     """The selection comparison table (:func:`graphcal.analysis.selection.compare_selections`)."""
+    import numpy as np
+
     from graphcal.analysis.observability import observation_blocks
     from graphcal.analysis.selection import MAX_CONVEX_UNITS, compare_selections, selection_units
 
@@ -119,6 +121,7 @@ def _compare(dataset, method: str, adsb: bool, budget: int, unit: str, segment_s
 
 
 def _comparison_table(comparison, budget: int):
+    import numpy as np
     from rich.table import Table
 
     table = Table(title=f"selections of {budget} observations")
@@ -149,6 +152,7 @@ def _comparison_table(comparison, budget: int):
 def _plot_degree(path: Path, time_s, n_obs, degree, title: str) -> None:
     """Deg against the number of observations (log scale), written atomically."""
     import matplotlib
+    import numpy as np
 
     from graphcal.core.atomic import atomic_write_stream
 
