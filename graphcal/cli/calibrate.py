@@ -35,7 +35,7 @@ def calibrate_command(
         int, typer.Option(help="wls/wls-pruned: re-linearisations (1 = the paper's method).")
     ] = 1,
     max_gap_s: Annotated[
-        float | None, typer.Option(help="Longest time gap bridged by interpolation [s].")
+        float | None, typer.Option(help="Longest time gap bridged by interpolation \\[s].")
     ] = None,
     cross: Annotated[
         str, typer.Option(help="graph: cross-radar factors: pairwise, target-state or none.")
@@ -102,7 +102,7 @@ def calibrate_command(
                      "(every radar), whole tracks, or single observations."),
     ] = "segment",
     segment_s: Annotated[
-        float, typer.Option(help="--select: segment length [s].")
+        float, typer.Option(help="--select: segment length \\[s].")
     ] = 60.0,
     select_seed: Annotated[
         int, typer.Option(help="--select random: seed of the draw.")
