@@ -8,7 +8,7 @@ Run from the repository root::
 
 Part 1 - solver overhead.  The ADS-B model of the ``graph`` calibrator is
 solved two ways on the same data: with GTSAM (one variable per radar, the
-weak priors of :func:`graphcal.solvers.graph.prior_sigmas`, the vectorised
+weak priors of :func:`graphcal.model.parameters.prior_sigmas`, the vectorised
 ADS-B factors, Levenberg-Marquardt, then the joint marginal covariance) and
 with :func:`scipy.optimize.least_squares` on exactly the same stacked whitened
 residuals (:meth:`graphcal.model.factors.AdsbFactor.whitened` of every
@@ -65,17 +65,12 @@ from numpy.typing import NDArray
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import CONTRACT_KEYS
 from graphcal.data.dataset import Dataset
+from graphcal.model.parameters import prior_sigmas, radar_terms
+from graphcal.model.problem import Problem, build_factors
 from graphcal.model.robust import RobustKernel
 from graphcal.simulation.scenario import Scenario, load_scenario
 from graphcal.simulation.simulate import SimulationResult, simulate
-from graphcal.solvers.graph import (
-    _add_factor,
-    _build_factors,
-    _Problem,
-    graph,
-    prior_sigmas,
-    radar_terms,
-)
+from graphcal.solvers.graph import add_factor, graph
 from graphcal.solvers.gtsam_adapter import FactorGraph, OptimizationResult, symbol
 
 FloatArray = NDArray[np.float64]
@@ -184,8 +179,8 @@ class AdsbModel:
 
     Attributes
     ----------
-    problem : _Problem
-        Built by the graph calibrator's own ``_build_factors`` (no robust
+    problem : Problem
+        Built by the graph calibrator's own ``build_factors`` (no robust
         kernel, no cross-radar factors).
     radars : list of str
         Radars with a variable, in dataset order.
@@ -195,7 +190,7 @@ class AdsbModel:
         ``(radar_id, parameter name)`` of every parameter, in solution order.
     """
 
-    problem: _Problem
+    problem: Problem
     radars: list[str]
     priors: dict[str, FloatArray]
     labels: list[tuple[str, str]]
@@ -222,13 +217,13 @@ def build_adsb_model(dataset: Dataset) -> AdsbModel:
     Returns
     -------
     AdsbModel
-        Factors from the graph calibrator's ``_build_factors`` (no robust
+        Factors from the graph calibrator's ``build_factors`` (no robust
         kernel, default ADS-B gap), no terms fixed.
     """
     terms = {rid: radar_terms(dataset.sites[rid], {}) for rid in dataset.radar_ids}
     keys = {rid: symbol("b", i) for i, rid in enumerate(dataset.radar_ids)}
-    problem = _Problem(terms, keys)
-    _build_factors(
+    problem = Problem(terms, keys)
+    build_factors(
         dataset, problem, True, "none", RobustKernel("none"), DEFAULT_ADSB_MAX_GAP_S, None, None
     )
     radars = problem.variable_radars()
@@ -257,7 +252,7 @@ def graph_solve(model: AdsbModel) -> tuple[FactorGraph, OptimizationResult, Floa
         fg.add_prior(problem.keys[rid], np.zeros(k), model.priors[rid])
     variable = set(model.radars)
     for factor in problem.adsb.values():
-        _add_factor(fg, factor, variable)
+        add_factor(fg, factor, variable)
     result = fg.optimize()
     x = np.concatenate([result.vector(problem.keys[rid]) for rid in model.radars])
     return fg, result, x

@@ -4,9 +4,9 @@ The bound comes from the same measurement model as the estimators
 (:mod:`graphcal.data.bias`, CONTRACT.md): a plot of radar ``s`` of a target at
 ``x`` measures ``h_s(x) + J(r) beta_s + noise``, with ``h_s`` the polar
 coordinates ``(range, azimuth[, elevation])`` in the radar's frame, ``J``
-:func:`graphcal.data.bias.measurement_bias_jacobian` and ``beta_s`` the radar's
+:meth:`graphcal.model.measurement.RadarMeasurementModel.bias_jacobian` and ``beta_s`` the radar's
 free bias terms (the same selection as the graph calibrator,
-:func:`graphcal.solvers.graph.radar_terms`).  The Fisher information is
+:func:`graphcal.model.parameters.radar_terms`).  The Fisher information is
 additive over two kinds of observations:
 
 * **ADS-B-matched plots** (``use_adsb``): the target is known up to the
@@ -59,11 +59,13 @@ from numpy.typing import NDArray
 
 from graphcal.core import frames
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb, plot_arrays
-from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY, measurement_bias_jacobian
+from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
 from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, MAX_2D_ELEVATION_RAD
-from graphcal.model.factors import TERM_NAMES
+from graphcal.model.information import pseudo_inverse
+from graphcal.model.measurement import RadarMeasurementModel, measurement_model
+from graphcal.model.parameters import TERM_NAMES, prior_sigmas, radar_terms
 
 FloatArray = NDArray[np.float64]
 Label = tuple[str, str]
@@ -72,8 +74,6 @@ Label = tuple[str, str]
 EVENT_SCANS = 3.0
 #: Default event window [s] when no radar gives a scan period.
 DEFAULT_EVENT_S = 12.0
-#: Relative eigenvalue threshold (of the diagonally scaled Fisher matrix) for its rank.
-RANK_TOLERANCE = 1e-9
 
 
 @dataclass
@@ -170,17 +170,7 @@ class CrlbResult:
 
 # --------------------------------------------------------------------------- helpers
 def _free_terms(site: Site, time_offset: bool = False) -> tuple[str, ...]:
-    from graphcal.solvers.graph import radar_terms
-
     return radar_terms(site, {}, time_offset).free
-
-
-def _polar_jacobian_ecef(site: Site, ecef_m: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Polar coordinates ``(n, 3)`` and ``d polar / d ecef`` ``(n, 3, 3)`` at ECEF points."""
-    enu = site.enu_from_ecef(ecef_m)
-    polar = np.stack(frames.enu_to_polar(enu), axis=-1)
-    jac = frames.enu_to_polar_jacobian(enu) @ site.ecef_to_enu
-    return polar, jac
 
 
 def _check_sigmas(site: Site) -> None:
@@ -229,7 +219,7 @@ def _adsb_information(
             have = np.isin(al.plots.index, true_pos.index)
             ref = ref.copy()
             ref[have] = np.stack(true_pos.loc[al.plots.index[have]].to_list())
-        polar, d_polar = _polar_jacobian_ecef(site, ref)
+        polar, d_polar = measurement_model(site).position_jacobian(ref)
         m = 3 if site.is_3d else 2
         enu_rot = site.ecef_to_enu
         # ADS-B covariance is given in the radar's ENU; map ENU -> polar.
@@ -239,7 +229,7 @@ def _adsb_information(
         cov[:, np.arange(m), np.arange(m)] += site.measurement_sigmas()[:m] ** 2
         pos, glob = zip(*columns[rid], strict=True)
         jac = np.zeros((len(polar), m, len(TERM_NAMES)))
-        jac[:, :, :4] = measurement_bias_jacobian(polar[:, 0])[:, :m, :]
+        jac[:, :, :4] = RadarMeasurementModel.bias_jacobian(polar[:, 0])[:, :m, :]
         # Time offset: the plot was made at t - tau, so d h / d tau = -(d polar/dt).
         jac[:, :, 4] = -np.einsum("nij,nj->ni", d_polar, al.reference_velocity_ecef_m_s)[:, :m]
         jac = jac[:, :, list(pos)]
@@ -278,7 +268,7 @@ def _cross_information(
         if n == 0:
             continue
         ecef = site.ecef_from_polar(r, az, el)
-        _, d_polar = _polar_jacobian_ecef(site, ecef)
+        _, d_polar = measurement_model(site).position_jacobian(ecef)
         m = 3 if site.is_3d else 2
         sig = site.measurement_sigmas()[:m]
         # Rows: polar measurements (whitened), plus the reported height for 2-D radars.
@@ -288,7 +278,7 @@ def _cross_information(
         hx[:, :m, :] = d_polar[:, :m, :] / sig[None, :, None]
         # The time offsets are taken as known in the cross-radar events (zero column).
         bias_jac = np.zeros((n, m, len(TERM_NAMES)))
-        bias_jac[:, :, :4] = measurement_bias_jacobian(r)[:, :m, :] / sig[None, :, None]
+        bias_jac[:, :, :4] = RadarMeasurementModel.bias_jacobian(r)[:, :m, :] / sig[None, :, None]
         for pos, glob in columns.get(rid, []):
             hb[:, :m, glob] = bias_jac[:, :, pos]
         if not site.is_3d:
@@ -374,7 +364,7 @@ def crlb(
         for the ADS-B Jacobians; default: the ADS-B positions.
     priors : mapping, "graph" or None
         Prior 1-sigma [SI] per label, added as ``1 / sigma^2`` to the
-        information; ``"graph"`` uses :func:`graphcal.solvers.graph.prior_sigmas`.
+        information; ``"graph"`` uses :func:`graphcal.model.parameters.prior_sigmas`.
     max_gap_s : float
         Longest ADS-B gap bridged by interpolation [s] (as the graph).
     event_s : float, optional
@@ -398,9 +388,9 @@ def crlb(
         _check_sigmas(site)
     with_time = set()
     if time_offset and have_adsb:
-        from graphcal.solvers.graph import _radars_with_adsb
+        from graphcal.model.problem import radars_with_adsb
 
-        with_time = _radars_with_adsb(dataset)
+        with_time = radars_with_adsb(dataset)
     all_labels = [
         (rid, name) for rid, site in dataset.sites.items()
         for name in _free_terms(site, rid in with_time)
@@ -450,8 +440,6 @@ def _prior_information(
     if isinstance(priors, str):
         if priors != "graph":
             raise ValueError(f"unknown priors {priors!r}; give a mapping, 'graph' or None")
-        from graphcal.solvers.graph import prior_sigmas, radar_terms
-
         sigma: dict[Label, float] = {}
         for rid, site in dataset.sites.items():
             terms = radar_terms(site, {})
@@ -469,22 +457,6 @@ def _invert(
     fisher: FloatArray, labels: list[Label]
 ) -> tuple[FloatArray, int, FloatArray, list[Label]]:
     """(Pseudo-)inverse, rank, null space and undetermined labels of a Fisher matrix."""
-    p = len(labels)
-    if p == 0:
-        return np.zeros((0, 0)), 0, np.zeros((0, 0)), []
-    d = np.sqrt(np.clip(np.diag(fisher), 0.0, None))
-    d = np.where(d > 0, d, 1.0)
-    scaled = fisher / np.outer(d, d)
-    w, v = np.linalg.eigh(0.5 * (scaled + scaled.T))
-    tol = RANK_TOLERANCE * max(float(w.max()), 1e-300)
-    good = w > tol
-    rank = int(good.sum())
-    inv_scaled = (v[:, good] / w[good]) @ v[:, good].T
-    covariance = inv_scaled / np.outer(d, d)
-    null_space = v[:, ~good]
-    weight = np.sqrt(np.sum(null_space**2, axis=1)) if null_space.size else np.zeros(p)
-    undetermined = [labels[i] for i in np.flatnonzero(weight > 1e-6)]
-    undetermined += [
-        labels[i] for i in range(p) if fisher[i, i] <= 0 and labels[i] not in undetermined
-    ]
-    return covariance, rank, null_space, undetermined
+    inverse = pseudo_inverse(fisher)
+    undetermined = [labels[i] for i in np.flatnonzero(inverse.undetermined)]
+    return inverse.covariance, inverse.rank, inverse.null_space, undetermined

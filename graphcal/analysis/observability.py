@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import CONTRACT_KEYS
 from graphcal.data.dataset import Dataset
-from graphcal.model.information import jacobi_scale
+from graphcal.model.information import PseudoInverse, jacobi_scale, pseudo_inverse
 
 FloatArray = NDArray[np.float64]
 Label = tuple[str, str]
@@ -40,8 +40,6 @@ Label = tuple[str, str]
 OBSERVABILITY_METHODS: tuple[str, ...] = ("graph", "wls")
 #: A parameter whose variance inflation factor exceeds this is reported as confounded.
 VIF_WARNING = 10.0
-#: Relative eigenvalue threshold for the rank.
-RANK_TOLERANCE = 1e-9
 
 
 @dataclass
@@ -161,16 +159,17 @@ def _graph_blocks(
     import dataclasses
 
     from graphcal.data.align import neighbour_plots
+    from graphcal.model.parameters import radar_terms
+    from graphcal.model.problem import Problem, build_factors
     from graphcal.model.robust import RobustKernel
-    from graphcal.solvers.graph import _build_factors, _Problem, radar_terms
     from graphcal.solvers.gtsam_adapter import symbol
 
     radar_ids = list(dataset.radar_ids)
     terms = {rid: radar_terms(dataset.sites[rid], {}) for rid in radar_ids}
     keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
-    problem = _Problem(terms, keys)
+    problem = Problem(terms, keys)
     have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
-    _build_factors(dataset, problem, have_adsb, "pairwise", RobustKernel("none"), max_gap_s,
+    build_factors(dataset, problem, have_adsb, "pairwise", RobustKernel("none"), max_gap_s,
                    None, None)
     labels = [(rid, name) for rid in radar_ids for name in terms[rid].free]
     column = {label: i for i, label in enumerate(labels)}
@@ -205,7 +204,7 @@ def _graph_blocks(
 
 def _wls_blocks(dataset: Dataset, linearise: str) -> ObservationBlocks:
     from graphcal.model.cross_radar import cross_observations
-    from graphcal.model.information import ParameterLayout
+    from graphcal.model.parameters import ParameterLayout
     from graphcal.solvers.wls import whiten
 
     layout = ParameterLayout.for_sites(list(dataset.sites.values()))
@@ -338,19 +337,13 @@ def _finite(value: float) -> float | None:
     return float(value) if np.isfinite(value) else None
 
 
-def _pinv(information: FloatArray) -> FloatArray:
+def _pinv(information: FloatArray, inverse: PseudoInverse | None = None) -> FloatArray:
     """Pseudo-inverse through the Jacobi scaling; undetermined diagonal entries are inf."""
-    s = jacobi_scale(information)
-    scaled = information * np.outer(s, s)
-    w, v = np.linalg.eigh(0.5 * (scaled + scaled.T))
-    top = max(float(w[-1]), 0.0) if len(w) else 0.0
-    good = w > RANK_TOLERANCE * top if top > 0 else np.zeros(len(w), dtype=bool)
-    inv = (v[:, good] / w[good]) @ v[:, good].T
-    covariance = inv * np.outer(s, s)
-    null = v[:, ~good]
-    undetermined = np.sqrt(np.sum(null**2, axis=1)) > 1e-6 if null.size else np.zeros(len(w), bool)
+    if inverse is None:
+        inverse = pseudo_inverse(information)
+    covariance = inverse.covariance.copy()
     diag = np.diag(covariance).copy()
-    diag[undetermined | (np.diag(information) <= 0)] = np.inf
+    diag[inverse.undetermined] = np.inf
     np.fill_diagonal(covariance, diag)
     return covariance
 
@@ -371,14 +364,15 @@ def report_from_information(
     scaled = a * np.outer(s, s)
     w, v = np.linalg.eigh(0.5 * (scaled + scaled.T))
     top = max(float(w[-1]), 0.0)
-    rank = int(np.sum(w > RANK_TOLERANCE * top)) if top > 0 else 0
+    inverse = pseudo_inverse(a)
+    rank = inverse.rank
     # Rank-deficient: the smallest eigenvalue is round-off, so Deg is 0 and cond inf.
     low = max(float(w[0]), 0.0) if rank == p else 0.0
     condition = top / low if low > 0 else np.inf
     diag = np.diag(a)
     with np.errstate(divide="ignore"):
         alone = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), np.inf)
-    joint = np.sqrt(np.diag(_pinv(a)))
+    joint = np.sqrt(np.diag(_pinv(a, inverse)))
     return ObservabilityReport(
         labels=list(labels), information=a, rank=rank, condition=condition,
         degree=low / top if top > 0 else 0.0, eigenvalues=w, directions=v,

@@ -51,7 +51,7 @@ from graphcal.analysis.observability import (
     report_from_information,
 )
 from graphcal.data.dataset import Dataset
-from graphcal.model.information import jacobi_scale
+from graphcal.model.information import degree, greedy_prune_information, jacobi_scale
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[[int, int], None]
@@ -226,50 +226,6 @@ def selection_units(
 
 
 # --------------------------------------------------------------------------- criteria
-def degree(information: FloatArray) -> float:
-    """``Deg = lambda_min / lambda_max`` of an (already scaled) information matrix."""
-    w = np.linalg.eigvalsh(information)
-    return float(max(w[0], 0.0) / w[-1]) if w[-1] > 0 else 0.0
-
-
-def greedy_prune_information(
-    information: FloatArray, progress: Progress | None = None
-) -> tuple[NDArray[np.bool_], list[float]]:
-    """Paper 001 eq. 12 on units given by their (scaled) information, in the given order.
-
-    Unit ``k`` is removed when ``Deg(A - A_k) > Deg(A)``; ``A`` is downdated
-    by ``A_k`` (the sum of the unit's rank-one terms), not recomputed.
-
-    Parameters
-    ----------
-    information : ndarray (u, p, p)
-        Each unit's information, already scaled (e.g. Jacobi-scaled by the full set).
-    progress : callable, optional
-        ``progress(done, total)``.
-
-    Returns
-    -------
-    keep : ndarray of bool (u,)
-    degree_trace : list of float
-        ``Deg`` after each visit.
-    """
-    a = information.sum(axis=0)
-    current = degree(a)
-    keep = np.ones(len(information), dtype=bool)
-    trace = []
-    total = len(information)
-    for k in range(total):
-        candidate = a - information[k]
-        deg = degree(candidate)
-        if deg > current:  # eq. 12: Deg(k) < Deg(k - 1) -> remove observation k
-            a, current = candidate, deg
-            keep[k] = False
-        trace.append(current)
-        if progress is not None and (k % 500 == 0 or k == total - 1):
-            progress(k + 1, total)
-    return keep, trace
-
-
 def _eliminate_to_budget(
     scaled: FloatArray, cost: NDArray[np.int64], keep: NDArray[np.bool_], budget: int
 ) -> NDArray[np.bool_]:

@@ -1,0 +1,2 @@
+"""The ``graphcal`` command line.
+"""

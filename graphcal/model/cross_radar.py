@@ -31,9 +31,9 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.covariance import convert_covariance
 from graphcal.data.align import PlotArrays, PlotPairs, neighbour_plots, pair_plots
-from graphcal.data.bias import measurement_bias_jacobian
 from graphcal.data.dataset import Dataset, Site
-from graphcal.model.information import ParameterLayout
+from graphcal.model.measurement import RadarMeasurementModel
+from graphcal.model.parameters import ParameterLayout
 
 FloatArray = NDArray[np.float64]
 
@@ -68,11 +68,11 @@ def convert_plots(
     the Jacobian and the covariance are evaluated there instead of at the plots.
     """
     geometry = _plot_geometry(site, plots.range_m, plots.azimuth_rad, plots)
-    bias_jac = geometry.ecef_jacobian @ measurement_bias_jacobian(plots.range_m)
+    bias_jac = geometry.ecef_jacobian @ RadarMeasurementModel.bias_jacobian(plots.range_m)
     cov = geometry.cov_m2
     if linearise_at is not None:
         at = _plot_geometry(site, linearise_at.range_m, linearise_at.azimuth_rad, linearise_at)
-        at_jac = at.ecef_jacobian @ measurement_bias_jacobian(linearise_at.range_m)
+        at_jac = at.ecef_jacobian @ RadarMeasurementModel.bias_jacobian(linearise_at.range_m)
         bias_jac = np.where(at.usable[:, None, None], at_jac, bias_jac)
         cov = np.where(at.usable[:, None, None], at.cov_m2, cov)
     if not site.is_3d:

@@ -24,71 +24,20 @@ time offsets are estimated).  Jacobians are ``(..., 5)`` over
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core import frames
 from graphcal.data.align import PlotArrays
-from graphcal.data.bias import PARAMETER_NAMES, measurement_bias_jacobian
 from graphcal.data.dataset import Site
 from graphcal.model.cross_radar import convert_plots, corrected_ecef
+from graphcal.model.measurement import RadarMeasurementModel
+from graphcal.model.parameters import TERM_NAMES, RadarTerms
 from graphcal.model.robust import RobustKernel
 
 FloatArray = NDArray[np.float64]
-
-#: Every term a radar variable can hold: the four biases, then the time-stamping bias.
-TERM_NAMES: tuple[str, ...] = (*PARAMETER_NAMES, "time_offset")
-
-
-@dataclass(frozen=True)
-class RadarTerms:
-    """Which of a radar's biases are estimated, and the known values of the others.
-
-    Attributes
-    ----------
-    radar_id : str
-    free : tuple of str
-        Estimated terms, in :data:`TERM_NAMES` order.
-    fixed : dict of str to float
-        Terms held at a known value (SI); terms neither free nor fixed are 0.
-    """
-
-    radar_id: str
-    free: tuple[str, ...]
-    fixed: dict[str, float] = field(default_factory=dict, hash=False)
-
-    @property
-    def positions(self) -> list[int]:
-        """Positions of the free terms in the full 5-vector of :data:`TERM_NAMES`."""
-        return [TERM_NAMES.index(name) for name in self.free]
-
-    def _full5(self, free_values: FloatArray) -> FloatArray:
-        values = np.zeros(len(TERM_NAMES))
-        for name, value in self.fixed.items():
-            values[TERM_NAMES.index(name)] = value
-        values[self.positions] = free_values
-        return values
-
-    def full(self, free_values: FloatArray) -> FloatArray:
-        """The full bias 4-vector from the free values (SI)."""
-        return self._full5(free_values)[:4]
-
-    def time_offset(self, free_values: FloatArray) -> float:
-        """The time-stamping bias [s]: free, fixed, or 0."""
-        return float(self._full5(free_values)[4])
-
-    def select(self, jacobian_full: FloatArray) -> FloatArray:
-        """Columns of a ``(..., 4)`` or ``(..., 5)`` Jacobian that belong to the free terms.
-
-        A 4-column Jacobian does not depend on the time offset (zero column).
-        """
-        if jacobian_full.shape[-1] == len(PARAMETER_NAMES):
-            pad = np.zeros((*jacobian_full.shape[:-1], 1))
-            jacobian_full = np.concatenate([jacobian_full, pad], axis=-1)
-        return jacobian_full[..., self.positions]
-
 
 def whitening_matrices(cov: FloatArray) -> FloatArray:
     """``L^-1`` per measurement with ``L L^T = cov``, so ``||L^-1 r||^2 = r^T cov^-1 r``."""
@@ -178,7 +127,7 @@ class AdsbFactor:
         if m == 3:
             res[:, 2] = self.measured[:, 2] - (el_true + el_bias)
         jac = np.zeros((len(r_true), m, len(TERM_NAMES)))
-        jac[:, :, :4] = -measurement_bias_jacobian(r_true)[:, :m, :]
+        jac[:, :, :4] = -RadarMeasurementModel.bias_jacobian(r_true)[:, :m, :]
         if self.rate is not None:
             jac[:, :, 4] = self.rate[:, :m]
             jac[:, 0, 4] *= 1.0 + gain

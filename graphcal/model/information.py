@@ -1,8 +1,15 @@
-"""Shared linear-algebra pieces of the closed-form estimators.
+"""The information matrix of a calibration: rank, pseudo-inverse, degree, pruning.
 
-* :class:`ParameterLayout`: which bias of which radar sits in which column.
+One routine and one tolerance for everything that asks whether the data
+determine the parameters: the solvers, the Cramér-Rao bound, the
+observability analysis and the selection.
+
+* :func:`pseudo_inverse`: rank, null space, undetermined parameters and the
+  pseudo-inverse of an information matrix, after Jacobi scaling, with
+  :data:`RANK_TOLERANCE`.
 * :func:`observability`: rank and observability degree of an information
   matrix (paper 001 eq. 11, after Jacobi scaling).
+* :func:`degree` and :func:`greedy_prune_information`: paper 001 eq. 11-12.
 * :func:`solve_normal_equations`: the (weighted) least-squares solution
   ``(H^T W H)^-1 H^T W z`` (paper 001 eq. 10, paper 003 eq. 19 corrected), with
   the rank exposed and rank-deficient directions left at zero.
@@ -10,55 +17,22 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from graphcal.data.bias import PARAMETER_NAMES
 from graphcal.data.calibration import Observability
-from graphcal.data.dataset import Site
 
 #: Relative eigenvalue threshold (of the Jacobi-scaled information matrix) below
 #: which a direction counts as unobservable.
-RANK_TOLERANCE = 1e-10
+RANK_TOLERANCE = 1e-9
+#: A parameter whose component in the null space exceeds this is undetermined.
+NULL_SPACE_WEIGHT = 1e-6
 #: Observability degree below which a warning names the weakly determined parameters.
 #: Paper 001's path-2 geometry, where WLS fails, has Deg ~ 1e-5; path 1 ~ 2e-3.
 WEAK_DEGREE = 1e-4
-
-
-@dataclass(frozen=True)
-class ParameterLayout:
-    """Columns of the joint state vector: one block per radar, its estimated biases."""
-
-    labels: tuple[tuple[str, str], ...]
-
-    @classmethod
-    def for_sites(cls, sites: list[Site], allowed: tuple[str, ...] = PARAMETER_NAMES):
-        """Layout for ``sites``, keeping each site's ``estimate`` list within ``allowed``."""
-        labels = []
-        for site in sites:
-            for name in PARAMETER_NAMES:
-                if name in site.estimate and name in allowed:
-                    if name == "elevation_bias" and not site.is_3d:
-                        continue
-                    labels.append((site.id, name))
-        return cls(tuple(labels))
-
-    def __len__(self) -> int:
-        return len(self.labels)
-
-    def columns(self, radar_id: str) -> tuple[list[int], list[int]]:
-        """``(state columns, bias-vector positions)`` of one radar.
-
-        Bias-vector positions index :data:`graphcal.data.bias.PARAMETER_NAMES`.
-        """
-        cols, positions = [], []
-        for i, (rid, name) in enumerate(self.labels):
-            if rid == radar_id:
-                cols.append(i)
-                positions.append(PARAMETER_NAMES.index(name))
-        return cols, positions
 
 
 def jacobi_scale(information: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -66,6 +40,52 @@ def jacobi_scale(information: NDArray[np.float64]) -> NDArray[np.float64]:
     d = np.diag(information).copy()
     d[d <= 0] = 1.0
     return 1.0 / np.sqrt(d)
+
+
+@dataclass(frozen=True)
+class PseudoInverse:
+    """Pseudo-inverse of an information matrix and what the data leave undetermined.
+
+    Attributes
+    ----------
+    covariance : ndarray (p, p)
+        ``A^+`` through the Jacobi scaling ``S``: ``S (S A S)^+ S``, the
+        directions below :data:`RANK_TOLERANCE` left out.
+    rank : int
+        Numerical rank of ``S A S``.
+    null_space : ndarray (p, p - rank)
+        Orthonormal basis of the unresolved directions (scaled basis).
+    undetermined : ndarray of bool (p,)
+        Parameters that an unresolved direction touches, or with no information.
+    """
+
+    covariance: NDArray[np.float64]
+    rank: int
+    null_space: NDArray[np.float64]
+    undetermined: NDArray[np.bool_]
+
+
+def pseudo_inverse(information: NDArray[np.float64]) -> PseudoInverse:
+    """Rank, null space and pseudo-inverse of an information matrix (Jacobi-scaled).
+
+    Parameters
+    ----------
+    information : ndarray (p, p)
+        Symmetric positive semi-definite information matrix, any units.
+    """
+    p = information.shape[0]
+    if p == 0:
+        return PseudoInverse(np.zeros((0, 0)), 0, np.zeros((0, 0)), np.zeros(0, dtype=bool))
+    s = jacobi_scale(information)
+    scaled = information * np.outer(s, s)
+    w, v = np.linalg.eigh(0.5 * (scaled + scaled.T))
+    top = max(float(w[-1]), 0.0)
+    good = w > RANK_TOLERANCE * top if top > 0 else np.zeros(p, dtype=bool)
+    covariance = ((v[:, good] / w[good]) @ v[:, good].T) * np.outer(s, s)
+    null_space = v[:, ~good]
+    weight = np.sqrt(np.sum(null_space**2, axis=1)) if null_space.size else np.zeros(p)
+    undetermined = (weight > NULL_SPACE_WEIGHT) | (np.diag(information) <= 0)
+    return PseudoInverse(covariance, int(good.sum()), null_space, undetermined)
 
 
 def observability(
@@ -174,3 +194,47 @@ def describe_weak_directions(
             f"{obs.degree:.2g}): " + ", ".join(involved) + " cannot be told apart with this traffic"
         )
     return warnings
+
+
+def degree(information: NDArray[np.float64]) -> float:
+    """``Deg = lambda_min / lambda_max`` of an (already scaled) information matrix."""
+    w = np.linalg.eigvalsh(information)
+    return float(max(w[0], 0.0) / w[-1]) if w[-1] > 0 else 0.0
+
+
+def greedy_prune_information(
+    information: NDArray[np.float64], progress: Callable[[int, int], None] | None = None
+) -> tuple[NDArray[np.bool_], list[float]]:
+    """Paper 001 eq. 12 on units given by their (scaled) information, in the given order.
+
+    Unit ``k`` is removed when ``Deg(A - A_k) > Deg(A)``; ``A`` is downdated
+    by ``A_k`` (the sum of the unit's rank-one terms), not recomputed.
+
+    Parameters
+    ----------
+    information : ndarray (u, p, p)
+        Each unit's information, already scaled (e.g. Jacobi-scaled by the full set).
+    progress : callable, optional
+        ``progress(done, total)``.
+
+    Returns
+    -------
+    keep : ndarray of bool (u,)
+    degree_trace : list of float
+        ``Deg`` after each visit.
+    """
+    a = information.sum(axis=0)
+    current = degree(a)
+    keep = np.ones(len(information), dtype=bool)
+    trace = []
+    total = len(information)
+    for k in range(total):
+        candidate = a - information[k]
+        deg = degree(candidate)
+        if deg > current:  # eq. 12: Deg(k) < Deg(k - 1) -> remove observation k
+            a, current = candidate, deg
+            keep[k] = False
+        trace.append(current)
+        if progress is not None and (k % 500 == 0 or k == total - 1):
+            progress(k + 1, total)
+    return keep, trace

@@ -48,15 +48,22 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.errors import EstimationError
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_adsb
-from graphcal.data.bias import PARAMETER_NAMES, RadarBias, correct_bias, measurement_bias_jacobian
-from graphcal.data.calibration import Calibration, ResidualStats
+from graphcal.data.bias import PARAMETER_NAMES
+from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
 from graphcal.model.information import (
-    ParameterLayout,
     describe_weak_directions,
     observability,
     solve_normal_equations,
 )
+from graphcal.model.measurement import (
+    RadarMeasurementModel,
+    measured_polar,
+    measurement_model,
+    reference_polar_covariance,
+    residual_stats,
+)
+from graphcal.model.parameters import ParameterLayout
 from graphcal.noise import fills_missing_sigmas
 
 #: Plots per FL window.
@@ -79,63 +86,6 @@ def _plane_polar(site: Site, polar: FloatArray) -> FloatArray:
     return out
 
 
-def _measured_polar(al: AdsbAlignment) -> FloatArray:
-    p = al.plots
-    return np.stack([p.range_m, p.azimuth_rad, p.elevation_rad], axis=-1)
-
-
-def _reference_polar_cov(al: AdsbAlignment) -> FloatArray:
-    """ADS-B position covariance mapped to the radar's polar coordinates [m, rad]."""
-    enu = frames.polar_to_enu(*al.reference_polar.T)
-    jac = frames.enu_to_polar_jacobian(enu)
-    return jac @ al.reference_enu_cov_m2 @ np.swapaxes(jac, -1, -2)
-
-
-def _radar_polar_cov(site: Site, n: int) -> FloatArray:
-    cov = np.zeros((n, 3, 3))
-    cov[:, 0, 0] = site.sigma_range_m**2
-    cov[:, 1, 1] = site.sigma_azimuth_rad**2
-    if site.is_3d:
-        cov[:, 2, 2] = site.sigma_elevation_rad**2
-    return cov
-
-
-def residual_stats(site: Site, al: AdsbAlignment, bias: RadarBias) -> ResidualStats:
-    """Polar residuals of one radar against ADS-B, before and after correction.
-
-    Residual = corrected measurement minus ADS-B in the radar's polar
-    coordinates; azimuth wrapped to [-pi, pi).  ``chi2_per_dof`` normalises the
-    corrected residuals by the radar plus ADS-B noise.
-    """
-    measured = _measured_polar(al)
-    ref = al.reference_polar
-    noise = _radar_polar_cov(site, len(al)) + _reference_polar_cov(al)
-
-    def stats(b: RadarBias) -> tuple[dict[str, dict[str, float]], float]:
-        r, az, el = correct_bias(measured[:, 0], measured[:, 1], measured[:, 2], b)
-        parts = {
-            "range_m": (r - ref[:, 0], 1.0, 0),
-            "azimuth_mrad": (frames.wrap_to_pi(az - ref[:, 1]), 1e3, 1),
-        }
-        if site.is_3d:
-            parts["elevation_mrad"] = (el - ref[:, 2], 1e3, 2)
-        out, chi2 = {}, 0.0
-        for key, (res, unit, k) in parts.items():
-            out[key] = {
-                "mean": float(np.mean(res) * unit),
-                "mean_abs": float(np.mean(np.abs(res)) * unit),
-                "rms": float(np.sqrt(np.mean(res**2)) * unit),
-            }
-            chi2 += float(np.sum(res**2 / noise[:, k, k]))
-        return out, chi2
-
-    before, _ = stats(RadarBias())
-    after, chi2 = stats(bias)
-    n_meas = len(al) * (3 if site.is_3d else 2)
-    dof = max(n_meas - len(site.estimate), 1)
-    return ResidualStats(n=len(al), before=before, after=after, chi2_per_dof=chi2 / dof)
-
-
 def _alignments(dataset: Dataset, max_gap_s: float) -> dict[str, AdsbAlignment]:
     if dataset.adsb is None:
         raise EstimationError(
@@ -155,21 +105,21 @@ def ls_radar(
     ``azimuth_compensation_rad`` is subtracted from the measured azimuths first
     (FL-LS, eq. 10 corrected); the returned azimuth estimate excludes it.
     """
-    measured = _plane_polar(site, _measured_polar(al))
+    measured = _plane_polar(site, measured_polar(al))
     measured[:, 1] = measured[:, 1] - azimuth_compensation_rad
     reference = _plane_polar(site, al.reference_polar)
     rows = 3 if site.is_3d else 2
     z = (frames.polar_to_enu(*measured.T) - frames.polar_to_enu(*reference.T))[:, :rows]
     jac_r = frames.polar_to_enu_jacobian(*measured.T)[:, :rows, :]
     positions = [PARAMETER_NAMES.index(n) for n in names]
-    h = jac_r @ measurement_bias_jacobian(measured[:, 0])[:, :, positions]
+    h = jac_r @ RadarMeasurementModel.bias_jacobian(measured[:, 0])[:, :, positions]
     # Noise of z: radar noise plus the ADS-B noise, both mapped to the plane.
     jac_a = frames.polar_to_enu_jacobian(*reference.T)[:, :rows, :]
-    ref_cov = _reference_polar_cov(al)
+    ref_cov = reference_polar_covariance(al)
     if not site.is_3d:
         ref_cov[:, 2, :] = 0.0
         ref_cov[:, :, 2] = 0.0
-    sigma = jac_r @ _radar_polar_cov(site, len(al)) @ np.swapaxes(jac_r, 1, 2)
+    sigma = jac_r @ measurement_model(site).covar(len(al)) @ np.swapaxes(jac_r, 1, 2)
     sigma += jac_a @ ref_cov @ np.swapaxes(jac_a, 1, 2)
     ht = np.swapaxes(h, 1, 2)
     information = np.einsum("nip,niq->pq", h, h)
@@ -303,7 +253,7 @@ def _windows(al: AdsbAlignment, max_gap_s: float) -> list[NDArray[np.int64]]:
 
 def fl_azimuth(site: Site, al: AdsbAlignment, max_gap_s: float = 60.0) -> tuple[float, float, dict]:
     """FL azimuth bias (paper 003 eq. 8-9, sign kept) with its variance [rad, rad^2]."""
-    radar_xy = frames.polar_to_enu(*_plane_polar(site, _measured_polar(al)).T)[:, :2]
+    radar_xy = frames.polar_to_enu(*_plane_polar(site, measured_polar(al)).T)[:, :2]
     adsb_xy = frames.polar_to_enu(*_plane_polar(site, al.reference_polar).T)[:, :2]
     angles, variances = [], []
     skipped = 0
@@ -351,7 +301,7 @@ def fl(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibr
                 continue
             estimates["azimuth_bias"], variances["azimuth_bias"] = az, var_az
             details[rid] = detail
-        measured = _measured_polar(al)
+        measured = measured_polar(al)
         for name, k in (("range_offset", 0), ("elevation_bias", 2)):
             if name in names:
                 diff = measured[:, k] - al.reference_polar[:, k]

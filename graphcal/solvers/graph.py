@@ -40,49 +40,30 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from graphcal.core import frames
 from graphcal.core.errors import EstimationError
-from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_adsb, pair_plots
-from graphcal.data.bias import CONTRACT_KEYS, PARAMETER_NAMES, RadarBias, from_contract_units
+from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb
+from graphcal.data.bias import CONTRACT_KEYS, RadarBias
 from graphcal.data.calibration import Calibration
-from graphcal.data.dataset import Dataset, Site
-from graphcal.data.sensor_models import load_sensor_model
+from graphcal.data.dataset import Dataset
 from graphcal.model.cross_radar import gradient_noise_middle
-from graphcal.model.factors import (
-    TERM_NAMES,
-    AdsbFactor,
-    PairwiseFactor,
-    RadarTerms,
-    adsb_factor,
-    pairwise_factor,
-)
+from graphcal.model.factors import AdsbFactor, PairwiseFactor
 from graphcal.model.information import describe_weak_directions, observability
+from graphcal.model.measurement import residual_stats
+from graphcal.model.parameters import TERM_NAMES, RadarTerms, prior_sigmas, radar_terms
+from graphcal.model.problem import CROSS_MODES, Problem, build_factors, radars_with_adsb
 from graphcal.model.robust import RobustKernel
 from graphcal.noise import fills_missing_sigmas
-from graphcal.solvers.adsb_reference import _reference_polar_cov, residual_stats
 from graphcal.solvers.gtsam_adapter import FactorGraph, symbol
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[..., None]
 
-#: Cross-radar formulations.
-CROSS_MODES: tuple[str, ...] = ("pairwise", "target-state", "none")
-#: Prior 1-sigma of each term [SI] when the radar's sensor model gives no typical size.
-DEFAULT_PRIOR_SIGMA: dict[str, float] = {
-    "range_offset": 2000.0,
-    "range_gain": 0.02,
-    "azimuth_bias": 0.05,
-    "elevation_bias": 0.02,
-    "time_offset": 10.0,
-}
-#: With a sensor model, the prior sigma is at least this multiple of its typical bias.
-PRIOR_TYPICAL_MULTIPLE = 25.0
 #: A term whose posterior variance exceeds this fraction of its prior variance is
 #: reported as not determined by the data.
 UNDETERMINED_VARIANCE_RATIO = 0.25
@@ -96,145 +77,9 @@ AUTO_TIME_OFFSET_MAX_INFLATION = 1.5
 #: :data:`TIME_OFFSET_MAX_REALIGNMENTS` times.
 TIME_OFFSET_REALIGN_TOLERANCE_S = 0.01
 TIME_OFFSET_MAX_REALIGNMENTS = 5
-#: Fastest plausible aircraft ground speed [m/s]; a faster ADS-B segment holds an outlier.
-ADSB_MAX_SPEED_M_S = 600.0
 
 
 # --------------------------------------------------------------------------- set-up
-def radar_terms(
-    site: Site, fixed: dict[tuple[str, str], float], time_offset: bool = False
-) -> RadarTerms:
-    """Free and fixed terms of one radar: its ``estimate`` list minus the fixed ones.
-
-    ``time_offset``: also estimate its time-stamping bias (unless fixed).
-    """
-    own_fixed = {name: value for (rid, name), value in fixed.items() if rid == site.id}
-    for name in own_fixed:
-        if name == "elevation_bias" and not site.is_3d:
-            raise ValueError(f"radar {site.id} is 2-D: it has no elevation bias to fix")
-    free = tuple(
-        name for name in PARAMETER_NAMES
-        if name in site.estimate and name not in own_fixed
-        and (site.is_3d or name != "elevation_bias")
-    )
-    if time_offset and "time_offset" not in own_fixed:
-        free = (*free, "time_offset")
-    return RadarTerms(site.id, free, own_fixed)
-
-
-def prior_sigmas(site: Site, terms: RadarTerms) -> FloatArray:
-    """Prior 1-sigma [SI] of each free term.
-
-    ``max(DEFAULT_PRIOR_SIGMA, PRIOR_TYPICAL_MULTIPLE x typical bias)``, the
-    typical bias coming from the radar's sensor model when it names one.
-    """
-    typical: dict[str, float] = {}
-    if site.model is not None:
-        for key, value in load_sensor_model(site.model).typical_bias.items():
-            for name, (contract_key, _) in CONTRACT_KEYS.items():
-                if contract_key == key:
-                    typical[name] = from_contract_units(name, value)
-    return np.array([
-        max(DEFAULT_PRIOR_SIGMA[name], PRIOR_TYPICAL_MULTIPLE * typical.get(name, 0.0))
-        for name in terms.free
-    ])
-
-
-@dataclass
-class _Problem:
-    """Factors and variables of one calibration."""
-
-    terms: dict[str, RadarTerms]
-    keys: dict[str, int]
-    adsb: dict[str, AdsbFactor] = field(default_factory=dict)
-    alignments: dict[str, AdsbAlignment] = field(default_factory=dict)
-    pairs: list[PairwiseFactor] = field(default_factory=list)
-    target_state: Any = None
-
-    def variable_radars(self) -> list[str]:
-        """Radars with at least one factor and one free term, in dataset order."""
-        seen = set(self.adsb)
-        for f in self.pairs:
-            seen.update([f.terms_a.radar_id, f.terms_b.radar_id])
-        if self.target_state is not None:
-            seen.update(self.target_state.radars_seen)
-        return [rid for rid in self.terms if rid in seen and self.terms[rid].free]
-
-
-def _reduced(dataset: Dataset, exclude_rows: NDArray[np.int64]) -> Dataset:
-    """``dataset`` without the plot rows ``exclude_rows``."""
-    if len(exclude_rows) == 0:
-        return dataset
-    plots = dataset.plots.drop(index=exclude_rows)
-    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path)
-
-
-def _polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
-    """Time derivative of the aligned ADS-B reference in the radar's polar frame ``(n, 3)``.
-
-    A bracketing ADS-B segment faster than :data:`ADSB_MAX_SPEED_M_S` holds an
-    outlier report; its plots get a zero rate (they do not inform the time offset),
-    so that the outlier cannot lever the time offset through its Jacobian.
-    """
-    enu = site.enu_from_ecef(al.reference_ecef_m)
-    velocity = al.reference_velocity_ecef_m_s
-    plausible = np.linalg.norm(velocity, axis=1) <= ADSB_MAX_SPEED_M_S
-    velocity_enu = np.where(plausible[:, None], velocity, 0.0) @ site.ecef_to_enu.T
-    return np.einsum("nij,nj->ni", frames.enu_to_polar_jacobian(enu), velocity_enu)
-
-
-def _build_factors(
-    dataset: Dataset,
-    problem: _Problem,
-    use_adsb: bool,
-    cross: str,
-    kernel: RobustKernel,
-    adsb_max_gap_s: float,
-    pair_max_gap_s: float | None,
-    progress: Progress | None,
-    tau0: dict[str, float] | None = None,
-) -> None:
-    """ADS-B and pairwise factors, aligned at the time offsets ``tau0`` [s] (default 0)."""
-    radar_ids = list(dataset.radar_ids)
-    tau0 = {rid: (tau0 or {}).get(rid, 0.0) for rid in radar_ids}
-    problem.adsb.clear()
-    problem.alignments.clear()
-    problem.pairs.clear()
-    matched: list[NDArray[np.int64]] = []
-    if use_adsb:
-        for i, rid in enumerate(radar_ids):
-            al = align_adsb(dataset, rid, adsb_max_gap_s, time_offset_s=tau0[rid])
-            if progress is not None:
-                progress("ADS-B association", i + 1, len(radar_ids))
-            if len(al) == 0:
-                continue
-            problem.alignments[rid] = al
-            site = dataset.sites[rid]
-            rate = _polar_rate(site, al) if "time_offset" in problem.terms[rid].free else None
-            problem.adsb[rid] = adsb_factor(
-                site, problem.terms[rid], problem.keys[rid], al.plots,
-                al.reference_polar, _reference_polar_cov(al), kernel, rate, tau0[rid],
-            )
-            matched.append(al.plots.index)
-    if cross != "pairwise":
-        return
-    rest = _reduced(dataset, np.concatenate(matched) if matched else np.zeros(0, np.int64))
-    todo = [(a, b) for i, a in enumerate(radar_ids) for b in radar_ids[i + 1:]]
-    for n, (ra, rb) in enumerate(todo):
-        pairs = pair_plots(rest, ra, rb, pair_max_gap_s, shift_s=tau0[ra] - tau0[rb])
-        if progress is not None:
-            progress("cross-radar pairs", n + 1, len(todo))
-        if len(pairs) == 0:
-            continue
-        factor = pairwise_factor(
-            dataset.sites[ra], dataset.sites[rb], problem.terms[ra], problem.terms[rb],
-            problem.keys[ra], problem.keys[rb], pairs.a_plots, pairs.b_plots,
-            pairs.a_index0, pairs.weight, pairs.b_index, kernel, tau0[ra], tau0[rb],
-        )
-        if factor is not None:
-            problem.pairs.append(factor)
-
-
 # --------------------------------------------------------------------------- initial values
 def initial_biases(
     dataset: Dataset, use_adsb: bool, cross: str, init: str
@@ -282,7 +127,7 @@ def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) 
 
 # --------------------------------------------------------------------------- covariance
 def _pairwise_sandwich_terms(
-    problem: _Problem, values: dict[str, FloatArray], columns: dict[str, list[int]], p: int
+    problem: Problem, values: dict[str, FloatArray], columns: dict[str, list[int]], p: int
 ) -> tuple[FloatArray, FloatArray]:
     """``A_pair = sum w J^T J`` and the shared-noise ``M_pair`` over the pairwise factors.
 
@@ -336,7 +181,7 @@ class _Solved:
     """One Levenberg-Marquardt solution with its factors."""
 
     terms: dict[str, RadarTerms]
-    problem: _Problem
+    problem: Problem
     fg: FactorGraph
     result: Any
     radars: list[str]
@@ -344,16 +189,6 @@ class _Solved:
     priors: dict[str, FloatArray]
     variable: set[str]
     realignments: int
-
-
-def _radars_with_adsb(dataset: Dataset) -> set[str]:
-    """Radars with at least one plot whose ``target_id`` has ADS-B reports."""
-    if dataset.adsb is None or len(dataset.adsb) == 0:
-        return set()
-    targets = set(dataset.adsb["target_id"].astype(str)) - {""}
-    plots = dataset.plots
-    seen = plots.loc[plots["target_id"].astype(str).isin(targets), "radar_id"]
-    return set(seen.astype(str))
 
 
 def _solve(
@@ -377,7 +212,7 @@ def _solve(
     terms = {
         rid: radar_terms(dataset.sites[rid], fixed, rid in tau_radars) for rid in radar_ids
     }
-    problem = _Problem(terms, keys)
+    problem = Problem(terms, keys)
     tau0 = {rid: terms[rid].time_offset(np.zeros(len(terms[rid].free))) for rid in radar_ids}
     start_values: dict[str, FloatArray] = {}
     iterations = realignments = 0
@@ -398,7 +233,7 @@ def _solve(
                     if len(al):
                         problem.alignments[rid] = al
         else:
-            _build_factors(dataset, problem, s.have_adsb, s.cross, s.kernel, s.max_gap_s,
+            build_factors(dataset, problem, s.have_adsb, s.cross, s.kernel, s.max_gap_s,
                            s.pair_max_gap_s, s.progress, tau0)
         timing["factors_s"] = timing.get("factors_s", 0.0) + time.perf_counter() - t0
         radars = problem.variable_radars()
@@ -419,7 +254,7 @@ def _solve(
             fg.add_prior(keys[rid], np.zeros(len(terms[rid].free)), priors[rid])
         variable = set(radars)
         for factor in [*problem.adsb.values(), *problem.pairs]:
-            _add_factor(fg, factor, variable)
+            add_factor(fg, factor, variable)
         if problem.target_state is not None:
             problem.target_state.add_to(fg, variable, initial_free)
         t0 = time.perf_counter()
@@ -561,7 +396,7 @@ def graph(
     if time_offset and cross == "target-state":
         raise ValueError("time offsets are not estimated in target-state mode; use pairwise")
     want_time = have_adsb and cross != "target-state" if auto_time else bool(time_offset)
-    tau_radars = _radars_with_adsb(dataset) if want_time else set()
+    tau_radars = radars_with_adsb(dataset) if want_time else set()
     keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
     # ---------------------------------------------------------------- initial values
     t0 = time.perf_counter()
@@ -695,7 +530,7 @@ def graph(
     return cal
 
 
-def _add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: set[str]) -> None:
+def add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: set[str]) -> None:
     """Add a vectorised factor; radars without free terms enter as constants."""
     radar_ids = (
         [factor.terms.radar_id] if isinstance(factor, AdsbFactor)
@@ -717,7 +552,7 @@ def _add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: 
     fg.add_custom(keys, factor.dimension, error)
 
 
-def _plots_used(problem: _Problem, radars: list[str]) -> dict[str, int]:
+def _plots_used(problem: Problem, radars: list[str]) -> dict[str, int]:
     used: dict[str, set[int]] = {rid: set() for rid in problem.terms}
     for rid, f in problem.adsb.items():
         used[rid].update(f.plot_rows.tolist())
@@ -733,7 +568,7 @@ def _plots_used(problem: _Problem, radars: list[str]) -> dict[str, int]:
 
 
 def _downweighted(
-    problem: _Problem, values: dict[str, FloatArray], radars: list[str], result
+    problem: Problem, values: dict[str, FloatArray], radars: list[str], result
 ) -> dict[str, dict[str, int]]:
     """Measurements with a final robust weight below 0.5, per radar and factor type."""
     out: dict[str, dict[str, int]] = {rid: {} for rid in radars}

@@ -45,10 +45,10 @@ from numpy.typing import NDArray
 
 from graphcal.core import frames
 from graphcal.data.align import ADSB_VERTICAL_SIGMA_RATIO, PlotArrays, plot_arrays
-from graphcal.data.bias import measurement_bias_jacobian
 from graphcal.data.dataset import Dataset, Site
 from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, corrected_ecef
-from graphcal.model.factors import RadarTerms
+from graphcal.model.measurement import RadarMeasurementModel
+from graphcal.model.parameters import RadarTerms
 from graphcal.model.robust import RobustKernel
 from graphcal.solvers.gtsam_adapter import FactorGraph, symbol
 
@@ -144,11 +144,11 @@ class PlotFactor:
         d_p = np.zeros((n, m, 3))
         d_p[:, :2] = -d_polar[:, :2]
         d_bias = np.zeros((n, m, 4))
-        d_bias[:, :2] = -measurement_bias_jacobian(r)[:, :2]
+        d_bias[:, :2] = -RadarMeasurementModel.bias_jacobian(r)[:, :2]
         if self.normal is None:
             res[:, 2] = self.measured[:, 2] - (el + bias[3])
             d_p[:, 2] = -d_polar[:, 2]
-            d_bias[:, 2] = -measurement_bias_jacobian(r)[:, 2]
+            d_bias[:, 2] = -RadarMeasurementModel.bias_jacobian(r)[:, 2]
         elif m == 3:
             height = self.height0 + np.einsum("ni,ni->n", self.normal, p - self.p0)
             res[:, 2] = self.measured[:, 2] - height

@@ -9,10 +9,12 @@ import pytest
 
 from graphcal.data.align import align_adsb, pair_plots
 from graphcal.data.bias import RadarBias
-from graphcal.model.factors import RadarTerms, adsb_factor, pairwise_factor
+from graphcal.model.factors import adsb_factor, pairwise_factor
+from graphcal.model.measurement import reference_polar_covariance
+from graphcal.model.parameters import RadarTerms
 from graphcal.model.robust import RobustKernel, default_threshold
-from graphcal.solvers.adsb_reference import _reference_polar_cov
 from graphcal.solvers.target_state import build_target_state, motion_blocks
+from tests.jacobians import numerical_jacobian
 from tests.synthetic import Track, make_dataset, site_at
 
 BIAS_2D = RadarBias(120.0, 0.002, 0.004)
@@ -33,16 +35,6 @@ def dataset():
     return make_dataset(rng, radars, tracks)
 
 
-def numerical_jacobian(function, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Central differences of a vector function, one column per component of ``x``."""
-    columns = []
-    for i in range(len(x)):
-        dx = np.zeros_like(x)
-        dx[i] = steps[i]
-        columns.append((function(x + dx) - function(x - dx)) / (2 * steps[i]))
-    return np.stack(columns, axis=-1)
-
-
 BIAS_STEPS = np.array([1.0, 1e-5, 1e-5, 1e-5])
 
 
@@ -59,7 +51,7 @@ def test_adsb_factor_jacobian_matches_numerical(dataset, radar: str) -> None:
     site = dataset.sites[radar]
     al = align_adsb(dataset, radar)
     terms = _terms(site)
-    f = adsb_factor(site, terms, 0, al.plots, al.reference_polar, _reference_polar_cov(al),
+    f = adsb_factor(site, terms, 0, al.plots, al.reference_polar, reference_polar_covariance(al),
                     RobustKernel("none"))
     x = np.array([50.0, 0.001, 0.002, 0.001])[: len(terms.free)]
     _, (jac,) = f.whitened([x])
@@ -75,7 +67,7 @@ def test_adsb_factor_residual_is_zero_at_truth_without_noise() -> None:
                       noise=False)
     al = align_adsb(ds, "C")
     f = adsb_factor(site, _terms(site), 0, al.plots, al.reference_polar,
-                    _reference_polar_cov(al), RobustKernel("none"))
+                    reference_polar_covariance(al), RobustKernel("none"))
     e, _ = f.whitened([BIAS_3D.as_vector()])
     # ADS-B interpolated linearly along a straight track: exact up to float rounding.
     assert np.max(np.abs(e)) < 1e-4
@@ -116,7 +108,7 @@ def test_fixed_terms_are_left_out_of_the_jacobian(dataset) -> None:
     site = dataset.sites["B"]
     al = align_adsb(dataset, "B")
     terms = RadarTerms("B", ("range_offset", "azimuth_bias"), {"range_gain": -0.001})
-    f = adsb_factor(site, terms, 0, al.plots, al.reference_polar, _reference_polar_cov(al),
+    f = adsb_factor(site, terms, 0, al.plots, al.reference_polar, reference_polar_covariance(al),
                     RobustKernel("none"))
     x = np.array([-80.0, -0.003])
     _, (jac,) = f.whitened([x])

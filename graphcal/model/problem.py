@@ -1,0 +1,140 @@
+"""One calibration problem: its variables and its observation blocks.
+
+:class:`Problem` holds, per radar, the free terms
+(:class:`~graphcal.model.parameters.RadarTerms`) and the key of its bias
+variable, and the observation blocks that :func:`build_factors` builds from a
+dataset: one vectorised ADS-B factor per radar (plots against the ADS-B
+position of their aircraft) and one pairwise factor per radar pair (paper
+001's differences of converted positions).  The graph solver optimises it; the
+observability analysis and the selection read its information.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from graphcal.core import frames
+from graphcal.data.align import AdsbAlignment, align_adsb, pair_plots
+from graphcal.data.dataset import Dataset, Site
+from graphcal.model.factors import AdsbFactor, PairwiseFactor, adsb_factor, pairwise_factor
+from graphcal.model.measurement import reference_polar_covariance
+from graphcal.model.parameters import RadarTerms
+from graphcal.model.robust import RobustKernel
+
+FloatArray = NDArray[np.float64]
+Progress = Callable[..., None]
+
+#: Cross-radar formulations.
+CROSS_MODES: tuple[str, ...] = ("pairwise", "target-state", "none")
+#: Fastest plausible aircraft ground speed [m/s]; a faster ADS-B segment holds an outlier.
+ADSB_MAX_SPEED_M_S = 600.0
+
+
+@dataclass
+class Problem:
+    """Factors and variables of one calibration."""
+
+    terms: dict[str, RadarTerms]
+    keys: dict[str, int]
+    adsb: dict[str, AdsbFactor] = field(default_factory=dict)
+    alignments: dict[str, AdsbAlignment] = field(default_factory=dict)
+    pairs: list[PairwiseFactor] = field(default_factory=list)
+    target_state: Any = None
+
+    def variable_radars(self) -> list[str]:
+        """Radars with at least one factor and one free term, in dataset order."""
+        seen = set(self.adsb)
+        for f in self.pairs:
+            seen.update([f.terms_a.radar_id, f.terms_b.radar_id])
+        if self.target_state is not None:
+            seen.update(self.target_state.radars_seen)
+        return [rid for rid in self.terms if rid in seen and self.terms[rid].free]
+
+
+def without_plots(dataset: Dataset, exclude_rows: NDArray[np.int64]) -> Dataset:
+    """``dataset`` without the plot rows ``exclude_rows``."""
+    if len(exclude_rows) == 0:
+        return dataset
+    plots = dataset.plots.drop(index=exclude_rows)
+    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path)
+
+
+def polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
+    """Time derivative of the aligned ADS-B reference in the radar's polar frame ``(n, 3)``.
+
+    A bracketing ADS-B segment faster than :data:`ADSB_MAX_SPEED_M_S` holds an
+    outlier report; its plots get a zero rate (they do not inform the time offset),
+    so that the outlier cannot lever the time offset through its Jacobian.
+    """
+    enu = site.enu_from_ecef(al.reference_ecef_m)
+    velocity = al.reference_velocity_ecef_m_s
+    plausible = np.linalg.norm(velocity, axis=1) <= ADSB_MAX_SPEED_M_S
+    velocity_enu = np.where(plausible[:, None], velocity, 0.0) @ site.ecef_to_enu.T
+    return np.einsum("nij,nj->ni", frames.enu_to_polar_jacobian(enu), velocity_enu)
+
+
+def build_factors(
+    dataset: Dataset,
+    problem: Problem,
+    use_adsb: bool,
+    cross: str,
+    kernel: RobustKernel,
+    adsb_max_gap_s: float,
+    pair_max_gap_s: float | None,
+    progress: Progress | None,
+    tau0: dict[str, float] | None = None,
+) -> None:
+    """ADS-B and pairwise factors, aligned at the time offsets ``tau0`` [s] (default 0)."""
+    radar_ids = list(dataset.radar_ids)
+    tau0 = {rid: (tau0 or {}).get(rid, 0.0) for rid in radar_ids}
+    problem.adsb.clear()
+    problem.alignments.clear()
+    problem.pairs.clear()
+    matched: list[NDArray[np.int64]] = []
+    if use_adsb:
+        for i, rid in enumerate(radar_ids):
+            al = align_adsb(dataset, rid, adsb_max_gap_s, time_offset_s=tau0[rid])
+            if progress is not None:
+                progress("ADS-B association", i + 1, len(radar_ids))
+            if len(al) == 0:
+                continue
+            problem.alignments[rid] = al
+            site = dataset.sites[rid]
+            rate = polar_rate(site, al) if "time_offset" in problem.terms[rid].free else None
+            problem.adsb[rid] = adsb_factor(
+                site, problem.terms[rid], problem.keys[rid], al.plots,
+                al.reference_polar, reference_polar_covariance(al), kernel, rate, tau0[rid],
+            )
+            matched.append(al.plots.index)
+    if cross != "pairwise":
+        return
+    rest = without_plots(dataset, np.concatenate(matched) if matched else np.zeros(0, np.int64))
+    todo = [(a, b) for i, a in enumerate(radar_ids) for b in radar_ids[i + 1:]]
+    for n, (ra, rb) in enumerate(todo):
+        pairs = pair_plots(rest, ra, rb, pair_max_gap_s, shift_s=tau0[ra] - tau0[rb])
+        if progress is not None:
+            progress("cross-radar pairs", n + 1, len(todo))
+        if len(pairs) == 0:
+            continue
+        factor = pairwise_factor(
+            dataset.sites[ra], dataset.sites[rb], problem.terms[ra], problem.terms[rb],
+            problem.keys[ra], problem.keys[rb], pairs.a_plots, pairs.b_plots,
+            pairs.a_index0, pairs.weight, pairs.b_index, kernel, tau0[ra], tau0[rb],
+        )
+        if factor is not None:
+            problem.pairs.append(factor)
+
+
+def radars_with_adsb(dataset: Dataset) -> set[str]:
+    """Radars with at least one plot whose ``target_id`` has ADS-B reports."""
+    if dataset.adsb is None or len(dataset.adsb) == 0:
+        return set()
+    targets = set(dataset.adsb["target_id"].astype(str)) - {""}
+    plots = dataset.plots
+    seen = plots.loc[plots["target_id"].astype(str).isin(targets), "radar_id"]
+    return set(seen.astype(str))
