@@ -1,7 +1,8 @@
 # Two commands set everything up on a machine with only Python 3.11 and pip:
 #   make demo   create .venv, install graphcal, calibrate the bundled demo network
 #               (graph method, with ADS-B and from cross-radar observations alone)
-#   make test   same set-up, then the whole test suite
+#   make test   same set-up, then make lint and the whole test suite
+#   make lint   ruff, and import-linter's layer contracts (pyproject.toml)
 #   make bench  same set-up, then benchmarks/bench_graph.py (graph vs scipy, 10-radar network)
 #               and benchmarks/bench_selection.py (selection on 131k observations)
 #   make papers same set-up, then the paper 000/002 reproductions (covariance, fusion, noise)
@@ -24,7 +25,7 @@ demo: $(STAMP)
 	$(BIN)/graphcal calibrate demo-out
 	$(BIN)/graphcal calibrate demo-out --no-adsb
 
-test: $(STAMP)
+test: lint
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)
@@ -38,6 +39,7 @@ papers: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check graphcal tests benchmarks
+	$(BIN)/lint-imports
 
 clean:
 	rm -rf $(VENV) build *.egg-info

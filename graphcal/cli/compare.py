@@ -1,17 +1,20 @@
-"""``graphcal compare``: Monte-Carlo comparison of estimators on a scenario.
-
-Registered in :mod:`graphcal.cli.app` with ``app.command(name="compare")(compare_command)``.
-The helpers of :mod:`graphcal.cli.app` are imported inside the function to avoid an
-import cycle.
-"""
+"""``graphcal compare``: Monte-Carlo comparison of estimators on a scenario."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
+
+from graphcal.cli.common import (
+    EXIT_BAD_INPUT,
+    console,
+    err_console,
+    errors_to_exit,
+    fail,
+    progress_bar,
+)
 
 DEFAULT_METHODS = "ls,fl,fl-ls,wls,wls-pruned,graph"
 OUT_SUFFIXES = (".md", ".csv", ".json")
@@ -33,14 +36,6 @@ def compare_command(
     ] = None,
 ) -> None:
     """Monte-Carlo comparison: simulate a scenario RUNS times, run every method on each."""
-    from graphcal.cli.app import (
-        EXIT_BAD_INPUT,
-        _errors_to_exit,
-        _fail,
-        console,
-        err_console,
-        progress_bar,
-    )
     from graphcal.pipeline.compare import compare
     from graphcal.simulation.scenario import load_scenario
     from graphcal.solvers.registry import METHODS
@@ -49,20 +44,20 @@ def compare_command(
     unknown = [m for m in names if m not in METHODS]
     if not names or unknown:
         what = f"unknown method '{unknown[0]}'" if unknown else "no method given"
-        _fail(f"--methods: {what}; use one of: {', '.join(METHODS)}", EXIT_BAD_INPUT)
+        fail(f"--methods: {what}; use one of: {', '.join(METHODS)}", EXIT_BAD_INPUT)
     if len(set(names)) != len(names):
-        _fail(f"--methods: a method is repeated in '{methods}'", EXIT_BAD_INPUT)
+        fail(f"--methods: a method is repeated in '{methods}'", EXIT_BAD_INPUT)
     if runs < 1:
-        _fail(f"--runs must be at least 1, not {runs}", EXIT_BAD_INPUT)
+        fail(f"--runs must be at least 1, not {runs}", EXIT_BAD_INPUT)
     if jobs < 1:
-        _fail(f"--jobs must be at least 1, not {jobs}", EXIT_BAD_INPUT)
+        fail(f"--jobs must be at least 1, not {jobs}", EXIT_BAD_INPUT)
     if out is not None and out.suffix.lower() not in OUT_SUFFIXES:
-        _fail(f"--out {out}: the format comes from the suffix: .md, .csv or .json",
+        fail(f"--out {out}: the format comes from the suffix: .md, .csv or .json",
               EXIT_BAD_INPUT)
     if out is not None and not out.parent.is_dir():
-        _fail(f"--out {out}: folder {out.parent} does not exist", EXIT_BAD_INPUT)
+        fail(f"--out {out}: folder {out.parent} does not exist", EXIT_BAD_INPUT)
 
-    with _errors_to_exit():
+    with errors_to_exit():
         spec = load_scenario(scenario)
         with progress_bar(f"compare {spec.name}") as callback:
             result = compare(spec, names, runs, seed=seed, jobs=jobs, progress=callback)
@@ -80,6 +75,8 @@ def compare_command(
 
 
 def _num(value: float, digits: int = 4) -> str:
+    import numpy as np
+
     return f"{value:.{digits}g}" if value is not None and np.isfinite(value) else "–"
 
 

@@ -1,8 +1,4 @@
-"""The ``import-asterix`` command: ASTERIX recordings (and OpenSky ADS-B) to a dataset folder.
-
-Names from :mod:`graphcal.cli.app` are imported inside the function so that this
-module can be imported by ``cli.py`` itself.
-"""
+"""``graphcal import-asterix``: ASTERIX recordings (and OpenSky ADS-B) to a dataset folder."""
 
 from __future__ import annotations
 
@@ -10,6 +6,8 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+
+from graphcal.cli.common import EXIT_BAD_INPUT, console, errors_to_exit, fail, progress_bar
 
 
 def _format_span(span: tuple[float, float] | None) -> str:
@@ -43,7 +41,6 @@ def import_asterix_command(
     """Decode ASTERIX CAT048/CAT021/CAT034 recordings into a dataset folder."""
     from rich.table import Table
 
-    from graphcal.cli.app import EXIT_BAD_INPUT, _errors_to_exit, _fail, console, progress_bar
     from graphcal.io.asterix.decode import decode_files
     from graphcal.io.asterix.tables import (
         build_tables,
@@ -56,15 +53,15 @@ def import_asterix_command(
     from graphcal.io.opensky import read_opensky_adsb
 
     if fmt not in ("csv", "parquet"):
-        _fail(f"--format must be csv or parquet, not '{fmt}'", EXIT_BAD_INPUT)
+        fail(f"--format must be csv or parquet, not '{fmt}'", EXIT_BAD_INPUT)
     if adsb_format not in ("asterix", "opensky"):
-        _fail(f"--adsb-format must be asterix or opensky, not '{adsb_format}'", EXIT_BAD_INPUT)
+        fail(f"--adsb-format must be asterix or opensky, not '{adsb_format}'", EXIT_BAD_INPUT)
     if not files:
-        _fail("give at least one recording FILE", EXIT_BAD_INPUT)
+        fail("give at least one recording FILE", EXIT_BAD_INPUT)
     for path in [*files, *([adsb] if adsb is not None else [])]:
         if not path.is_file():
-            _fail(f"{path}: no such file", EXIT_BAD_INPUT)
-    with _errors_to_exit():
+            fail(f"{path}: no such file", EXIT_BAD_INPUT)
+    with errors_to_exit():
         user_sites = None if sites is None else load_user_sites(sites)
         with progress_bar("decoding ASTERIX") as callback:
             decoded = decode_files(files, progress=callback)

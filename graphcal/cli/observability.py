@@ -1,12 +1,13 @@
-"""The ``observability`` command (registered on the app in :mod:`graphcal.cli.app`)."""
+"""``graphcal observability``: how well the traffic determines each bias."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
+
+from graphcal.cli.common import EXIT_BAD_INPUT, console, err_console, errors_to_exit, fail
 
 
 def observability_command(
@@ -34,7 +35,7 @@ def observability_command(
         str, typer.Option(help="--budget: select single observations, segments of one "
                           "aircraft's track, or whole tracks.")
     ] = "segment",
-    segment_s: Annotated[float, typer.Option(help="--budget: segment length [s].")] = 60.0,
+    segment_s: Annotated[float, typer.Option(help="--budget: segment length \\[s].")] = 60.0,
     random_draws: Annotated[
         int, typer.Option(help="--budget: random subsets drawn for the baseline.")
     ] = 20,
@@ -43,10 +44,10 @@ def observability_command(
     """How well the traffic determines each bias: rank, condition, Deg, weak directions."""
     import json
 
+    import numpy as np
     from rich.table import Table
 
     from graphcal.analysis.observability import analyse, degree_curve, observation_blocks
-    from graphcal.cli.app import EXIT_BAD_INPUT, _errors_to_exit, _fail, console, err_console
     from graphcal.core.atomic import atomic_write_text
     from graphcal.data.bias import CONTRACT_KEYS
     from graphcal.io.folder import load_dataset
@@ -54,15 +55,15 @@ def observability_command(
 
     for path, suffix in ((plot, ".png"), (out, ".json")):
         if path is not None and path.suffix.lower() != suffix:
-            _fail(f"{path}: the file must end in {suffix}", EXIT_BAD_INPUT)
-    with _errors_to_exit():
+            fail(f"{path}: the file must end in {suffix}", EXIT_BAD_INPUT)
+    with errors_to_exit():
         dataset = load_dataset(dataset_dir)
         dataset, _ = fill_missing_sigmas(dataset)
         try:
             blocks = observation_blocks(dataset, method, use_adsb=adsb)
             report = analyse(blocks)
         except ValueError as exc:
-            _fail(str(exc), EXIT_BAD_INPUT)
+            fail(str(exc), EXIT_BAD_INPUT)
     table = Table(title=f"observability of {dataset_dir} ({method}, {report.n_observations} "
                         "observations)")
     for column in ("radar", "parameter", "σ if the others were known", "σ jointly",
@@ -86,12 +87,12 @@ def observability_command(
         console.print(f"[yellow]warning:[/yellow] {line}", highlight=False)
     document = report.to_dict()
     if budget is not None:
-        with _errors_to_exit():
+        with errors_to_exit():
             try:
                 comparison = _compare(dataset, method, adsb, budget, unit, segment_s,
                                       random_draws, seed)
             except ValueError as exc:
-                _fail(str(exc), EXIT_BAD_INPUT)
+                fail(str(exc), EXIT_BAD_INPUT)
         console.print(_comparison_table(comparison, budget))
         document["selection"] = [
             {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
@@ -109,6 +110,8 @@ def observability_command(
 def _compare(dataset, method: str, adsb: bool, budget: int, unit: str, segment_s: float,
              draws: int, seed: int):
     """The selection comparison table (:func:`graphcal.analysis.selection.compare_selections`)."""
+    import numpy as np
+
     from graphcal.analysis.observability import observation_blocks
     from graphcal.analysis.selection import MAX_CONVEX_UNITS, compare_selections, selection_units
 
@@ -118,6 +121,7 @@ def _compare(dataset, method: str, adsb: bool, budget: int, unit: str, segment_s
 
 
 def _comparison_table(comparison, budget: int):
+    import numpy as np
     from rich.table import Table
 
     table = Table(title=f"selections of {budget} observations")
@@ -148,6 +152,7 @@ def _comparison_table(comparison, budget: int):
 def _plot_degree(path: Path, time_s, n_obs, degree, title: str) -> None:
     """Deg against the number of observations (log scale), written atomically."""
     import matplotlib
+    import numpy as np
 
     from graphcal.core.atomic import atomic_write_stream
 

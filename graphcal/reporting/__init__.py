@@ -1,0 +1,2 @@
+"""What a person reads: the HTML report and the terminal tables.
+"""

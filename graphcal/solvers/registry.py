@@ -15,33 +15,92 @@ name           what                                                         need
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any
+import importlib
+from collections.abc import Callable, Iterator, Mapping
+from typing import TYPE_CHECKING, Any
 
-from graphcal.data.calibration import Calibration
-from graphcal.data.dataset import Dataset
-from graphcal.solvers.adsb_reference import fl, fl_ls, ls
-from graphcal.solvers.graph import graph
-from graphcal.solvers.wls import wls, wls_pruned
+if TYPE_CHECKING:  # pragma: no cover - the estimators' types, without importing them
+    from graphcal.data.calibration import Calibration
+    from graphcal.data.dataset import Dataset
 
-Estimator = Callable[..., Calibration]
+Estimator = Callable[..., "Calibration"]
+
+#: Where each estimator lives, ``"module:function"``; imported on first use.
+ESTIMATOR_PATHS: dict[str, str] = {
+    "ls": "graphcal.solvers.adsb_reference:ls",
+    "fl": "graphcal.solvers.adsb_reference:fl",
+    "fl-ls": "graphcal.solvers.adsb_reference:fl_ls",
+    "wls": "graphcal.solvers.wls:wls",
+    "wls-pruned": "graphcal.solvers.wls:wls_pruned",
+    "graph": "graphcal.solvers.graph:graph",
+}
+
+#: One line on each estimator: the first line of its docstring, repeated here so that
+#: ``graphcal methods`` can list them without importing them (a test keeps the two equal).
+METHOD_SUMMARIES: dict[str, str] = {
+    "ls": "Paper 003 LS (eq. 11-19) against ADS-B, every radar on its own.",
+    "fl": "Paper 003 FL: line-fit azimuth bias, mean range (and elevation) difference.",
+    "fl-ls": "Paper 003 FL-LS: FL azimuth compensation (eq. 10, sign corrected), then LS.",
+    "wls": "Paper 001 WLS (eq. 8-11) over all radar pairs, no ADS-B needed.",
+    "wls-pruned": "Paper 001 greedy pruning (eq. 12), then WLS (eq. 10) on the kept "
+    "observations.",
+    "graph": "Joint calibration of every radar with a GTSAM factor graph.",
+}
+
+
+class LazyEstimators(Mapping[str, Estimator]):
+    """Estimators by name, each imported from its ``"module:function"`` path when first
+    looked up.
+
+    Names, ``in``, ``len`` and iteration over the names import nothing; ``[name]``,
+    ``.get``, ``.values()`` and ``.items()`` import the estimators they return (once).
+    """
+
+    def __init__(self, paths: Mapping[str, str]) -> None:
+        self._paths = dict(paths)
+        self._loaded: dict[str, Estimator] = {}
+
+    def __getitem__(self, name: str) -> Estimator:
+        try:
+            return self._loaded[name]
+        except KeyError:
+            pass
+        module, _, function = self._paths[name].partition(":")
+        estimator = getattr(importlib.import_module(module), function)
+        self._loaded[name] = estimator
+        return estimator
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._paths
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._paths)
+
+    def __len__(self) -> int:
+        return len(self._paths)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self._paths!r})"
+
 
 #: Registered estimators by their command-line name.
-METHODS: dict[str, Estimator] = {
-    "ls": ls,
-    "fl": fl,
-    "fl-ls": fl_ls,
-    "wls": wls,
-    "wls-pruned": wls_pruned,
-    "graph": graph,
-}
+METHODS: Mapping[str, Estimator] = LazyEstimators(ESTIMATOR_PATHS)
 
 #: Methods of the contract that are planned but not available in this version.
 PLANNED_METHODS: tuple[str, ...] = ()
 
 
+def _unavailable(method: str) -> ValueError:
+    available = ", ".join(METHODS)
+    if method in PLANNED_METHODS:
+        return ValueError(
+            f"method '{method}' is not available in this version; use one of: {available}"
+        )
+    return ValueError(f"unknown method '{method}'; use one of: {available}")
+
+
 def get_estimator(method: str) -> Estimator:
-    """The estimator registered as ``method``.
+    """The estimator registered as ``method`` (imported now if it was not yet).
 
     Raises
     ------
@@ -50,14 +109,26 @@ def get_estimator(method: str) -> Estimator:
     """
     if method in METHODS:
         return METHODS[method]
-    available = ", ".join(METHODS)
-    if method in PLANNED_METHODS:
-        raise ValueError(
-            f"method '{method}' is not available in this version; use one of: {available}"
-        )
-    raise ValueError(f"unknown method '{method}'; use one of: {available}")
+    raise _unavailable(method)
+
+
+def describe(method: str) -> str:
+    """One line on the estimator ``method``, without importing it.
+
+    Raises
+    ------
+    ValueError
+        For an unknown or not yet available method, listing the available ones.
+    """
+    if method in METHOD_SUMMARIES:
+        return METHOD_SUMMARIES[method]
+    raise _unavailable(method)
 
 
 def calibrate(dataset: Dataset, method: str, **options: Any) -> Calibration:
     """Run the estimator ``method`` on ``dataset``."""
     return get_estimator(method)(dataset, **options)
+
+
+__all__ = ["ESTIMATOR_PATHS", "METHODS", "METHOD_SUMMARIES", "PLANNED_METHODS", "Estimator",
+           "LazyEstimators", "calibrate", "describe", "get_estimator"]

@@ -31,8 +31,9 @@ from numpy.typing import NDArray
 
 from graphcal.core.errors import EstimationError
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb
-from graphcal.data.bias import RadarBias, compose_bias, correct_bias
+from graphcal.data.bias import RadarBias, compose_bias
 from graphcal.data.calibration import Calibration
+from graphcal.data.correct import correct_plots
 from graphcal.data.dataset import Dataset
 from graphcal.model.cross_radar import CrossObservations, cross_observations, shared_noise_middle
 from graphcal.model.information import (
@@ -83,19 +84,9 @@ def greedy_prune(
 
 
 def _corrected(dataset: Dataset, biases: dict[str, RadarBias]) -> Dataset:
-    """A copy of ``dataset`` with every radar's plots corrected by ``biases``."""
-    plots = dataset.plots.copy()
-    for rid, bias in biases.items():
-        rows = plots["radar_id"] == rid
-        r, az, el = correct_bias(
-            plots.loc[rows, "range_m"].to_numpy(float),
-            np.deg2rad(plots.loc[rows, "azimuth_deg"].to_numpy(float)),
-            np.deg2rad(plots.loc[rows, "elevation_deg"].to_numpy(float)),
-            bias,
-        )
-        plots.loc[rows, "range_m"] = r
-        plots.loc[rows, "azimuth_deg"] = np.rad2deg(az)
-        plots.loc[rows, "elevation_deg"] = np.rad2deg(el)
+    """A copy of ``dataset`` with every radar's plots corrected by ``biases``
+    (:func:`graphcal.data.correct.correct_plots`: azimuths wrapped to [0, 360) deg)."""
+    plots = correct_plots(dataset.plots, dataset.sites, biases)
     return Dataset(dataset.sites, plots, dataset.adsb, dataset.path)
 
 

@@ -34,6 +34,7 @@ from graphcal.core.covariance import (
     second_order_mean,
     second_order_relative_size,
 )
+from tests.jacobians import numerical_jacobian
 
 DEG = np.pi / 180.0
 #: Radar site (lat_rad, lon_rad, alt_m) of the Monte-Carlo experiments (Changsha).
@@ -140,18 +141,6 @@ def test_linear_conversion_broadcasts_latitude_arrays():
         np.testing.assert_allclose(out[k], enu_to_ecef_covariance(cov[k], lat[k], lon[k]), 1e-15)
 
 
-def numerical_jacobian(func, x0: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Central-difference Jacobian of ``func: R^n -> R^m`` (tuple of m outputs)."""
-    cols = []
-    for k, h in enumerate(steps):
-        dx = np.zeros_like(x0)
-        dx[k] = h
-        plus = np.array(func(*(x0 + dx)), dtype=float)
-        minus = np.array(func(*(x0 - dx)), dtype=float)
-        cols.append((plus - minus) / (2.0 * h))
-    return np.stack(cols, axis=-1)
-
-
 @pytest.mark.parametrize("site", SITES)
 def test_enu_to_ecef_covariance_matches_pymap3d(site):
     """J = numerical Jacobian of pymap3d.enu2ecef (linear, so central differences are exact
@@ -163,7 +152,7 @@ def test_enu_to_ecef_covariance_matches_pymap3d(site):
     def enu2ecef(e, n, u):
         return pymap3d.enu2ecef(e, n, u, lat, lon, alt, deg=False)
 
-    jac = numerical_jacobian(enu2ecef, np.array([3e4, -2e4, 5e3]), np.full(3, 10.0))
+    jac = numerical_jacobian(lambda x: enu2ecef(*x), np.array([3e4, -2e4, 5e3]), np.full(3, 10.0))
     np.testing.assert_allclose(
         enu_to_ecef_covariance(cov, lat, lon), jac @ cov @ jac.T, rtol=0, atol=1e-8 * cov.max()
     )
@@ -184,7 +173,9 @@ def test_polar_to_ecef_chain_matches_pymap3d(site, polar):
     def aer2ecef(rng_m, az_rad, el_rad):
         return pymap3d.aer2ecef(az_rad, el_rad, rng_m, lat, lon, alt, deg=False)
 
-    jac = numerical_jacobian(aer2ecef, np.array([r, az, el]), np.array([1.0, 1e-6, 1e-6]))
+    jac = numerical_jacobian(
+        lambda x: aer2ecef(*x), np.array([r, az, el]), np.array([1.0, 1e-6, 1e-6])
+    )
     expected = jac @ cov_polar @ jac.T
     got = polar_to_ecef_covariance(r, az, el, cov_polar, lat, lon)
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-5 * np.abs(expected).max())
@@ -232,7 +223,7 @@ def test_first_order_jacobian_matches_finite_differences(point):
     """frames.polar_to_enu_jacobian vs central differences of frames.polar_to_enu
     (steps 1e-3 m, 1e-7 rad: truncation ~1e-14 r, rounding ~1e-16 r / 1e-7): rtol 1e-6."""
     jac_fd = numerical_jacobian(
-        lambda r, a, e: frames.polar_to_enu(r, a, e), point, np.array([1e-3, 1e-7, 1e-7])
+        lambda x: frames.polar_to_enu(*x), np.asarray(point), np.array([1e-3, 1e-7, 1e-7])
     )
     jac = frames.polar_to_enu_jacobian(*point)
     np.testing.assert_allclose(jac, jac_fd, rtol=0, atol=1e-6 * np.abs(jac).max())

@@ -27,6 +27,7 @@ from graphcal.data.bias import (
     measurement_bias_jacobian,
     to_contract_units,
 )
+from tests.jacobians import numerical_jacobian
 
 
 def random_bias(rng: np.random.Generator) -> RadarBias:
@@ -272,15 +273,16 @@ def test_measurement_bias_jacobian_finite_differences():
     el = rng.uniform(-0.05, 1.2, n)
     base = random_bias(rng).as_vector()
     steps = np.array([1.0, 1e-6, 1e-6, 1e-6])
-    fd = np.empty((n, 3, 4))
-    for k in range(4):
-        delta = np.zeros(4)
-        delta[k] = steps[k]
-        plus = apply_bias(r, az, el, RadarBias.from_vector(base + delta))
-        minus = apply_bias(r, az, el, RadarBias.from_vector(base - delta))
-        fd[:, 0, k] = (plus[0] - minus[0]) / (2 * steps[k])
-        fd[:, 1, k] = wrap_to_pi(plus[1] - minus[1]) / (2 * steps[k])
-        fd[:, 2, k] = (plus[2] - minus[2]) / (2 * steps[k])
+
+    def measured(vector: np.ndarray) -> np.ndarray:
+        return np.stack(apply_bias(r, az, el, RadarBias.from_vector(vector)), axis=-1)
+
+    def wrapped(plus: np.ndarray, minus: np.ndarray) -> np.ndarray:
+        delta = plus - minus
+        delta[:, 1] = wrap_to_pi(delta[:, 1])
+        return delta
+
+    fd = numerical_jacobian(measured, base, steps, difference=wrapped)
     jac = measurement_bias_jacobian(r)
     assert jac.shape == (n, 3, 4)
     np.testing.assert_allclose(jac, fd, rtol=1e-8, atol=1e-8)

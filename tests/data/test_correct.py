@@ -9,7 +9,7 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from graphcal.cli.report import correct_command
+from graphcal.cli.correct import correct_command
 from graphcal.data.bias import RadarBias, apply_bias, correct_bias
 from graphcal.data.correct import correct_dataset
 from graphcal.io.folder import load_dataset, write_dataset

@@ -14,6 +14,7 @@ from graphcal.model.measurement import reference_polar_covariance
 from graphcal.model.parameters import RadarTerms
 from graphcal.model.robust import RobustKernel, default_threshold
 from graphcal.solvers.target_state import build_target_state, motion_blocks
+from tests.jacobians import numerical_jacobian
 from tests.synthetic import Track, make_dataset, site_at
 
 BIAS_2D = RadarBias(120.0, 0.002, 0.004)
@@ -32,16 +33,6 @@ def dataset():
         Track("aa0002", (30e3, -70e3, 5000.0), (-30.0, 200.0, 3.0), 0.0, 120.0),
     ]
     return make_dataset(rng, radars, tracks)
-
-
-def numerical_jacobian(function, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Central differences of a vector function, one column per component of ``x``."""
-    columns = []
-    for i in range(len(x)):
-        dx = np.zeros_like(x)
-        dx[i] = steps[i]
-        columns.append((function(x + dx) - function(x - dx)) / (2 * steps[i]))
-    return np.stack(columns, axis=-1)
 
 
 BIAS_STEPS = np.array([1.0, 1e-5, 1e-5, 1e-5])

@@ -22,24 +22,17 @@ from graphcal.noise.variance import (
     residual_sigma,
     robust_residual_sigma,
 )
+from tests.jacobians import numerical_jacobian
 
 # --------------------------------------------------------------------------- eq. 1-2
 
 
 def _fd_jacobian_pymap3d(r: float, az: float, el: float) -> np.ndarray:
     """d(e, n, u) / d(r, az, el) by central differences of pymap3d.aer2enu."""
-    steps = np.array([1.0, 1e-7, 1e-7])
-    x0 = np.array([r, az, el])
-    jac = np.empty((3, 3))
-    for k in range(3):
-        d = np.zeros(3)
-        d[k] = steps[k]
-        plus = np.array(pymap3d.aer2enu(np.rad2deg(x0[1] + d[1]), np.rad2deg(x0[2] + d[2]),
-                                        x0[0] + d[0]))
-        minus = np.array(pymap3d.aer2enu(np.rad2deg(x0[1] - d[1]), np.rad2deg(x0[2] - d[2]),
-                                         x0[0] - d[0]))
-        jac[:, k] = (plus - minus) / (2 * steps[k])
-    return jac
+    return numerical_jacobian(
+        lambda x: pymap3d.aer2enu(np.rad2deg(x[1]), np.rad2deg(x[2]), x[0]),
+        np.array([r, az, el]), np.array([1.0, 1e-7, 1e-7]),
+    )
 
 
 def test_propagation_matches_pymap3d_finite_differences() -> None:

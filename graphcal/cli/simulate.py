@@ -1,0 +1,42 @@
+"""``graphcal simulate``: a scenario TOML file to a dataset folder plus truth.json."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from graphcal.cli.common import EXIT_BAD_INPUT, console, errors_to_exit, fail, progress_bar
+
+
+def simulate_command(
+    scenario: Annotated[Path, typer.Argument(help="Scenario TOML file.")],
+    out: Annotated[Path, typer.Option("--out", help="Dataset folder to write.")],
+    seed: Annotated[int, typer.Option(help="Seed of the random generator.")] = 0,
+    fmt: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
+) -> None:
+    """Simulate a scenario into a dataset folder plus truth.json."""
+    import numpy as np
+
+    from graphcal.simulation.scenario import load_scenario
+    from graphcal.simulation.simulate import simulate as run_simulation
+    from graphcal.simulation.simulate import write_simulation
+
+    if fmt not in ("csv", "parquet"):
+        fail(f"--format must be csv or parquet, not '{fmt}'", EXIT_BAD_INPUT)
+    with errors_to_exit():
+        spec = load_scenario(scenario)
+        rng = np.random.default_rng(seed)
+        with progress_bar("simulating") as callback:
+            result = run_simulation(spec, rng, progress=callback)
+        write_simulation(result, out, fmt=fmt, overwrite=overwrite)
+    n_adsb = 0 if result.dataset.adsb is None else len(result.dataset.adsb)
+    console.print(
+        f"wrote {out}: {len(result.dataset.sites)} radars, {len(result.dataset.plots)} plots, "
+        f"{n_adsb} ADS-B reports (seed {seed})"
+    )
+
+
+__all__ = ["simulate_command"]
