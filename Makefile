@@ -3,6 +3,7 @@
 #               (graph method, with ADS-B and from cross-radar observations alone)
 #   make test   same set-up, then make lint and the whole test suite
 #   make lint   ruff, and import-linter's layer contracts (pyproject.toml)
+#   make docs   same set-up, then the manual and API reference into site/ (mkdocs --strict)
 #   make bench  same set-up, then benchmarks/bench_graph.py (graph vs scipy, 10-radar network)
 #               and benchmarks/bench_selection.py (selection on 131k observations)
 #   make papers same set-up, then the paper 000/002 reproductions (covariance, fusion, noise)
@@ -11,11 +12,11 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench papers install clean
+.PHONY: demo test lint docs bench papers install clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+	$(BIN)/python -m pip install --quiet -e ".[test,docs]"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -41,5 +42,8 @@ lint: $(STAMP)
 	$(BIN)/ruff check graphcal tests benchmarks
 	$(BIN)/lint-imports
 
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info site
