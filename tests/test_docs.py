@@ -293,6 +293,28 @@ def test_api_reference_covers_every_module() -> None:
     assert not missing, f"modules missing from docs/api/: {missing}"
 
 
+def test_documented_names_resolve() -> None:
+    """Every ``graphcal.module.name`` the pages quote in code spans can be imported."""
+    import importlib
+
+    missing = []
+    for page in PAGES:
+        text = page.read_text(encoding="utf-8")
+        for dotted in sorted(set(re.findall(r"`(graphcal(?:\.\w+)+)", text))):
+            parts = dotted.split(".")
+            for cut in range(len(parts), 0, -1):
+                try:
+                    target: object = importlib.import_module(".".join(parts[:cut]))
+                except ImportError:
+                    continue
+                for name in parts[cut:]:
+                    target = getattr(target, name, None)
+                if target is None:
+                    missing.append(f"{page.relative_to(ROOT)}: {dotted}")
+                break
+    assert not missing, "\n".join(missing)
+
+
 def test_readme_is_short_and_its_links_resolve() -> None:
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     assert len(text.encode("utf-8")) < 15_000  # bytes, as `wc -c` counts
