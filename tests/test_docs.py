@@ -15,10 +15,14 @@ Pages: ``README.md``, every ``docs/**/*.md`` and ``scenarios/README.md``.  In ea
 The blocks of one page run in order in one temporary folder that links to the bundled
 ``scenarios/`` and ``models/``, so later blocks use what earlier ones wrote.  A page that uses
 ``demo-out`` without simulating it gets a copy of the demo network simulated with seed 1, as in
-the README's tour.
+the README's tour.  Pages run two at a time (the commands are subprocesses; the Python blocks
+take turns, as they change the working directory).
 
-Every ``graphcal`` command line of every block, run or not (synopses in ``text`` blocks
-included), must name an existing command and only options that command has.
+Checks that need no run: every ``graphcal`` command line of every block, run or not
+(synopses in ``text`` blocks included), names an existing command and only options that
+command has; every ``graphcal.…`` name quoted in a code span imports; every module appears
+in the API reference (docs/api/); lists and tables render as such; the README stays under
+15 000 bytes and its links resolve.
 """
 
 from __future__ import annotations
