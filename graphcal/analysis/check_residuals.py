@@ -1,0 +1,416 @@
+"""Each radar's residuals against a reference, per plot, for the model checks.
+
+Residual = corrected measurement minus reference, in the radar's polar frame,
+with its expected variance and what the model's own terms would add to it (the
+regressors the checks fit out, :func:`graphcal.analysis.binned_test.fit_terms`).
+
+* :func:`adsb_radar_residuals`: each plot against its aircraft's ADS-B position
+  interpolated to the plot's true time (:func:`graphcal.data.align.align_adsb`,
+  as :func:`graphcal.model.measurement.residual_stats` does); variance the
+  radar's plus the ADS-B covariance mapped to polar
+  (:func:`graphcal.model.measurement.reference_polar_covariance`).  Regressors:
+  range ``1, r`` (``r`` when the radar's model has a range gain) and the range
+  rate (time offset); azimuth and elevation ``1`` and their rates.  A 2-D radar's
+  reported (Mode C) altitude is a residual too: altitude minus the ADS-B height,
+  variance :data:`graphcal.model.cross_radar.ALTITUDE_SIGMA_M` squared plus the
+  ADS-B vertical variance, no regressor (the model takes it as the geometric
+  height).
+* :func:`cross_radar_residuals`: each cross-radar pair of corrected plots
+  (:func:`graphcal.data.align.pair_plots`,
+  :func:`graphcal.model.cross_radar.corrected_ecef`), the difference expressed in
+  the polar frame of each of the two radars (that radar's plot minus the
+  other's) and given to both, variance both plots' covariances mapped into that
+  frame; a 2-D radar's altitude against a 3-D partner's height.  Regressors:
+  ``1`` (and ``r`` for the range, as above) and each partner's bias terms'
+  effect on the rows against that partner, so that the partners' estimation
+  errors are not taken for structure of this radar.
+
+The variables the checks bin by (range, azimuth, elevation or height) come from
+each plot's track neighbours (:func:`binning_geometry`), time from the plot; so
+do the Jacobians of the regressors and the variances without ADS-B, whose noise
+is then independent of the residual's (at the plot itself they would be
+correlated with it and bias the fitted terms).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from graphcal.analysis.binned_test import segment_codes
+from graphcal.core import frames
+from graphcal.data.align import (
+    DEFAULT_ADSB_MAX_GAP_S,
+    PlotArrays,
+    align_adsb,
+    neighbour_plots,
+    pair_plots,
+    plot_arrays,
+)
+from graphcal.data.bias import RadarBias
+from graphcal.data.dataset import Dataset, Site
+from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, convert_plots, corrected_ecef
+from graphcal.model.measurement import (
+    measured_polar,
+    measurement_model,
+    reference_polar_covariance,
+)
+from graphcal.model.problem import polar_rate
+
+FloatArray = NDArray[np.float64]
+
+#: Length [s] of the track segments that count as independent units.
+SEGMENT_S = 60.0
+#: Plots whose standardised residual lies further than this many robust sigmas
+#: (1.4826 median absolute deviations) from the median, in any coordinate, are left out.
+OUTLIER_SIGMAS = 8.0
+
+
+@dataclass
+class RadarResiduals:
+    """One radar's residuals against a reference, per plot, SI units.
+
+    Attributes
+    ----------
+    radar_id : str
+    reference : {"adsb", "cross"}
+        ADS-B positions, or the other radars' plots of the same aircraft.
+    variables : dict of str to ndarray (n,)
+        ``range`` [m], ``azimuth`` [rad], ``elevation`` [rad] (3-D) or
+        ``height`` [m] (2-D), ``time`` [s] of each plot.
+    residuals : dict of str to ndarray (n,)
+        Corrected measurement minus reference per coordinate (``range`` [m],
+        ``azimuth`` and ``elevation`` [rad], ``altitude`` [m]); NaN where a plot
+        has none (e.g. no reported altitude).
+    variances : dict of str to ndarray (n,)
+        Their expected variances [m^2, rad^2].
+    regressors : dict of str to ndarray (n, p)
+        What the model's own terms add to each coordinate, per unit of each term.
+    segment : ndarray (n,) of int
+        Track segment of each plot
+        (:func:`~graphcal.analysis.binned_test.segment_codes`, :data:`SEGMENT_S`).
+    n_outliers : int
+        Plots left out as gross outliers.
+    partners : tuple of str
+        ``cross``: the radars it was paired with.
+    partner : ndarray (n,) of int or None
+        ``cross``: index in ``partners`` of each residual's other radar.
+    """
+
+    radar_id: str
+    reference: str
+    variables: dict[str, FloatArray]
+    residuals: dict[str, FloatArray]
+    variances: dict[str, FloatArray]
+    regressors: dict[str, FloatArray]
+    segment: NDArray[np.int64]
+    n_outliers: int = 0
+    partners: tuple[str, ...] = ()
+    partner: NDArray[np.int64] | None = None
+
+    def __len__(self) -> int:
+        return len(self.segment)
+
+    def subset(self, keep: NDArray[np.bool_]) -> RadarResiduals:
+        """The residuals of the rows ``keep``."""
+        return replace(
+            self,
+            variables={k: v[keep] for k, v in self.variables.items()},
+            residuals={k: v[keep] for k, v in self.residuals.items()},
+            variances={k: v[keep] for k, v in self.variances.items()},
+            regressors={k: v[keep] for k, v in self.regressors.items()},
+            segment=self.segment[keep],
+            partner=None if self.partner is None else self.partner[keep],
+        )
+
+
+def binning_geometry(
+    site: Site, near: PlotArrays, height_m: FloatArray | None = None
+) -> dict[str, FloatArray]:
+    """Where each plot is, for binning: from its track neighbours, not from itself.
+
+    ``near`` holds, for each plot, the mean of its neighbours ``k +- 2 ... k +- 5``
+    (:func:`graphcal.data.align.neighbour_plots` with ``skip=1``).  Returned:
+    range [m], azimuth [rad] and elevation [rad] (3-D) or height [m] (2-D: the
+    reported altitude, else ``height_m``).  Binning by a value that shares noise
+    with the residual (the plot itself, or the ADS-B reports it is compared
+    with) would sort that noise into the bins: an aircraft flying level on a bin
+    edge would put its positive errors in one bin and its negative ones in the
+    next.  The neighbours' noise is independent of the residual's.
+    """
+    out = {"range": near.range_m, "azimuth": near.azimuth_rad}
+    if site.is_3d:
+        out["elevation"] = near.elevation_rad
+    else:
+        height = near.altitude_m
+        if height_m is not None:
+            height = np.where(np.isfinite(height), height, height_m)
+        out["height"] = height
+    return out
+
+
+def adsb_radar_residuals(
+    dataset: Dataset, radar_id: str, bias: RadarBias, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S
+) -> RadarResiduals | None:
+    """One radar's corrected plots against ADS-B (module doc); None when none aligns.
+
+    ADS-B is interpolated at the plots' true times (``time_s - bias.time_offset_s``).
+    """
+    site = dataset.sites[radar_id]
+    al = align_adsb(dataset, radar_id, max_gap_s, time_offset_s=bias.time_offset_s)
+    if len(al) == 0:
+        return None
+    model = measurement_model(site)
+    corrected = model.inverse_function(measured_polar(al), bias)
+    ref = al.reference_polar
+    noise = model.covar(len(al)) + reference_polar_covariance(al)
+    rate = polar_rate(site, al)
+    ones = np.ones(len(al))
+    range_terms = [ones, rate[:, 0]]
+    if "range_gain" in site.estimate or bias.range_gain != 0.0:
+        range_terms.insert(1, ref[:, 0])
+    residuals = {
+        "range": corrected[:, 0] - ref[:, 0],
+        "azimuth": frames.wrap_to_pi(corrected[:, 1] - ref[:, 1]),
+    }
+    variances = {"range": noise[:, 0, 0], "azimuth": noise[:, 1, 1]}
+    regressors = {
+        "range": np.stack(range_terms, axis=1),
+        "azimuth": np.stack([ones, rate[:, 1]], axis=1),
+    }
+    height = frames.ecef_to_geodetic(al.reference_ecef_m)[2]
+    variables = binning_geometry(site, neighbour_plots(al.plots, skip=1), height)
+    variables["time"] = al.plots.time_s
+    if site.is_3d:
+        residuals["elevation"] = corrected[:, 2] - ref[:, 2]
+        variances["elevation"] = noise[:, 2, 2]
+        regressors["elevation"] = np.stack([ones, rate[:, 2]], axis=1)
+    elif np.any(np.isfinite(al.plots.altitude_m)):
+        residuals["altitude"] = al.plots.altitude_m - height
+        variances["altitude"] = ALTITUDE_SIGMA_M**2 + al.reference_enu_cov_m2[:, 2, 2]
+        regressors["altitude"] = np.zeros((len(al), 0))
+    segment = segment_codes(al.plots.target_id, al.plots.time_s, SEGMENT_S)
+    return without_outliers(RadarResiduals(radar_id, "adsb", variables, residuals, variances,
+                                           regressors, segment))
+
+
+def cross_radar_residuals(
+    dataset: Dataset, biases: Mapping[str, RadarBias]
+) -> dict[str, RadarResiduals]:
+    """Every radar's corrected plots against its partners' (module doc).
+
+    For each pair ``(a, b)`` of radars in ``biases``, each plot of ``b`` against
+    ``a``'s track interpolated to its time (2.5 scans at most,
+    :func:`graphcal.data.align.pair_max_gap_s`), both corrected; the difference
+    is expressed in ``b``'s polar frame (``b`` minus ``a``) and in ``a``'s (``a``
+    minus ``b``), with the noise of both plots mapped into that frame.
+    """
+    radar_ids = [rid for rid in dataset.radar_ids if rid in biases]
+    geometry = {rid: _corrected_plots(dataset.sites[rid], plot_arrays(dataset, rid), biases[rid])
+                for rid in radar_ids}
+    parts: dict[str, list[dict[str, Any]]] = {rid: [] for rid in radar_ids}
+    for i, ra in enumerate(radar_ids):
+        for rb in radar_ids[i + 1:]:
+            ba, bb = biases[ra], biases[rb]
+            pairs = pair_plots(dataset, ra, rb, shift_s=ba.time_offset_s - bb.time_offset_s)
+            if len(pairs) == 0:
+                continue
+            ga, gb = geometry[ra], geometry[rb]
+            # Rows of each radar's corrected plots, in pair_plots' orders.
+            rows_a = ga.rows.get_indexer(pairs.a_plots.index)
+            rows_b = gb.rows.get_indexer(pairs.b_plots.index)
+            i0, w, ib = rows_a[pairs.a_index0], pairs.weight, rows_b[pairs.b_index]
+            i1 = rows_a[pairs.a_index0 + 1]
+            ok = ga.usable[i0] & ga.usable[i1] & gb.usable[ib]
+            if not np.any(ok):
+                continue
+            i0, i1, w, ib = i0[ok], i1[ok], w[ok], ib[ok]
+            w0, w1 = (1.0 - w)[:, None], w[:, None]
+            own_a = (w0 * ga.ecef_m[i0] + w1 * ga.ecef_m[i1],
+                     w0[:, :, None] ** 2 * ga.cov_m2[i0] + w1[:, :, None] ** 2 * ga.cov_m2[i1],
+                     w0[:, :, None] * ga.jacobian[i0] + w1[:, :, None] * ga.jacobian[i1],
+                     w0 * ga.near_ecef_m[i0] + w1 * ga.near_ecef_m[i1])
+            own_b = (gb.ecef_m[ib], gb.cov_m2[ib], gb.jacobian[ib], gb.near_ecef_m[ib])
+            altitude_a = (1.0 - w) * ga.altitude_m[i0] + w * ga.altitude_m[i1]
+            shared = {"time": gb.time_s[ib], "target": gb.target_id[ib]}
+            for rid, site, other_site, own, other, where, altitude in (
+                (rb, gb.site, ga.site, own_b, own_a, gb.where(ib), gb.altitude_m[ib]),
+                (ra, ga.site, gb.site, own_a, own_b, ga.where(i0), altitude_a),
+            ):
+                part = _pair_differences(site, own, other, altitude, other_site)
+                part.update(where, **shared, partner=other_site.id)
+                parts[rid].append(part)
+    out: dict[str, RadarResiduals] = {}
+    for rid in radar_ids:
+        if parts[rid]:
+            out[rid] = without_outliers(_joined(dataset.sites[rid], biases[rid], parts[rid],
+                                                dataset.sites))
+    return out
+
+
+@dataclass
+class _CorrectedPlots:
+    """One radar's plots corrected, in ECEF, with what the pair differences need.
+
+    ``jacobian`` (d ECEF / d bias) and ``cov_m2`` are evaluated at each plot's
+    track neighbours (:func:`graphcal.data.align.neighbour_plots`), whose
+    corrected position is ``near_ecef_m``: their noise is independent of the
+    plot's, where at the plot itself they would be correlated with the residual
+    and bias the fitted terms (errors in variables).
+    """
+
+    site: Site
+    rows: pd.Index
+    ecef_m: FloatArray
+    near_ecef_m: FloatArray
+    jacobian: FloatArray
+    cov_m2: FloatArray
+    usable: NDArray[np.bool_]
+    altitude_m: FloatArray
+    time_s: FloatArray
+    target_id: NDArray[np.object_]
+    geometry: dict[str, FloatArray]
+
+    def where(self, rows: NDArray[np.int64]) -> dict[str, FloatArray]:
+        """The binning variables of ``rows``."""
+        return {key: value[rows] for key, value in self.geometry.items()}
+
+
+def _corrected_plots(site: Site, plots: PlotArrays, bias: RadarBias) -> _CorrectedPlots:
+    near = neighbour_plots(plots, skip=1)
+    ecef, _, usable = corrected_ecef(site, plots, bias.as_vector())
+    near_ecef, jacobian, near_usable = corrected_ecef(site, near, bias.as_vector())
+    near_ecef = np.where(near_usable[:, None], near_ecef, ecef)
+    return _CorrectedPlots(
+        site, pd.Index(plots.index), ecef, near_ecef, jacobian,
+        convert_plots(site, plots, near).cov_m2, usable, plots.altitude_m, plots.time_s,
+        plots.target_id, binning_geometry(site, near),
+    )
+
+
+def _pair_differences(
+    site: Site,
+    own: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+    other: tuple[FloatArray, FloatArray, FloatArray, FloatArray],
+    altitude_m: FloatArray,
+    other_site: Site,
+) -> dict[str, Any]:
+    """``own`` minus ``other`` in ``site``'s polar frame.
+
+    ``own`` and ``other`` are (ECEF position, its covariance, d ECEF / d bias,
+    the neighbours' ECEF position) of the corrected plots.  Returns the
+    differences ``d_*``, their variances ``v_*`` and the partner's bias terms'
+    effect on them, ``other_terms`` ``(n, 3, 4)``: d(difference) / d(partner's
+    range offset, gain, azimuth and elevation bias).  The polar Jacobian is taken
+    at the own plot's neighbours (noise independent of the differences).
+    """
+    (own_ecef, own_cov, _, own_near), (other_ecef, other_cov, other_jac, _) = own, other
+    own_enu, other_enu = site.enu_from_ecef(own_ecef), site.enu_from_ecef(other_ecef)
+    r_own, az_own, el_own = frames.enu_to_polar(own_enu)
+    r_other, az_other, el_other = frames.enu_to_polar(other_enu)
+    near_enu = site.enu_from_ecef(own_near)
+    ground = np.hypot(near_enu[:, 0], near_enu[:, 1])
+    jac = frames.enu_to_polar_jacobian(np.where((ground > 0)[:, None], near_enu, [1.0, 0, 0]))
+    jac = jac @ site.ecef_to_enu
+    polar_cov = jac @ (own_cov + other_cov) @ np.swapaxes(jac, 1, 2)
+    out = {
+        "d_range": r_own - r_other, "d_azimuth": frames.wrap_to_pi(az_own - az_other),
+        "d_elevation": el_own - el_other, "v_range": polar_cov[:, 0, 0],
+        "v_azimuth": polar_cov[:, 1, 1], "v_elevation": polar_cov[:, 2, 2],
+        "d_altitude": np.full(len(r_own), np.nan), "v_altitude": np.full(len(r_own), np.nan),
+        "other_terms": -(jac @ other_jac),
+    }
+    if not site.is_3d and other_site.is_3d:
+        # A 2-D plot's reported altitude against a 3-D radar's (measured) height.
+        lat, lon, height = frames.ecef_to_geodetic(other_ecef)
+        up = frames.ecef_to_enu_rotation(lat, lon)[:, 2, :]
+        out["d_altitude"] = altitude_m - height
+        out["v_altitude"] = ALTITUDE_SIGMA_M**2 + np.einsum("ni,nij,nj->n", up, other_cov, up)
+        out["altitude_terms"] = -np.einsum("ni,nij->nj", up, other_jac)
+    else:
+        out["altitude_terms"] = np.zeros((len(r_own), 4))
+    return out
+
+
+def _terms_of(site: Site) -> list[int]:
+    """Positions (in offset, gain, azimuth, elevation) of the bias terms of a radar's model."""
+    names = ("range_offset", "range_gain", "azimuth_bias", "elevation_bias")
+    return [k for k, name in enumerate(names) if name in site.estimate
+            and (site.is_3d or name != "elevation_bias")]
+
+
+def _joined(site: Site, bias: RadarBias, parts: list[dict[str, Any]],
+            sites: Mapping[str, Site]) -> RadarResiduals:
+    """One radar's pair differences from every partner, as :class:`RadarResiduals`.
+
+    Regressors of each coordinate: a constant (the radar's own offset or bias),
+    the range ``r`` for the range when the radar's model has a range gain, and
+    each partner's bias terms' effect on the rows against that partner (zero on
+    the others), so that the partners' estimates' errors are not taken for
+    structure of this radar.
+    """
+    n_rows = [len(p["time"]) for p in parts]
+    joined = {key: np.concatenate([np.broadcast_to(p[key], (n,) + np.shape(p[key])[1:])
+                                   for p, n in zip(parts, n_rows, strict=True)])
+              for key in parts[0] if key not in ("other_terms", "altitude_terms")}
+    partners = tuple(sorted({str(p["partner"]) for p in parts}))
+    partner = np.searchsorted(np.array(partners), joined["partner"].astype(str))
+    n = len(joined["time"])
+    coordinates = ["range", "azimuth"] + (["elevation"] if site.is_3d else [])
+    if not site.is_3d and np.any(np.isfinite(joined["d_altitude"])):
+        coordinates.append("altitude")
+    # The partners' terms: one block of columns per partner, filled on its rows.
+    blocks: dict[str, list[FloatArray]] = {c: [] for c in coordinates}
+    for name in partners:
+        columns = _terms_of(sites[name])
+        for c in coordinates:
+            effect = [(p["altitude_terms"] if c == "altitude"
+                       else p["other_terms"][:, coordinates.index(c), :])[:, columns]
+                      if p["partner"] == name else np.zeros((count, len(columns)))
+                      for p, count in zip(parts, n_rows, strict=True)]
+            block = np.concatenate(effect)
+            blocks[c].append(block[:, np.any(block != 0.0, axis=0)])
+    ones = np.ones((n, 1))
+    own = {c: ones for c in coordinates}
+    if "range_gain" in site.estimate or bias.range_gain != 0.0:
+        own["range"] = np.column_stack([ones, joined["range"]])
+    if "altitude" in own:
+        own["altitude"] = np.zeros((n, 0))
+    regressors = {c: np.column_stack([own[c], *blocks[c]]) for c in coordinates}
+    variables = {k: joined[k] for k in ("range", "azimuth", "elevation", "height", "time")
+                 if k in joined}
+    segment = segment_codes(joined["target"], joined["time"], SEGMENT_S)
+    return RadarResiduals(
+        site.id, "cross", variables, {c: joined[f"d_{c}"] for c in coordinates},
+        {c: joined[f"v_{c}"] for c in coordinates}, regressors, segment,
+        partners=partners, partner=partner.astype(np.int64),
+    )
+
+
+def without_outliers(res: RadarResiduals) -> RadarResiduals:
+    """``res`` without the plots beyond :data:`OUTLIER_SIGMAS` robust sigmas in any coordinate."""
+    bad = np.zeros(len(res), dtype=bool)
+    for key, e in res.residuals.items():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = e / np.sqrt(res.variances[key])
+        finite = np.isfinite(z)
+        if finite.sum() < 10:
+            continue
+        centre = np.median(z[finite])
+        scale = 1.4826 * np.median(np.abs(z[finite] - centre))
+        if scale > 0:
+            bad |= finite & (np.abs(z - centre) > OUTLIER_SIGMAS * scale)
+    if not bad.any():
+        return res
+    out = res.subset(~bad)
+    out.n_outliers = res.n_outliers + int(bad.sum())
+    return out
+
+
+__all__ = ["OUTLIER_SIGMAS", "SEGMENT_S", "RadarResiduals", "adsb_radar_residuals",
+           "binning_geometry", "cross_radar_residuals", "without_outliers"]
