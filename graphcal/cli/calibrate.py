@@ -114,6 +114,17 @@ def calibrate_command(
             "each plot's track neighbours (removes the errors-in-variables bias)."
         ),
     ] = "plots",
+    model_checks: Annotated[
+        bool,
+        typer.Option(
+            "--model-checks/--no-model-checks",
+            help="After the estimate, bin each radar's residuals against range \\[km], "
+            "elevation \\[deg] or height \\[km], azimuth \\[deg] and time \\[s] and warn "
+            "('unmodelled ...') when their structure is beyond chance (false alarms on 1 % "
+            "of radars): refraction, pressure altitudes, antenna eccentricity, a drifting "
+            "bias. --no-model-checks skips them.",
+        ),
+    ] = True,
     cat063: Annotated[
         Path | None,
         typer.Option(
@@ -146,7 +157,7 @@ def calibrate_command(
                     max_iterations=max_iterations, time_offset=time_offset,
                     iterations=iterations, linearise=linearise, select=select, budget=budget,
                     select_unit=select_unit, segment_s=segment_s, select_seed=select_seed,
-                    progress=callback,
+                    model_checks=model_checks, progress=callback,
                 )
         except ValueError as exc:
             fail(str(exc), EXIT_BAD_INPUT)

@@ -1,9 +1,9 @@
-"""One calibration run: load -> select -> solve -> bound -> warnings.
+"""One calibration run: load -> select -> solve -> bound -> checks -> warnings.
 
 :func:`calibrate` is what ``graphcal calibrate`` and the Python API call.  The
 solvers estimate and nothing else; the analyses that judge an estimate (the
-Cramér-Rao bound, the parameters the traffic hardly excites) run here, once
-per calibration.
+Cramér-Rao bound, the parameters the traffic hardly excites, the model checks
+for structure left in the residuals) run here, once per calibration.
 
 Options are keyword arguments named as on the command line.  An option that
 the chosen method does not use, given a value other than its default, is an
@@ -122,6 +122,7 @@ def calibrate(
     segment_s: float = 60.0,
     select_seed: int = 0,
     bound: bool | None = None,
+    model_checks: bool = True,
     progress: Progress | None = None,
 ) -> Calibration:
     """Estimate every radar's biases: select, solve, bound and judge, once.
@@ -168,13 +169,21 @@ def calibrate(
         Compute the Cramér-Rao bound of the estimated parameters and record,
         per parameter, ``info["crlb_sigma"]`` and ``info["efficiency"]`` (sigma
         over bound).  Default: for ``graph``.
+    model_checks : bool
+        Check each radar's corrected residuals for structure the model leaves
+        out (refraction, pressure altitudes, antenna eccentricity, a bias
+        drifting in time; :func:`graphcal.analysis.model_checks.model_checks`),
+        against ADS-B or, without it (or with ``use_adsb=False``), against the
+        other radars' plots.  Records ``info["model_checks"]`` and adds one
+        warning per radar whose residuals show structure beyond chance.
     progress : callable, optional
         ``progress(stage, done, total)``.
 
     Returns
     -------
     Calibration
-        With ``info["selection"]`` when selecting and the bound when asked.
+        With ``info["selection"]`` when selecting, the bound when asked and
+        ``info["model_checks"]`` unless turned off.
 
     Raises
     ------
@@ -234,7 +243,24 @@ def calibrate(
         timing = cal.info.setdefault("timing_s", {})
         timing["crlb_s"] = time.perf_counter() - t0
         timing["total_s"] = time.perf_counter() - start
+    if model_checks and cal.radar_ids:
+        if progress is not None:
+            progress("model checks", 0, 1)
+        _check_model(cal, dataset, use_adsb=use_adsb, max_gap_s=options.get("max_gap_s"))
+        timing = cal.info.setdefault("timing_s", {})
+        timing["model_checks_s"] = cal.info["model_checks"]["seconds"]
+        timing["total_s"] = time.perf_counter() - start
     return cal
+
+
+def _check_model(cal: Calibration, dataset: Dataset, *, use_adsb: bool,
+                 max_gap_s: float | None) -> None:
+    """Run the model checks on the data the estimator used; record them and their warnings."""
+    from graphcal.analysis.model_checks import model_checks
+
+    checks = model_checks(dataset, cal, use_adsb=use_adsb, adsb_max_gap_s=max_gap_s)
+    cal.info["model_checks"] = checks.to_dict()
+    cal.warnings.extend(checks.warnings())
 
 
 def _poorly_excited(labels: list[tuple[str, str]], data_information: np.ndarray) -> list[str]:

@@ -87,6 +87,20 @@ def test_calibrate_prints_value_plus_minus_sigma_table(tmp_path: Path) -> None:
     assert "observability degree" in result.output
 
 
+def test_model_checks_are_recorded_and_can_be_turned_off(tmp_path: Path) -> None:
+    data = tmp_path / "ds"
+    _write_outside_tool_dataset(data)
+    for flag, expected in (([], True), (["--no-model-checks"], False)):
+        out = tmp_path / f"result{len(flag)}.json"
+        result = runner.invoke(app, ["calibrate", str(data), "--method", "ls", "--out", str(out),
+                                     *flag])
+        assert result.exit_code == 0, result.output
+        info = json.loads(out.read_text())["info"]
+        assert ("model_checks" in info) is expected
+    checks = json.loads((tmp_path / "result0.json").read_text())["info"]["model_checks"]
+    assert checks["reference"] == "adsb" and set(checks["radars"]) == {"RA", "RB"}
+
+
 def test_default_method_is_graph(tmp_path: Path) -> None:
     data = tmp_path / "ds"
     _write_outside_tool_dataset(data)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -130,3 +131,51 @@ def test_importing_graphcal_loads_no_solver() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
     assert out.stdout.strip() == "[]"
+
+
+# --------------------------------------------------------------------------- model checks
+def _eccentric(dataset, radar: str, amplitude_mrad: float):
+    """``dataset`` with ``amplitude sin(azimuth)`` added to ``radar``'s azimuths."""
+    plots = dataset.plots.copy()
+    rows = plots["radar_id"] == radar
+    az = np.deg2rad(plots.loc[rows, "azimuth_deg"].to_numpy())
+    plots.loc[rows, "azimuth_deg"] = np.mod(
+        np.rad2deg(az + amplitude_mrad * 1e-3 * np.sin(az)), 360.0)
+    return graphcal.Dataset(dataset.sites, plots, dataset.adsb)
+
+
+@pytest.mark.parametrize("method", ["graph", "ls", "wls"])
+def test_model_checks_run_after_every_calibration(network, method) -> None:
+    cal = calibrate(network, method)
+    checks = cal.info["model_checks"]
+    assert checks["reference"] == "adsb"
+    assert set(checks["radars"]) == set(cal.radar_ids)
+    assert all(r["n_tests"] >= 8 for r in checks["radars"].values())
+    assert checks["warnings"] == [w for w in cal.warnings if "unmodelled" in w] == []
+    assert cal.info["timing_s"]["model_checks_s"] == checks["seconds"] > 0
+    # Recorded in the result JSON and read back.
+    back = graphcal.Calibration.from_dict(json.loads(cal.to_json()))
+    assert back.info["model_checks"]["radars"].keys() == checks["radars"].keys()
+
+
+def test_a_structure_beyond_chance_becomes_a_warning(network) -> None:
+    dataset = _eccentric(network, "A", 2.0)
+    cal = calibrate(dataset, "ls")
+    found = [w for w in cal.warnings if "unmodelled" in w]
+    assert len(found) == 1
+    assert found[0].startswith("A: unmodelled azimuth residual sinusoidal in azimuth")
+    assert cal.info["model_checks"]["warnings"] == found
+    assert cal.info["model_checks"]["radars"]["A"]["fired"][0] == "azimuth vs azimuth"
+
+
+def test_model_checks_can_be_turned_off(network) -> None:
+    cal = calibrate(_eccentric(network, "A", 2.0), "ls", model_checks=False)
+    assert "model_checks" not in cal.info
+    assert not any("unmodelled" in w for w in cal.warnings)
+
+
+def test_without_adsb_the_checks_use_the_pairs(network) -> None:
+    cal = calibrate(network, use_adsb=False)
+    checks = cal.info["model_checks"]
+    assert checks["reference"] == "cross"
+    assert checks["radars"]["A"]["partners"] == ["B"]
