@@ -13,6 +13,11 @@ sections, each an ``<h2>`` with a stable ``id``:
 ``map``            radar sites, coverage (the plot cloud), tracks before and
                    after correction, lon/lat axes;
 ``correlation``    the correlation matrix of the estimated parameters;
+``model-checks``   per radar, the binned means (± 1 sigma) of the corrected residuals
+                   against range, elevation or height, azimuth and time that the model
+                   checks tested (:mod:`graphcal.analysis.model_checks`, read from
+                   ``info["model_checks"]``), with the part the model's own terms
+                   absorb, and the tests that fired marked;
 ``observability``  degree, rank, undetermined parameters, every warning and the
                    robust kernel's down-weighted measurements per radar;
 ``data``           plots per radar, ADS-B reports, time span.
@@ -50,6 +55,7 @@ SECTIONS: tuple[tuple[str, str], ...] = (
     ("histograms", "Residual histograms after correction"),
     ("map", "Map"),
     ("correlation", "Correlation of the estimates"),
+    ("model-checks", "Model checks: structure left in the residuals"),
     ("observability", "Observability and warnings"),
     ("data", "Data"),
 )
@@ -393,6 +399,128 @@ def correlation_figure(cal: Calibration):
     return fig
 
 
+# ----------------------------------------------------------------- model checks
+def _split_unit(key: str) -> tuple[str, str]:
+    """``"range_m"`` -> ``("range", "m")``."""
+    name, _, unit = key.rpartition("_")
+    return name, unit
+
+
+def model_checks_figure(radar_id: str, entry: Mapping[str, Any]):
+    """One radar's binned residual means, a panel per test (rows: residuals; columns: variables).
+
+    ``entry`` is one radar of ``info["model_checks"]["radars"]``.  Each panel:
+    bin means ± 1 sigma against the bin centres (the bins' ranges as horizontal
+    bars), the part the model's own terms absorb (dashed), zero; a test that
+    fired has a red frame and title.
+    """
+    plt = _pyplot()
+    tests = list(entry.get("tests") or [])
+    rows = list(dict.fromkeys(t["residual"] for t in tests))
+    cols = list(dict.fromkeys(t["against"] for t in tests))
+    fig, axes = plt.subplots(len(rows), len(cols), figsize=(3.5 * len(cols) + 0.6,
+                                                             2.4 * len(rows) + 0.6),
+                             squeeze=False, sharey="row")
+    for ax in axes.flat:
+        ax.set_visible(False)
+    for t in tests:
+        i, j = rows.index(t["residual"]), cols.index(t["against"])
+        ax = axes[i, j]
+        ax.set_visible(True)
+        coord, unit = _split_unit(t["residual"])
+        var, vunit = _split_unit(t["against"])
+        b = t["bins"]
+        x = np.asarray(b[f"centre_{vunit}"], dtype=float)
+        lo = x - np.asarray(b[f"lower_{vunit}"], dtype=float)
+        hi = np.asarray(b[f"upper_{vunit}"], dtype=float) - x
+        mean = np.asarray(b[f"mean_{unit}"], dtype=float)
+        sigma = np.asarray(b[f"sigma_{unit}"], dtype=float)
+        fired = bool(t.get("fired"))
+        color = "tab:red" if fired else "tab:blue"
+        ax.axhline(0.0, color="k", lw=0.6)
+        ax.errorbar(x, mean, yerr=sigma, xerr=[lo, hi], fmt="o", ms=3, lw=1, color=color,
+                    elinewidth=1, capsize=2)
+        ax.plot(x, np.asarray(b[f"absorbed_{unit}"], dtype=float), "--", color="0.4", lw=1)
+        ax.set_title(("FIRED  " if fired else "")
+                     + f"χ² {t['chi2']:.3g} over {t['dof']:.3g} dof, p {_p_text(t)}",
+                     fontsize=8, color="tab:red" if fired else "k")
+        if fired:
+            for spine in ax.spines.values():
+                spine.set_edgecolor("tab:red")
+                spine.set_linewidth(2)
+        ax.set_xlabel(f"{var} [{vunit}]", fontsize=8, labelpad=1)
+        first = min(cols.index(u["against"]) for u in tests if u["residual"] == t["residual"])
+        if j == first:
+            ax.set_ylabel(f"{coord} [{unit}]", fontsize=8)
+        ax.yaxis.set_tick_params(labelleft=True)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"{radar_id}: binned residual means ± 1σ after correction "
+                 f"(dashed: absorbed by the model's own terms)", fontsize=10)
+    top = 1.0 - 0.7 / fig.get_figheight()
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.45 / fig.get_figheight(), top=top,
+                        hspace=0.6, wspace=0.16)
+    return fig
+
+
+def _p_text(test: Mapping[str, Any]) -> str:
+    """A test's p-value, as a power of ten where it underflows to 0."""
+    p = test.get("p_value")
+    if p:
+        return f"{p:.2g}"
+    log10_p = test.get("log10_p")
+    return f"1e{log10_p:.0f}" if log10_p is not None else "–"
+
+
+def _model_checks_section(cal: Calibration, emit) -> str:
+    """The model-checks section from ``info["model_checks"]`` (a note when absent)."""
+    checks = cal.info.get("model_checks")
+    if not isinstance(checks, Mapping):
+        return ('<p>No model checks recorded: the calibration ran with '
+                "<code>--no-model-checks</code> (or the result predates them).</p>")
+    radars = checks.get("radars") or {}
+    if not radars:
+        notes = "; ".join(map(str, checks.get("notes") or [])) or "no reference to compare with"
+        return f"<p>No radar was checked: {_esc(notes)}.</p>"
+    reference = {"adsb": "ADS-B", "cross": "the other radars' plots (no ADS-B)"}.get(
+        checks.get("reference"), _esc(checks.get("reference")))
+    parts = [
+        f"<p>Residuals of the corrected plots against {reference}, binned in bins of equal "
+        "counts; a test fires when the chi-square of the bin means, after the model's own "
+        "terms are fitted out, has a p-value below the radar's threshold (family-wise "
+        f"false-alarm rate {100 * float(checks.get('family_false_alarm', 0.01)):.3g} % "
+        "per radar, Bonferroni over its tests; track segments of "
+        f"{float(checks.get('segment_s', 60)):.0f} s as independent units).</p>"]
+    warnings = checks.get("warnings") or []
+    if warnings:
+        items = "".join(f'<li class="warn">{_esc(w)}</li>' for w in warnings)
+        parts.append(f"<ul>{items}</ul>")
+    else:
+        parts.append("<p>No structure beyond chance.</p>")
+    rows = []
+    for rid, entry in radars.items():
+        for t in entry.get("tests") or []:
+            rows.append([
+                _esc(rid), _esc(t["residual"]), _esc(t["against"]), str(t["n_bins"]),
+                _fmt(t["chi2"], 3), _fmt(t["dof"], 3), _p_text(t),
+                _fmt(entry.get("threshold_p"), 2),
+                '<span class="warn">fired</span>' if t.get("fired") else "",
+                _esc(f"{t.get('pattern', '')} ({t.get('magnitude', '')})") if t.get("fired")
+                else "",
+            ])
+    for rid, entry in radars.items():
+        parts.append(f"<h3>{_esc(rid)}</h3>"
+                     + emit("model-checks", model_checks_figure(rid, entry),
+                            f"{rid} model checks"))
+    parts.append("<details><summary>Every test</summary>" + _table(
+        ["radar", "residual", "against", "bins", "χ²", "dof", "p", "threshold", "", "pattern"],
+        rows, left=3) + "</details>")
+    notes = checks.get("notes") or []
+    if notes:
+        parts.append('<p class="note">' + _esc("; ".join(map(str, notes))) + "</p>")
+    return "".join(parts)
+
+
 # --------------------------------------------------------------------- CRLB
 def _compute_crlb(dataset: Dataset) -> tuple[Any, str | None]:
     """``(CrlbResult, None)`` from :mod:`graphcal.analysis.crlb`, or ``(None, why not)``."""
@@ -646,6 +774,7 @@ def build_report(
                                    "correlation matrix")
     else:
         body["correlation"] = "<p>No estimated parameters.</p>"
+    body["model-checks"] = _model_checks_section(calibration, emit)
     body["observability"] = _observability_section(calibration)
     body["data"] = _data_section(calibration, dataset, residuals)
 

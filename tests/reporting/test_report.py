@@ -148,3 +148,29 @@ def test_write_report_for_picks_up_truth_json(tmp_path, scenario) -> None:
     loaded = load_dataset(folder)
     path = write_report_for(cal, loaded, tmp_path / "x.html")
     assert "error / σ" in path.read_text(encoding="utf-8")
+
+
+def test_model_checks_section(scenario) -> None:
+    """One figure per checked radar, the tests that fired marked, the warnings listed;
+    without recorded checks, a note."""
+    import copy
+
+    from graphcal.analysis.model_checks import model_checks
+
+    dataset, cal = scenario
+    plots = dataset.plots.copy()
+    rows = plots["radar_id"] == "RA"
+    az = np.deg2rad(plots.loc[rows, "azimuth_deg"].to_numpy())
+    plots.loc[rows, "azimuth_deg"] = np.mod(np.rad2deg(az + 3e-3 * np.sin(az)), 360.0)
+    eccentric = type(dataset)(dataset.sites, plots, dataset.adsb)
+    checked = copy.copy(cal)
+    checked.info = {**cal.info, "model_checks": model_checks(eccentric, cal).to_dict()}
+    text = build_report(checked, eccentric, crlb=False)
+    section = text.split('<h2 id="model-checks">')[1].split("<h2 id=")[0]
+    assert len(_images(section)) == 2  # RA and RB
+    assert section.count('<span class="warn">fired</span>') >= 1
+    assert "RA: unmodelled azimuth residual sinusoidal in azimuth" in section
+    assert "antenna eccentricity" in section
+    bare = build_report(cal, dataset, crlb=False)
+    note = bare.split('<h2 id="model-checks">')[1].split("<h2 id=")[0]
+    assert "No model checks recorded" in note and not _images(note)
