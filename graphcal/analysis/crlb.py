@@ -232,6 +232,9 @@ def _adsb_information(
         jac[:, :, :4] = RadarMeasurementModel.bias_jacobian(polar[:, 0])[:, :m, :]
         # Time offset: the plot was made at t - tau, so d h / d tau = -(d polar/dt).
         jac[:, :, 4] = -np.einsum("nij,nj->ni", d_polar, al.reference_velocity_ecef_m_s)[:, :m]
+        # Azimuth eccentricity: d az / d (s, c) = (sin az, cos az).
+        jac[:, 1, 5] = np.sin(polar[:, 1])
+        jac[:, 1, 6] = np.cos(polar[:, 1])
         jac = jac[:, :, list(pos)]
         info = np.einsum("nip,nij,njq->pq", jac, np.linalg.inv(cov), jac)
         fisher[np.ix_(glob, glob)] += info
@@ -279,6 +282,8 @@ def _cross_information(
         # The time offsets are taken as known in the cross-radar events (zero column).
         bias_jac = np.zeros((n, m, len(TERM_NAMES)))
         bias_jac[:, :, :4] = RadarMeasurementModel.bias_jacobian(r)[:, :m, :] / sig[None, :, None]
+        bias_jac[:, 1, 5] = np.sin(az) / sig[1]
+        bias_jac[:, 1, 6] = np.cos(az) / sig[1]
         for pos, glob in columns.get(rid, []):
             hb[:, :m, glob] = bias_jac[:, :, pos]
         if not site.is_3d:

@@ -28,7 +28,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from graphcal.core.errors import ResultError
-from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY, PARAMETER_NAMES, RadarBias
+from graphcal.data.bias import (
+    CONTRACT_KEYS,
+    ECCENTRICITY_NAMES,
+    NAME_FROM_KEY,
+    PARAMETER_NAMES,
+    RadarBias,
+)
 
 
 @dataclass
@@ -280,7 +286,7 @@ class Calibration:
     def bias(self, radar_id: str) -> RadarBias:
         """The estimated biases of one radar (zero where not estimated), SI units."""
         self._check_radar(radar_id)
-        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset")}
+        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset", *ECCENTRICITY_NAMES)}
         for (rid, name), value in self.fixed.items():
             if rid == radar_id:
                 values[name] = float(value)
@@ -290,6 +296,7 @@ class Calibration:
         return RadarBias(
             values["range_offset"], values["range_gain"], values["azimuth_bias"],
             values["elevation_bias"], values["time_offset"],
+            azimuth_sin_rad=values["azimuth_sin"], azimuth_cos_rad=values["azimuth_cos"],
         )
 
     def value(self, radar_id: str, key: str) -> float | None:
@@ -575,6 +582,10 @@ class Calibration:
     def to_dict(self) -> dict[str, Any]:
         """The result JSON of the contract (plus optional extra keys)."""
         radars: dict[str, Any] = {}
+        # Contract v2: the eccentricity keys appear (null where not estimated) once any
+        # radar has them; a version-1 result keeps exactly the version-1 keys.
+        eccentric = any(name in ECCENTRICITY_NAMES for _, name in self.labels) or any(
+            name in ECCENTRICITY_NAMES for _, name in self.fixed)
         for rid in self.radar_ids:
             entry: dict[str, Any] = {}
             sigma: dict[str, float] = {}
@@ -592,6 +603,11 @@ class Calibration:
             if self._position(rid, "time_offset") is not None:
                 entry["time_offset_s"] = self.value(rid, "time_offset_s")
                 sigma["time_offset_s"] = self.sigma(rid, "time_offset_s")
+            for name in ECCENTRICITY_NAMES if eccentric else ():
+                key = CONTRACT_KEYS[name][0]
+                entry[key] = self.value(rid, key)
+                if self._position(rid, name) is not None:
+                    sigma[key] = self.sigma(rid, key)
             entry["sigma"] = sigma
             if fixed:
                 entry["fixed"] = fixed
@@ -687,7 +703,7 @@ def read_biases(path: str | Path) -> dict[str, RadarBias]:
     for rid, entry in radars.items():
         if not isinstance(entry, Mapping):
             raise ResultError("not an object", path=path, field=f"radars.{rid}")
-        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset")}
+        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset", *ECCENTRICITY_NAMES)}
         fixed = entry.get("fixed") or {}
         items = list(fixed.items()) if isinstance(fixed, Mapping) else []
         items += [(k, v) for k, v in entry.items() if k in NAME_FROM_KEY]
@@ -702,5 +718,6 @@ def read_biases(path: str | Path) -> dict[str, RadarBias]:
         out[str(rid)] = RadarBias(
             values["range_offset"], values["range_gain"], values["azimuth_bias"],
             values["elevation_bias"], values["time_offset"],
+            azimuth_sin_rad=values["azimuth_sin"], azimuth_cos_rad=values["azimuth_cos"],
         )
     return out

@@ -60,7 +60,7 @@ from numpy.typing import NDArray
 
 from graphcal.core.atomic import atomic_write_text, write_table
 from graphcal.core.errors import DatasetError, SensorModelError
-from graphcal.data.bias import PARAMETER_NAMES
+from graphcal.data.bias import ESTIMATE_NAMES
 from graphcal.data.dataset import (
     ADSB_COLUMNS,
     ADSB_DEFAULT_SIGMA_M,
@@ -157,8 +157,8 @@ def _site_estimate(entry: Mapping[str, Any], where: _Where) -> tuple[str, ...] |
     if not value:
         raise where.error("estimate", "must name at least one parameter")
     for name in value:
-        if name not in PARAMETER_NAMES:
-            known = ", ".join(PARAMETER_NAMES)
+        if name not in ESTIMATE_NAMES:
+            known = ", ".join(ESTIMATE_NAMES)
             raise where.error("estimate", f"unknown parameter {name!r}; known: {known}")
     if len(set(value)) != len(value):
         raise where.error("estimate", "names a parameter twice")

@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.covariance import convert_covariance
 from graphcal.data.align import PlotArrays, PlotPairs, neighbour_plots, pair_plots
+from graphcal.data.bias import RadarBias, true_azimuth
 from graphcal.data.dataset import Dataset, Site
 from graphcal.model.measurement import RadarMeasurementModel
 from graphcal.model.parameters import ParameterLayout
@@ -81,14 +82,20 @@ def convert_plots(
 
 
 def corrected_ecef(
-    site: Site, plots: PlotArrays, bias: FloatArray
+    site: Site,
+    plots: PlotArrays,
+    bias: FloatArray,
+    eccentricity: tuple[float, float] | None = None,
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Plots corrected by ``bias`` -> ECEF, with the Jacobian w.r.t. the bias.
 
     The correction is the inverse bias model (:func:`graphcal.data.bias.correct_bias`):
-    ``r = (r_m - offset) / (1 + gain)``, ``az = az_m - az_bias``,
-    ``el = el_m - el_bias`` (3-D) or the elevation of the reported height at
-    the corrected range (2-D).
+    ``r = (r_m - offset) / (1 + gain)``, ``az`` from ``az_m = az + az_bias +
+    s sin(az) + c cos(az)`` (:func:`graphcal.data.bias.true_azimuth`; ``az_m -
+    az_bias`` without eccentricity), ``el = el_m - el_bias`` (3-D) or the
+    elevation of the reported height at the corrected range (2-D).  Implicit
+    differentiation of the azimuth model gives ``d az / d (az_bias, s, c) =
+    -(1, sin az, cos az) / (1 + s cos az - c sin az)``.
 
     Parameters
     ----------
@@ -96,23 +103,34 @@ def corrected_ecef(
     plots : PlotArrays
     bias : ndarray (4,)
         ``(range_offset_m, range_gain, azimuth_bias_rad, elevation_bias_rad)``.
+    eccentricity : (float, float), optional
+        The azimuth eccentricity ``(s, c)`` [rad]; when given, the Jacobian gains
+        its two columns.
 
     Returns
     -------
     ecef_m : ndarray (n, 3)
-    jacobian : ndarray (n, 3, 4)
-        ``d ecef / d bias`` [m per unit of each bias].
+    jacobian : ndarray (n, 3, 4), or (n, 3, 6) with ``eccentricity``
+        ``d ecef / d (bias[, s, c])`` [m per unit of each term].
     usable : ndarray (n,) of bool
         False for 2-D plots without a reported height or 3-D plots without elevation.
     """
     offset, gain, az_bias, el_bias = (float(v) for v in bias)
+    s, c = (0.0, 0.0) if eccentricity is None else (float(v) for v in eccentricity)
     r = (plots.range_m - offset) / (1.0 + gain)
-    az = plots.azimuth_rad - az_bias
+    az = true_azimuth(plots.azimuth_rad, RadarBias(azimuth_bias_rad=az_bias, azimuth_sin_rad=s,
+                                                   azimuth_cos_rad=c))
     geometry = _plot_geometry(site, r, az, plots, el_bias)
-    d_polar = np.zeros((len(r), 3, 4))
+    d_polar = np.zeros((len(r), 3, 4 if eccentricity is None else 6))
     d_polar[:, 0, 0] = -1.0 / (1.0 + gain)
     d_polar[:, 0, 1] = -r / (1.0 + gain)
-    d_polar[:, 1, 2] = -1.0
+    if eccentricity is None:
+        d_polar[:, 1, 2] = -1.0
+    else:
+        slope = 1.0 + s * np.cos(az) - c * np.sin(az)
+        d_polar[:, 1, 2] = -1.0 / slope
+        d_polar[:, 1, 4] = -np.sin(az) / slope
+        d_polar[:, 1, 5] = -np.cos(az) / slope
     if site.is_3d:
         d_polar[:, 2, 3] = -1.0
     return geometry.ecef_m, geometry.ecef_jacobian @ d_polar, geometry.usable

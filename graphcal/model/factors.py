@@ -39,6 +39,11 @@ from graphcal.model.robust import RobustKernel
 
 FloatArray = NDArray[np.float64]
 
+#: Columns of :data:`TERM_NAMES` that a plot's corrected position depends on: the four
+#: biases and the eccentricity terms (:func:`~graphcal.model.cross_radar.corrected_ecef`).
+SPATIAL: list[int] = [0, 1, 2, 3, 5, 6]
+
+
 def whitening_matrices(cov: FloatArray) -> FloatArray:
     """``L^-1`` per measurement with ``L L^T = cov``, so ``||L^-1 r||^2 = r^T cov^-1 r``."""
     return np.linalg.inv(np.linalg.cholesky(cov))
@@ -112,10 +117,16 @@ class AdsbFactor:
         return len(self.measured) * self.rows
 
     def residual(
-        self, bias: FloatArray, time_offset_s: float = 0.0
+        self, bias: FloatArray, time_offset_s: float = 0.0,
+        eccentricity: tuple[float, float] = (0.0, 0.0),
     ) -> tuple[FloatArray, FloatArray]:
-        """Unwhitened residual ``(n, m)`` and its Jacobian ``(n, m, 5)`` (:data:`TERM_NAMES`)."""
+        """Unwhitened residual ``(n, m)`` and its Jacobian ``(n, m, 7)`` (:data:`TERM_NAMES`).
+
+        With an azimuth eccentricity ``(s, c)`` the predicted azimuth gains
+        ``s sin(az) + c cos(az)`` at the reference azimuth ``az``.
+        """
         offset, gain, az_bias, el_bias = bias
+        s, c = eccentricity
         m = self.rows
         reference = self.reference
         if self.rate is not None:
@@ -123,18 +134,24 @@ class AdsbFactor:
         r_true, az_true, el_true = reference.T
         res = np.empty((len(r_true), m))
         res[:, 0] = self.measured[:, 0] - ((1.0 + gain) * r_true + offset)
-        res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - (az_true + az_bias))
+        az_pred = az_true + az_bias
+        if s != 0.0 or c != 0.0:
+            az_pred = az_pred + s * np.sin(az_true) + c * np.cos(az_true)
+        res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - az_pred)
         if m == 3:
             res[:, 2] = self.measured[:, 2] - (el_true + el_bias)
         jac = np.zeros((len(r_true), m, len(TERM_NAMES)))
         jac[:, :, :4] = -RadarMeasurementModel.bias_jacobian(r_true)[:, :m, :]
+        jac[:, 1, 5] = -np.sin(az_true)
+        jac[:, 1, 6] = -np.cos(az_true)
         if self.rate is not None:
             jac[:, :, 4] = self.rate[:, :m]
             jac[:, 0, 4] *= 1.0 + gain
         return res, jac
 
     def whitened(self, values: list[FloatArray]) -> tuple[FloatArray, list[FloatArray]]:
-        res, jac = self.residual(self.terms.full(values[0]), self.terms.time_offset(values[0]))
+        res, jac = self.residual(self.terms.full(values[0]), self.terms.time_offset(values[0]),
+                                 self.terms.eccentricity(values[0]))
         e = np.einsum("nij,nj->ni", self.whitening, res)
         j = self.whitening @ self.terms.select(jac)
         return e, [j]
@@ -228,11 +245,13 @@ class PairwiseFactor:
         return len(self.ib)
 
     def residual(
-        self, bias_a: FloatArray, bias_b: FloatArray, tau_a: float = 0.0, tau_b: float = 0.0
+        self, bias_a: FloatArray, bias_b: FloatArray, tau_a: float = 0.0, tau_b: float = 0.0,
+        ecc_a: tuple[float, float] = (0.0, 0.0), ecc_b: tuple[float, float] = (0.0, 0.0),
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Unwhitened residual ``(n, 3)`` [m] and its Jacobians ``(n, 3, 5)`` for a and b."""
-        ecef_a, jac_a, _ = corrected_ecef(self.site_a, self.a_plots, bias_a)
-        ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b)
+        """Unwhitened residual ``(n, 3)`` [m] and its Jacobians ``(n, 3, 7)`` for a and b
+        (:data:`TERM_NAMES`; ``ecc_a``, ``ecc_b``: the radars' azimuth eccentricities)."""
+        ecef_a, jac_a, _ = corrected_ecef(self.site_a, self.a_plots, bias_a, ecc_a)
+        ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b, ecc_b)
         w1 = self.weight[:, None]
         w0 = 1.0 - w1
         i0, i1 = self.i0, self.i0 + 1
@@ -240,15 +259,15 @@ class PairwiseFactor:
         n = len(self.ib)
         d_a = np.zeros((n, 3, len(TERM_NAMES)))
         d_b = np.zeros((n, 3, len(TERM_NAMES)))
-        d_a[:, :, :4] = -(w0[:, :, None] * jac_a[i0] + w1[:, :, None] * jac_a[i1])
-        d_b[:, :, :4] = jac_b[self.ib]
+        d_a[:, :, SPATIAL] = -(w0[:, :, None] * jac_a[i0] + w1[:, :, None] * jac_a[i1])
+        d_b[:, :, SPATIAL] = jac_b[self.ib]
         dt = (self.a_plots.time_s[i1] - self.a_plots.time_s[i0])[:, None]
         dt = np.where(dt > 0.0, dt, np.inf)  # two plots at one time: no velocity
         velocity = (ecef_a[i1] - ecef_a[i0]) / dt
         shift = (tau_a - tau_b) - (self.tau0_a - self.tau0_b)
         if shift != 0.0:
             res = res - velocity * shift
-            d_a[:, :, :4] -= shift * (jac_a[i1] - jac_a[i0]) / dt[:, :, None]
+            d_a[:, :, SPATIAL] -= shift * (jac_a[i1] - jac_a[i0]) / dt[:, :, None]
         d_a[:, :, 4] = -velocity
         d_b[:, :, 4] = velocity
         return res, d_a, d_b
@@ -258,6 +277,7 @@ class PairwiseFactor:
         res, d_a, d_b = self.residual(
             ta.full(values[0]), tb.full(values[1]),
             ta.time_offset(values[0]), tb.time_offset(values[1]),
+            ta.eccentricity(values[0]), tb.eccentricity(values[1]),
         )
         e = np.einsum("nij,nj->ni", self.whitening, res)
         jac_a = self.whitening @ self.terms_a.select(d_a)

@@ -8,7 +8,7 @@ The format is documented in ``scenarios/README.md``.  In short::
                  min_elevation_deg, horizon_check, estimate, antenna_phase_deg,
                  altitude_sigma_m, altitude_quantum_ft,
                  [radar.bias] range_offset_m, range_gain, azimuth_bias_mrad,
-                 elevation_bias_mrad, time_offset_s
+                 elevation_bias_mrad, time_offset_s, azimuth_sin_mrad, azimuth_cos_mrad
     [[aircraft]] piecewise legs from a start state, or constant ECEF velocity
     [traffic]    random waypoint traffic
     [opensky]    replay of an OpenSky-style state-vector table
@@ -36,7 +36,7 @@ import pandas as pd
 
 from graphcal.core import frames
 from graphcal.core.errors import ScenarioError, SensorModelError
-from graphcal.data.bias import PARAMETER_NAMES, RadarBias
+from graphcal.data.bias import ESTIMATE_NAMES, RadarBias
 from graphcal.data.dataset import Site
 from graphcal.data.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
 from graphcal.simulation.trajectories import (
@@ -441,8 +441,8 @@ def _radar_estimate(t: _Table, default: tuple[str, ...], is_3d: bool) -> tuple[s
         if not value:
             raise t.error("estimate", "must name at least one parameter")
         for name in value:
-            if name not in PARAMETER_NAMES:
-                known = ", ".join(PARAMETER_NAMES)
+            if name not in ESTIMATE_NAMES:
+                known = ", ".join(ESTIMATE_NAMES)
                 raise t.error("estimate", f"unknown parameter {name!r}; known: {known}")
         if len(set(value)) != len(value):
             raise t.error("estimate", "names a parameter twice")
@@ -465,6 +465,8 @@ def _radar_bias(t: _Table, is_3d: bool) -> RadarBias:
         azimuth_bias_rad=b.number("azimuth_bias_mrad", 0.0, low=-1000.0, high=1000.0) * 1e-3,
         elevation_bias_rad=el * 1e-3,
         time_offset_s=b.number("time_offset_s", 0.0, low=-60.0, high=60.0),
+        azimuth_sin_rad=b.number("azimuth_sin_mrad", 0.0, low=-100.0, high=100.0) * 1e-3,
+        azimuth_cos_rad=b.number("azimuth_cos_mrad", 0.0, low=-100.0, high=100.0) * 1e-3,
     )
     b.finish()
     return bias

@@ -48,7 +48,13 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.atomic import atomic_write_text
 from graphcal.core.errors import ScenarioError
-from graphcal.data.bias import CONTRACT_KEYS, PARAMETER_NAMES, RadarBias, apply_bias
+from graphcal.data.bias import (
+    CONTRACT_KEYS,
+    ECCENTRICITY_NAMES,
+    PARAMETER_NAMES,
+    RadarBias,
+    apply_bias,
+)
 from graphcal.data.dataset import PLOT_COLUMNS, Dataset
 from graphcal.io.folder import write_dataset
 from graphcal.simulation.scenario import AdsbSpec, RadarSpec, Scenario
@@ -546,7 +552,8 @@ def truth_document(result: SimulationResult) -> dict:
 
     Every radar gets the four bias keys in contract units
     (``elevation_bias_mrad`` null for a 2-D radar), ``time_offset_s`` when it
-    is not zero, an empty ``sigma`` and ``n_plots``.
+    is not zero, ``azimuth_sin_mrad`` and ``azimuth_cos_mrad`` when the radar
+    has an azimuth eccentricity, an empty ``sigma`` and ``n_plots``.
     """
     counts = result.n_plots()
     radars = {}
@@ -563,6 +570,10 @@ def truth_document(result: SimulationResult) -> dict:
         if bias.time_offset_s != 0.0:
             key, factor = CONTRACT_KEYS["time_offset"]
             entry[key] = float(bias.time_offset_s) * factor
+        if bias.has_eccentricity:
+            for name in ECCENTRICITY_NAMES:
+                key, factor = CONTRACT_KEYS[name]
+                entry[key] = float(bias.value(name)) * factor
         entry["sigma"] = {}
         entry["n_plots"] = counts[radar.id]
         radars[radar.id] = entry

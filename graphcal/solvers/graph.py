@@ -48,14 +48,20 @@ from numpy.typing import NDArray
 
 from graphcal.core.errors import EstimationError
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb
-from graphcal.data.bias import CONTRACT_KEYS, RadarBias
+from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY, RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.model.cross_radar import gradient_noise_middle
 from graphcal.model.factors import AdsbFactor, PairwiseFactor
 from graphcal.model.information import describe_weak_directions, observability
 from graphcal.model.measurement import residual_stats
-from graphcal.model.parameters import TERM_NAMES, RadarTerms, prior_sigmas, radar_terms
+from graphcal.model.parameters import (
+    TERM_NAMES,
+    RadarTerms,
+    prior_sigmas,
+    radar_terms,
+    terms_vector,
+)
 from graphcal.model.problem import CROSS_MODES, Problem, build_factors, radars_with_adsb
 from graphcal.model.robust import RobustKernel
 from graphcal.noise import fills_missing_sigmas
@@ -120,7 +126,7 @@ def initial_biases(
 def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) -> FloatArray:
     if bias is None:
         return np.zeros(len(terms.free))
-    values = np.append(bias.as_vector(), bias.time_offset_s)[terms.positions]
+    values = terms_vector(bias)[terms.positions]
     # A closed-form estimate far outside the prior is not a useful start.
     return np.where(np.abs(values) <= 3.0 * prior, values, 0.0)
 
@@ -393,6 +399,11 @@ def graph(
     auto_time = time_offset is None
     if time_offset and not have_adsb:
         raise ValueError("time offsets need ADS-B: the dataset has none (or use_adsb=False)")
+    if cross == "target-state" and any(ECCENTRICITY in s.estimate for s in dataset.sites.values()):
+        raise ValueError(
+            "azimuth eccentricity is estimated with the pairwise or no cross-radar factors, "
+            "not in target-state mode"
+        )
     if time_offset and cross == "target-state":
         raise ValueError("time offsets are not estimated in target-state mode; use pairwise")
     want_time = have_adsb and cross != "target-state" if auto_time else bool(time_offset)
@@ -525,7 +536,7 @@ def graph(
     cal.information = data_information
     for rid, al in problem.alignments.items():
         if rid in radars:
-            bias = RadarBias.from_vector(terms[rid].full(values[rid]))
+            bias = terms[rid].bias(values[rid])
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, bias)
     return cal
 
