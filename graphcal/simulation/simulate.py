@@ -280,8 +280,7 @@ def earth_blocks(enu_m: Array, lat_rad: float, alt_m: float) -> NDArray[np.bool_
         Antenna height above the ellipsoid [m].
     """
     enu = np.asarray(enu_m, dtype=float)
-    sin_lat2 = np.sin(lat_rad) ** 2
-    radius = frames.WGS84_A_M * np.sqrt(1.0 - frames.WGS84_E2) / (1.0 - frames.WGS84_E2 * sin_lat2)
+    radius = frames.gaussian_radius_m(lat_rad)
     centre = np.array([0.0, 0.0, -(radius + alt_m)])
     norm2 = np.einsum("ij,ij->i", enu, enu)
     with np.errstate(invalid="ignore", divide="ignore"):
