@@ -6,7 +6,8 @@ The format is documented in ``scenarios/README.md``.  In short::
     [[radar]]    id, site (lat_deg/lon_deg/alt_m or ecef_m), model and/or sigmas,
                  dimensions, scan_period_s, detection_probability, max_range_m,
                  min_elevation_deg, horizon_check, estimate, antenna_phase_deg,
-                 altitude_sigma_m, altitude_quantum_ft,
+                 altitude_sigma_m, altitude_quantum_ft, refraction,
+                 refractivity_n_s, refractivity_scale_height_m,
                  [radar.bias] range_offset_m, range_gain, azimuth_bias_mrad,
                  elevation_bias_mrad, time_offset_s, azimuth_sin_mrad, azimuth_cos_mrad
     [[aircraft]] piecewise legs from a start state, or constant ECEF velocity
@@ -36,8 +37,9 @@ import pandas as pd
 
 from graphcal.core import frames
 from graphcal.core.errors import ScenarioError, SensorModelError
+from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosphere
 from graphcal.data.bias import ESTIMATE_NAMES, RadarBias
-from graphcal.data.dataset import Site
+from graphcal.data.dataset import REFRACTION_MODELS, REFRACTIVITY_N_S_RANGE, Site
 from graphcal.data.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
 from graphcal.simulation.trajectories import (
     EcefTrajectory,
@@ -110,6 +112,14 @@ class RadarSpec:
         1-sigma noise of the reported altitude [m].
     altitude_quantum_m : float
         Quantum of the reported altitude [m] (0: not quantised).
+    refraction : str
+        ``"none"`` (straight lines of sight) or ``"exponential"`` (contract v2:
+        the plots measure the refracted ray's electrical length and apparent
+        elevation), written to ``sites.toml``.
+    refractivity_n_s : float
+        Surface refractivity of the exponential atmosphere [N-units].
+    refractivity_scale_height_m : float
+        Its scale height [m].
     """
 
     id: str
@@ -130,11 +140,19 @@ class RadarSpec:
     antenna_phase_rad: float | None = None
     altitude_sigma_m: float = DEFAULT_ALTITUDE_SIGMA_M
     altitude_quantum_m: float = DEFAULT_ALTITUDE_QUANTUM_FT * FOOT_M
+    refraction: str = "none"
+    refractivity_n_s: float = DEFAULT_N_S
+    refractivity_scale_height_m: float = DEFAULT_SCALE_HEIGHT_M
 
     @property
     def is_3d(self) -> bool:
         """True when the radar measures elevation."""
         return self.sigma_elevation_rad is not None
+
+    @property
+    def atmosphere(self) -> Atmosphere | None:
+        """The atmosphere of the radar's rays, ``None`` for straight lines of sight."""
+        return self.site().atmosphere
 
     def site(self) -> Site:
         """The :class:`graphcal.data.dataset.Site` written to ``sites.toml``."""
@@ -149,6 +167,9 @@ class RadarSpec:
             scan_period_s=self.scan_period_s,
             model=self.model,
             estimate=self.estimate,
+            refraction=self.refraction,
+            refractivity_n_s=self.refractivity_n_s,
+            refractivity_scale_height_m=self.refractivity_scale_height_m,
         )
 
 
@@ -472,6 +493,23 @@ def _radar_bias(t: _Table, is_3d: bool) -> RadarBias:
     return bias
 
 
+def _radar_refraction(t: _Table) -> tuple[str, float, float]:
+    """``(refraction, refractivity_n_s, refractivity_scale_height_m)`` (contract v2 keys)."""
+    model = t.string("refraction", "none")
+    if model not in REFRACTION_MODELS:
+        known = ", ".join(f'"{m}"' for m in REFRACTION_MODELS)
+        raise t.error("refraction", f"unknown refraction model {model!r}; known: {known}")
+    low, high = REFRACTIVITY_N_S_RANGE
+    n_s = t.number("refractivity_n_s", DEFAULT_N_S, low=low, high=high)
+    height = t.number("refractivity_scale_height_m", DEFAULT_SCALE_HEIGHT_M, positive=True)
+    if model != "none":
+        try:
+            Atmosphere(n_s, height)
+        except ValueError as exc:
+            raise t.error("refractivity_scale_height_m", str(exc)) from None
+    return model, n_s, height
+
+
 def _model_value(t: _Table, key: str, model_value: Any, **checks: Any) -> Any:
     """The file's value if given, else the model's, else a missing-field error."""
     if not t.has(key) and model_value is None:
@@ -526,6 +564,7 @@ def _parse_radar(t: _Table) -> RadarSpec:
         high=90.0,
     )
     phase = t.number("antenna_phase_deg", None)
+    refraction, n_s, scale_height = _radar_refraction(t)
     spec = RadarSpec(
         id=radar_id.strip(),
         lat_rad=lat,
@@ -548,6 +587,9 @@ def _parse_radar(t: _Table) -> RadarSpec:
             "altitude_quantum_ft", DEFAULT_ALTITUDE_QUANTUM_FT, low=0.0, high=1000.0
         )
         * FOOT_M,
+        refraction=refraction,
+        refractivity_n_s=n_s,
+        refractivity_scale_height_m=scale_height,
     )
     t.finish()
     return spec
