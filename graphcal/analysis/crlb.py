@@ -58,6 +58,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.refraction import apparent_elevation_from_height, target_from_refracted
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb, plot_arrays
 from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY
 from graphcal.data.calibration import Calibration
@@ -261,7 +262,8 @@ def _cross_information(
             el = plots.elevation_rad
             usable = np.isfinite(el) & np.isfinite(r) & np.isfinite(az)
         else:
-            el = frames.elevation_from_height(r, plots.altitude_m, site.lat_rad, site.alt_m)
+            el = apparent_elevation_from_height(site.atmosphere, site.lat_rad, site.alt_m, r,
+                                                plots.altitude_m)
             with np.errstate(invalid="ignore"):
                 usable = (np.isfinite(el) & np.isfinite(plots.altitude_m)
                           & (np.abs(el) < MAX_2D_ELEVATION_RAD))
@@ -270,7 +272,8 @@ def _cross_information(
         n = len(plots)
         if n == 0:
             continue
-        ecef = site.ecef_from_polar(r, az, el)
+        ecef = site.ecef_from_enu(target_from_refracted(site.atmosphere, site.lat_rad,
+                                                        site.alt_m, r, az, el))
         _, d_polar = measurement_model(site).position_jacobian(ecef)
         m = 3 if site.is_3d else 2
         sig = site.measurement_sigmas()[:m]

@@ -30,6 +30,10 @@ from numpy.typing import NDArray
 
 from graphcal.core import frames
 from graphcal.core.covariance import convert_covariance
+from graphcal.core.refraction import (
+    apparent_elevation_from_height_jacobian,
+    target_from_refracted_jacobian,
+)
 from graphcal.data.align import PlotArrays, PlotPairs, neighbour_plots, pair_plots
 from graphcal.data.bias import RadarBias, true_azimuth
 from graphcal.data.dataset import Dataset, Site
@@ -147,7 +151,16 @@ class _Geometry:
 def _plot_geometry(
     site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float = 0.0
 ) -> _Geometry:
-    """ECEF position, d ecef / d polar and converted noise of plots at ``(r, az)``."""
+    """ECEF position, d ecef / d polar and converted noise of plots at ``(r, az)``.
+
+    With refraction (``site.atmosphere``), ``r`` is the electrical length and the
+    elevation the apparent one: the plot is placed along the refracted ray
+    (:func:`graphcal.core.refraction.target_from_refracted_jacobian`) and a 2-D
+    plot's elevation comes from its height along it
+    (:func:`graphcal.core.refraction.apparent_elevation_from_height_jacobian`).
+    """
+    if site.atmosphere is not None:
+        return _refracted_plot_geometry(site, r, az, plots, elevation_bias)
     n = len(r)
     cov_polar = np.zeros((n, 3, 3))
     cov_polar[:, 0, 0] = site.sigma_range_m**2
@@ -182,6 +195,44 @@ def _plot_geometry(
     rot = site.ecef_to_enu.T  # d ecef / d enu
     ecef_jac = rot @ enu_jac
     ecef = site.ecef_from_polar(r, az, el)
+    cov = convert_covariance(cov_polar, ecef_jac)
+    return _Geometry(ecef, ecef_jac, cov, usable)
+
+
+def _refracted_plot_geometry(
+    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float
+) -> _Geometry:
+    """:func:`_plot_geometry` along refracted rays (contract v2)."""
+    atmosphere = site.atmosphere
+    n = len(r)
+    cov_polar = np.zeros((n, 3, 3))
+    cov_polar[:, 0, 0] = site.sigma_range_m**2
+    cov_polar[:, 1, 1] = site.sigma_azimuth_rad**2
+    if site.is_3d:
+        el = plots.elevation_rad - elevation_bias
+        usable = np.isfinite(el) & np.isfinite(r)
+        cov_polar[:, 2, 2] = site.sigma_elevation_rad**2
+        d_el_d_r = np.zeros(n)
+    else:
+        height = plots.altitude_m
+        el, d_el_d_r, d_el_d_h = apparent_elevation_from_height_jacobian(
+            atmosphere, site.lat_rad, site.alt_m, np.where(np.isfinite(r), r, 0.0),
+            np.nan_to_num(height))
+        with np.errstate(invalid="ignore"):
+            usable = np.isfinite(el) & np.isfinite(height) & (np.abs(el) < MAX_2D_ELEVATION_RAD)
+        cov_polar[:, 2, 2] = np.nan_to_num(d_el_d_h) ** 2 * ALTITUDE_SIGMA_M**2
+    el = np.where(usable, el, 0.0)
+    r_safe = np.where(usable, r, 0.0)
+    enu, enu_jac = target_from_refracted_jacobian(atmosphere, site.lat_rad, site.alt_m, r_safe,
+                                                  az, el)
+    bad = ~np.all(np.isfinite(enu), axis=1) | ~np.all(np.isfinite(enu_jac), axis=(1, 2))
+    usable = usable & ~bad
+    enu = np.where(usable[:, None], enu, 0.0)
+    enu_jac = np.where(usable[:, None, None], enu_jac, 0.0)
+    if not site.is_3d:
+        enu_jac[:, :, 0] += enu_jac[:, :, 2] * np.nan_to_num(d_el_d_r)[:, None]
+    ecef_jac = site.ecef_to_enu.T @ enu_jac
+    ecef = site.ecef_from_enu(enu)
     cov = convert_covariance(cov_polar, ecef_jac)
     return _Geometry(ecef, ecef_jac, cov, usable)
 

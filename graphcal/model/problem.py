@@ -18,11 +18,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from graphcal.core import frames
 from graphcal.data.align import AdsbAlignment, align_adsb, pair_plots
 from graphcal.data.dataset import Dataset, Site
 from graphcal.model.factors import AdsbFactor, PairwiseFactor, adsb_factor, pairwise_factor
-from graphcal.model.measurement import reference_polar_covariance
+from graphcal.model.measurement import measurement_model, reference_polar_covariance
 from graphcal.model.parameters import RadarTerms
 from graphcal.model.robust import RobustKernel
 
@@ -75,7 +74,8 @@ def polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
     velocity = al.reference_velocity_ecef_m_s
     plausible = np.linalg.norm(velocity, axis=1) <= ADSB_MAX_SPEED_M_S
     velocity_enu = np.where(plausible[:, None], velocity, 0.0) @ site.ecef_to_enu.T
-    return np.einsum("nij,nj->ni", frames.enu_to_polar_jacobian(enu), velocity_enu)
+    _, jac = measurement_model(site).enu_jacobian(enu)
+    return np.einsum("nij,nj->ni", jac, velocity_enu)
 
 
 def build_factors(
@@ -108,7 +108,7 @@ def build_factors(
             rate = polar_rate(site, al) if "time_offset" in problem.terms[rid].free else None
             problem.adsb[rid] = adsb_factor(
                 site, problem.terms[rid], problem.keys[rid], al.plots,
-                al.reference_polar, reference_polar_covariance(al), kernel, rate, tau0[rid],
+                al.reference_polar, reference_polar_covariance(al, site), kernel, rate, tau0[rid],
             )
             matched.append(al.plots.index)
     if cross != "pairwise":

@@ -404,6 +404,11 @@ def graph(
             "azimuth eccentricity is estimated with the pairwise or no cross-radar factors, "
             "not in target-state mode"
         )
+    if cross == "target-state" and any(s.atmosphere is not None for s in dataset.sites.values()):
+        raise ValueError(
+            "refraction is modelled with the pairwise or no cross-radar factors, "
+            "not in target-state mode"
+        )
     if time_offset and cross == "target-state":
         raise ValueError("time offsets are not estimated in target-state mode; use pairwise")
     want_time = have_adsb and cross != "target-state" if auto_time else bool(time_offset)
