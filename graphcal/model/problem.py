@@ -61,7 +61,8 @@ def without_plots(dataset: Dataset, exclude_rows: NDArray[np.int64]) -> Dataset:
     if len(exclude_rows) == 0:
         return dataset
     plots = dataset.plots.drop(index=exclude_rows)
-    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path)
+    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path,
+                   plot_altitude=dataset.plot_altitude)
 
 
 def polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:

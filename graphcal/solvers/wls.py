@@ -87,7 +87,8 @@ def _corrected(dataset: Dataset, biases: dict[str, RadarBias]) -> Dataset:
     """A copy of ``dataset`` with every radar's plots corrected by ``biases``
     (:func:`graphcal.data.correct.correct_plots`: azimuths wrapped to [0, 360) deg)."""
     plots = correct_plots(dataset.plots, dataset.sites, biases)
-    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path)
+    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path,
+                   plot_altitude=dataset.plot_altitude)
 
 
 def _bias_from_vector(layout: ParameterLayout, radar_id: str, x: FloatArray) -> RadarBias:

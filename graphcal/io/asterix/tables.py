@@ -47,8 +47,10 @@ ADS-B (CAT021)
     resolution), else I021/130; ``alt_m`` = I021/140 geometric height [ft] *
     0.3048 (height above the WGS-84 ellipsoid); ``nacp`` from I021/090 NACp,
     else the NUCp of a DO-260 (version 0) transponder mapped to the NACp whose
-    95 % bound is not tighter (:data:`NUCP_TO_NACP`), else empty.  Reports
-    without a position, address or geometric height are skipped and counted.
+    95 % bound is not tighter (:data:`NUCP_TO_NACP`), else empty;
+    ``baro_alt_m`` = I021/145 flight level * 100 ft * 0.3048 (the reported
+    pressure altitude, contract v2; NaN when absent).  Reports without a
+    position, address or geometric height are skipped and counted.
 """
 
 from __future__ import annotations
@@ -87,7 +89,8 @@ PLOT_COLUMNS: tuple[str, ...] = (
     "altitude_m", "callsign",
 )
 #: ADS-B table columns written.
-ADSB_COLUMNS: tuple[str, ...] = ("time_s", "target_id", "lat_deg", "lon_deg", "alt_m", "nacp")
+ADSB_COLUMNS: tuple[str, ...] = ("time_s", "target_id", "lat_deg", "lon_deg", "alt_m", "nacp",
+                                 "baro_alt_m")
 #: NUCp (DO-260, 95 % horizontal error bound) -> NACp with a bound at least as large.
 #: NUCp 0 means "unknown" and maps to no NACp.
 NUCP_TO_NACP: dict[int, int] = {9: 11, 8: 10, 7: 8, 6: 7, 5: 6, 4: 5, 3: 4, 2: 1, 1: 1}
@@ -376,8 +379,10 @@ def adsb_frame(reports: Sequence[Cat021Report], times: Sequence[float | None],
         rows["lon_deg"].append(report.lon_deg)
         rows["alt_m"].append(report.geo_height_ft * FOOT_M)
         rows["nacp"].append(_nacp(report))
+        level = report.flight_level
+        rows["baro_alt_m"].append(math.nan if level is None else level * 100.0 * FOOT_M)
     frame = pd.DataFrame(rows, columns=list(ADSB_COLUMNS))
-    for column in ("time_s", "lat_deg", "lon_deg", "alt_m"):
+    for column in ("time_s", "lat_deg", "lon_deg", "alt_m", "baro_alt_m"):
         frame[column] = frame[column].astype(float)
     frame["nacp"] = pd.array(frame["nacp"].tolist(), dtype="Int64")
     return frame
