@@ -160,6 +160,12 @@ def _run_wls(
     )
     _drop_unseen(cal, layout, information)
     cal.warnings.extend(describe_weak_directions(cal.labels, cal.observability))
+    if dataset.pressure_altitudes and any(not dataset.sites[rid].is_3d for rid in radar_ids):
+        cal.warnings.append(
+            f"{method} places the 2-D plots at their pressure altitudes as if they were heights "
+            "above the ellipsoid (it has no height model; graph estimates one): its range "
+            "terms carry the difference"
+        )
     _adsb_residuals(cal, dataset)
     return cal
 

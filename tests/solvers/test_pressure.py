@@ -159,3 +159,10 @@ def test_version_1_results_have_no_atmosphere(runs) -> None:
 def test_target_state_refuses_pressure_altitudes(runs) -> None:
     with pytest.raises(ValueError, match="pressure altitudes"):
         graph(runs[0].dataset, cross="target-state")
+
+
+def test_wls_says_it_has_no_height_model(runs) -> None:
+    cal = calibrate(runs[0].dataset, "wls")
+    assert any("as if they were heights" in w for w in cal.warnings)
+    plain = calibrate(dataclasses.replace(runs[0].dataset, plot_altitude="geometric"), "wls")
+    assert not any("as if they were heights" in w for w in plain.warnings)
