@@ -16,7 +16,7 @@ from graphcal.core.errors import DatasetError
 from graphcal.data.dataset import Dataset
 from graphcal.io.asterix.decode import decode_bytes
 from graphcal.io.asterix.encode import encode_dataset
-from graphcal.io.asterix.tables import build_tables
+from graphcal.io.asterix.tables import build_tables, load_user_sites
 from graphcal.io.folder import (
     load_dataset,
     load_plot_altitude,
@@ -171,3 +171,18 @@ def test_asterix_cat021_i145_round_trip(tmp_path: Path) -> None:
     assert abs(back["baro_alt_m"].iloc[2] - 9811.7) <= 0.5 * lsb_m
     # The geometric height (I021/140) is carried on beside it.
     assert back["alt_m"].tolist() == pytest.approx(adsb["alt_m"].tolist(), abs=3.125 * FOOT_M)
+
+
+def test_asterix_import_takes_plot_altitude_from_the_user_sites(tmp_path: Path) -> None:
+    """CAT048 I090 is a pressure altitude: a user sites.toml that says so is carried on."""
+    dataset = load_dataset(make_dataset(tmp_path / "ds"))
+    sites = {rid: s for rid, s in dataset.sites.items() if not s.is_3d}
+    plots = dataset.plots[dataset.plots["radar_id"].isin(list(sites))]
+    data = encode_dataset(Dataset(sites, plots, dataset.adsb), {"A": (25, 201)})
+    user = tmp_path / "user.toml"
+    user.write_text(PRESSURE_SITES.replace('id = "A"', 'id = "A"\nsac = 25\nsic = 201'))
+    tables = build_tables(decode_bytes(data), user_sites=load_user_sites(user))
+    assert tables.dataset.plot_altitude == "pressure"
+    out = write_dataset(tables.dataset, tmp_path / "imported")
+    assert load_dataset(out).plot_altitude == "pressure"
+    assert build_tables(decode_bytes(data)).dataset.plot_altitude == "geometric"

@@ -36,8 +36,10 @@ Plots (CAT048)
     ``target_id`` = I048/220 as six lower-case hex digits ("" when absent);
     ``altitude_m`` = I048/090 flight level * 100 ft * 0.3048 m/ft (barometric
     pressure altitude, not a height above the ellipsoid; NaN when absent, not
-    validated or garbled); extra column ``callsign`` from I048/240 ("" when
-    absent).  Reports without I048/040 or I048/140 are skipped and counted.
+    validated or garbled: declare it with ``[dataset] plot_altitude = "pressure"``
+    in the user ``sites.toml``, which the dataset then carries); extra column
+    ``callsign`` from I048/240 ("" when absent).  Reports without I048/040 or
+    I048/140 are skipped and counted.
 
 ADS-B (CAT021)
     ``time_s`` from I021/071 (time of applicability for position), else
@@ -75,7 +77,7 @@ from graphcal.io.asterix.decode import (
     Decoded,
     Report,
 )
-from graphcal.io.folder import load_sites
+from graphcal.io.folder import load_plot_altitude, load_sites
 
 #: Metres per nautical mile.
 NM_M = 1852.0
@@ -195,6 +197,8 @@ class UserSites:
     #: Radar id by (SAC, SIC), for tables that give them.
     by_source: dict[tuple[int, int], str]
     path: Path
+    #: The file's ``[dataset] plot_altitude``: what the plots' altitudes (I048/090) are.
+    plot_altitude: str = "geometric"
 
 
 def load_user_sites(path: str | Path) -> UserSites:
@@ -228,7 +232,7 @@ def load_user_sites(path: str | Path) -> UserSites:
             raise DatasetError(f"SAC {site.sac} / SIC {site.sic} already belongs to radar "
                                f"{by_source[source]!r}", path=path, row=row, field="sic")
         by_source[source] = site.id
-    return UserSites(sites, by_source, path)
+    return UserSites(sites, by_source, path, load_plot_altitude(path))
 
 
 def _cat034_site(radar_id: str, message: Cat034Message) -> Site:
@@ -476,7 +480,8 @@ def build_tables(
     if adsb is not None:
         stats.adsb_reports = len(adsb)
         stats.aircraft = int(adsb["target_id"].nunique())
-    dataset = Dataset(sites=sites, plots=plots, adsb=_with_sigma(adsb))
+    dataset = Dataset(sites=sites, plots=plots, adsb=_with_sigma(adsb),
+                      plot_altitude="geometric" if user_sites is None else user_sites.plot_altitude)
     return AsterixTables(dataset=dataset, time_base=time_base, stats=stats, decode=decoded)
 
 
