@@ -66,11 +66,14 @@ from numpy.typing import NDArray
 
 from graphcal.core.atomic import atomic_write_text, write_table
 from graphcal.core.errors import DatasetError, SensorModelError
+from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosphere
 from graphcal.data.bias import ESTIMATE_NAMES
 from graphcal.data.dataset import (
     ADSB_COLUMNS,
     ADSB_DEFAULT_SIGMA_M,
     PLOT_COLUMNS,
+    REFRACTION_MODELS,
+    REFRACTIVITY_N_S_RANGE,
     SITE_KEYS,
     SITES_FILE,
     TABLE_FORMATS,
@@ -172,6 +175,35 @@ def _site_estimate(entry: Mapping[str, Any], where: _Where) -> tuple[str, ...] |
     return tuple(value)
 
 
+def _site_refraction(entry: Mapping[str, Any], where: _Where) -> tuple[str, float, float]:
+    """``(refraction, refractivity_n_s, refractivity_scale_height_m)`` of a ``[[radar]]`` table.
+
+    Contract v2: ``refraction`` is one of :data:`REFRACTION_MODELS` (default
+    ``"none"``), ``N_s`` within :data:`REFRACTIVITY_N_S_RANGE` (default 313), ``H``
+    positive (default 7000 m); an ``"exponential"`` atmosphere must also be one
+    :class:`~graphcal.core.refraction.Atmosphere` accepts (no super-refraction).
+    """
+    model = entry.get("refraction", "none")
+    if not isinstance(model, str):
+        raise where.error("refraction", f"must be a string, got {model!r}")
+    if model not in REFRACTION_MODELS:
+        known = ", ".join(f'"{m}"' for m in REFRACTION_MODELS)
+        raise where.error("refraction", f"unknown refraction model {model!r}; known: {known}")
+    low, high = REFRACTIVITY_N_S_RANGE
+    n_s = _site_number(entry, "refractivity_n_s", where, low=low, high=high)
+    height = _site_number(entry, "refractivity_scale_height_m", where, positive=True)
+    n_s = DEFAULT_N_S if n_s is None else n_s
+    height = DEFAULT_SCALE_HEIGHT_M if height is None else height
+    if model != "none":
+        try:
+            Atmosphere(n_s, height)
+        except ValueError as exc:
+            key = "refractivity_scale_height_m" if "refractivity_scale_height_m" in entry \
+                else "refractivity_n_s"
+            raise where.error(key, str(exc)) from None
+    return model, n_s, height
+
+
 def _required(value: Any, key: str, where: _Where) -> Any:
     """``value`` unless it is ``None`` (given neither by the site nor by its model)."""
     if value is None:
@@ -214,6 +246,7 @@ def _parse_site(entry: Any, where: _Where) -> Site:
     sac, sic = _site_code(entry, "sac", where), _site_code(entry, "sic", where)
     if (sac is None) != (sic is None):
         raise where.error("sac" if sac is None else "sic", "give both sac and sic, or neither")
+    refraction, n_s, scale_height = _site_refraction(entry, where)
     return Site(
         id=site_id,
         lat_rad=math.radians(_required(lat_deg, "lat_deg", where)),
@@ -227,6 +260,9 @@ def _parse_site(entry: Any, where: _Where) -> Site:
         estimate=() if estimate is None else estimate,
         sac=sac,
         sic=sic,
+        refraction=refraction,
+        refractivity_n_s=n_s,
+        refractivity_scale_height_m=scale_height,
     )
 
 
@@ -257,7 +293,10 @@ def load_sites(path: str | Path) -> dict[str, Site]:
         period and ``estimate`` the table does not give) and ``estimate`` (the
         bias parameters to estimate, names from
         :data:`graphcal.data.bias.PARAMETER_NAMES`; ``elevation_bias`` only for a
-        3-D radar; default: all the radar has).
+        3-D radar; default: all the radar has), and (contract v2) ``refraction``
+        (``"none"``, the default, or ``"exponential"``), ``refractivity_n_s``
+        [N-units, 0-500, default 313] and ``refractivity_scale_height_m`` [m,
+        default 7000].
 
     Returns
     -------
@@ -269,8 +308,10 @@ def load_sites(path: str | Path) -> dict[str, Site]:
     DatasetError
         If the file is missing or not TOML, or any table is invalid (missing or
         unknown key, empty or duplicate id, latitude outside [-90, 90] deg,
-        longitude outside [-180, 180] deg, a non-positive sigma, ...).  "row N"
-        in the message is the N-th ``[[radar]]`` table.
+        longitude outside [-180, 180] deg, a non-positive sigma, an unknown
+        refraction model, a refractivity outside [0, 500] N-units, a
+        non-positive scale height, ...).  "row N" in the message is the N-th
+        ``[[radar]]`` table.
     """
     path = Path(path)
     document = _read_toml(path)
@@ -382,7 +423,8 @@ def _site_to_toml(site: Site) -> dict[str, Any]:
     The sigmas are always written (except those not known, NaN), so the file
     does not depend on the sensor model; ``estimate`` is written when it differs
     from the radar's default or when a model is named (whose own ``estimate``
-    would otherwise apply).
+    would otherwise apply); the refraction keys only when the radar's rays are
+    refracted (so that a version-1 file is written as it was).
     """
     entry: dict[str, Any] = {
         "id": site.id,
@@ -406,6 +448,10 @@ def _site_to_toml(site: Site) -> dict[str, Any]:
         entry["estimate"] = list(site.estimate)
     if site.sac is not None and site.sic is not None:
         entry["sac"], entry["sic"] = int(site.sac), int(site.sic)
+    if site.refraction != "none":
+        entry["refraction"] = site.refraction
+        entry["refractivity_n_s"] = float(site.refractivity_n_s)
+        entry["refractivity_scale_height_m"] = float(site.refractivity_scale_height_m)
     return entry
 
 

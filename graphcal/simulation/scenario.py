@@ -6,7 +6,8 @@ The format is documented in ``scenarios/README.md``.  In short::
     [[radar]]    id, site (lat_deg/lon_deg/alt_m or ecef_m), model and/or sigmas,
                  dimensions, scan_period_s, detection_probability, max_range_m,
                  min_elevation_deg, horizon_check, estimate, antenna_phase_deg,
-                 altitude_sigma_m, altitude_quantum_ft,
+                 altitude_sigma_m, altitude_quantum_ft, refraction,
+                 refractivity_n_s, refractivity_scale_height_m,
                  [radar.bias] range_offset_m, range_gain, azimuth_bias_mrad,
                  elevation_bias_mrad, time_offset_s, azimuth_sin_mrad, azimuth_cos_mrad
     [[aircraft]] piecewise legs from a start state, or constant ECEF velocity
@@ -15,7 +16,8 @@ The format is documented in ``scenarios/README.md``.  In short::
     [adsb]       ADS-B reports of every equipped aircraft (equipped_fraction,
                  baro_altitude)
     [dataset]    plot_altitude: "geometric" (default) or "pressure" (contract v2)
-    [atmosphere] the true height model: height_offset_m, height_scale
+    [atmosphere] the true height model of pressure altitudes: height_offset_m,
+                 height_scale (refraction is per radar)
 
 File values carry their units in the key names (deg, mrad, m, s); the
 dataclasses hold SI values (radians).  Every problem raises
@@ -39,8 +41,9 @@ import pandas as pd
 
 from graphcal.core import frames
 from graphcal.core.errors import ScenarioError, SensorModelError
+from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosphere
 from graphcal.data.bias import ESTIMATE_NAMES, RadarBias
-from graphcal.data.dataset import Site
+from graphcal.data.dataset import REFRACTION_MODELS, REFRACTIVITY_N_S_RANGE, Site
 from graphcal.data.height import GEOMETRIC, PLOT_ALTITUDE_CHOICES, PRESSURE, HeightModel
 from graphcal.data.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
 from graphcal.simulation.trajectories import (
@@ -114,6 +117,14 @@ class RadarSpec:
         1-sigma noise of the reported altitude [m].
     altitude_quantum_m : float
         Quantum of the reported altitude [m] (0: not quantised).
+    refraction : str
+        ``"none"`` (straight lines of sight) or ``"exponential"`` (contract v2:
+        the plots measure the refracted ray's electrical length and apparent
+        elevation), written to ``sites.toml``.
+    refractivity_n_s : float
+        Surface refractivity of the exponential atmosphere [N-units].
+    refractivity_scale_height_m : float
+        Its scale height [m].
     """
 
     id: str
@@ -134,11 +145,19 @@ class RadarSpec:
     antenna_phase_rad: float | None = None
     altitude_sigma_m: float = DEFAULT_ALTITUDE_SIGMA_M
     altitude_quantum_m: float = DEFAULT_ALTITUDE_QUANTUM_FT * FOOT_M
+    refraction: str = "none"
+    refractivity_n_s: float = DEFAULT_N_S
+    refractivity_scale_height_m: float = DEFAULT_SCALE_HEIGHT_M
 
     @property
     def is_3d(self) -> bool:
         """True when the radar measures elevation."""
         return self.sigma_elevation_rad is not None
+
+    @property
+    def atmosphere(self) -> Atmosphere | None:
+        """The atmosphere of the radar's rays, ``None`` for straight lines of sight."""
+        return self.site().atmosphere
 
     def site(self) -> Site:
         """The :class:`graphcal.data.dataset.Site` written to ``sites.toml``."""
@@ -153,6 +172,9 @@ class RadarSpec:
             scan_period_s=self.scan_period_s,
             model=self.model,
             estimate=self.estimate,
+            refraction=self.refraction,
+            refractivity_n_s=self.refractivity_n_s,
+            refractivity_scale_height_m=self.refractivity_scale_height_m,
         )
 
 
@@ -250,8 +272,8 @@ class Scenario:
     plot_altitude : {"geometric", "pressure"}
         What the plots' ``altitude_m`` is (``[dataset] plot_altitude``): the true
         height above the ellipsoid, or the pressure altitude of that height
-        through :attr:`atmosphere`; both with the radar's altitude noise and quantum.
-    atmosphere : HeightModel or None
+        through :attr:`height_model`; both with the radar's altitude noise and quantum.
+    true_height_model : HeightModel or None
         The true height model ``h = (1 + height_scale) p + height_offset_m``
         (``[atmosphere]``); ``None``: none given (the standard atmosphere,
         pressure altitude = height).
@@ -268,17 +290,17 @@ class Scenario:
     adsb: AdsbSpec = field(default_factory=AdsbSpec)
     path: Path | None = None
     plot_altitude: str = GEOMETRIC
-    atmosphere: HeightModel | None = None
+    true_height_model: HeightModel | None = None
 
     @property
     def height_model(self) -> HeightModel:
         """The true height model (the identity without ``[atmosphere]``)."""
-        return HeightModel() if self.atmosphere is None else self.atmosphere
+        return HeightModel() if self.true_height_model is None else self.true_height_model
 
     @property
     def has_pressure(self) -> bool:
         """Whether pressure altitudes are simulated: pressure plots or an ``[atmosphere]``."""
-        return self.plot_altitude == PRESSURE or self.atmosphere is not None
+        return self.plot_altitude == PRESSURE or self.true_height_model is not None
 
     @property
     def adsb_baro(self) -> bool:
@@ -512,6 +534,23 @@ def _radar_bias(t: _Table, is_3d: bool) -> RadarBias:
     return bias
 
 
+def _radar_refraction(t: _Table) -> tuple[str, float, float]:
+    """``(refraction, refractivity_n_s, refractivity_scale_height_m)`` (contract v2 keys)."""
+    model = t.string("refraction", "none")
+    if model not in REFRACTION_MODELS:
+        known = ", ".join(f'"{m}"' for m in REFRACTION_MODELS)
+        raise t.error("refraction", f"unknown refraction model {model!r}; known: {known}")
+    low, high = REFRACTIVITY_N_S_RANGE
+    n_s = t.number("refractivity_n_s", DEFAULT_N_S, low=low, high=high)
+    height = t.number("refractivity_scale_height_m", DEFAULT_SCALE_HEIGHT_M, positive=True)
+    if model != "none":
+        try:
+            Atmosphere(n_s, height)
+        except ValueError as exc:
+            raise t.error("refractivity_scale_height_m", str(exc)) from None
+    return model, n_s, height
+
+
 def _model_value(t: _Table, key: str, model_value: Any, **checks: Any) -> Any:
     """The file's value if given, else the model's, else a missing-field error."""
     if not t.has(key) and model_value is None:
@@ -566,6 +605,7 @@ def _parse_radar(t: _Table) -> RadarSpec:
         high=90.0,
     )
     phase = t.number("antenna_phase_deg", None)
+    refraction, n_s, scale_height = _radar_refraction(t)
     spec = RadarSpec(
         id=radar_id.strip(),
         lat_rad=lat,
@@ -588,6 +628,9 @@ def _parse_radar(t: _Table) -> RadarSpec:
             "altitude_quantum_ft", DEFAULT_ALTITUDE_QUANTUM_FT, low=0.0, high=1000.0
         )
         * FOOT_M,
+        refraction=refraction,
+        refractivity_n_s=n_s,
+        refractivity_scale_height_m=scale_height,
     )
     t.finish()
     return spec
@@ -875,7 +918,7 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
     opensky = None if opensky_table is None else _parse_opensky(opensky_table, duration)
     adsb = _parse_adsb(root.table("adsb"))
     plot_altitude = _parse_plot_altitude(root.table("dataset"))
-    atmosphere = _parse_atmosphere(root.table("atmosphere"))
+    true_height_model = _parse_atmosphere(root.table("atmosphere"))
     root.finish()
     if not aircraft and traffic is None and opensky is None:
         raise root.error("aircraft", "no aircraft: give [[aircraft]], [traffic] or [opensky]")
@@ -891,7 +934,7 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
         adsb=adsb,
         path=path,
         plot_altitude=plot_altitude,
-        atmosphere=atmosphere,
+        true_height_model=true_height_model,
     )
 
 

@@ -25,6 +25,17 @@ height is first turned into its pressure altitude by the scenario's true height
 model (:meth:`graphcal.data.height.HeightModel.pressure`,
 ``p = (h - height_offset_m) / (1 + height_scale)``).
 
+A radar with ``refraction = "exponential"`` (contract v2) sees its targets
+along rays refracted by its atmosphere (:func:`graphcal.core.refraction.refracted_ray`):
+the true polar coordinates are then the ray's electrical length, the
+straight-line azimuth and the ray's apparent elevation at the antenna, the
+biases and noise apply on top as above, and the coverage tests use them
+(``max_range_m`` the electrical length, ``min_elevation_deg`` the apparent
+elevation, the horizon the ray's lowest point, which sees beyond the straight
+line's horizon).  ``altitude_m`` stays the geometric height.  Without
+refraction nothing changes: the same scenario and seed give the same files as
+before.
+
 ADS-B reports come every ``period_s`` from a random phase per aircraft, with
 Gaussian noise per axis in the ENU frame at the aircraft, optional outliers and
 dropouts.  With ``equipped_fraction < 1`` only a random subset of the aircraft
@@ -54,6 +65,7 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.atomic import atomic_write_text
 from graphcal.core.errors import ScenarioError
+from graphcal.core.refraction import Atmosphere, refracted_ray
 from graphcal.data.bias import (
     CONTRACT_KEYS,
     ECCENTRICITY_NAMES,
@@ -111,6 +123,8 @@ class SimulationResult:
         One row per plot, same order as ``dataset.plots``: ``time_true_s``,
         true ECEF position ``x_m, y_m, z_m``, true ``range_true_m``,
         ``azimuth_true_deg``, ``elevation_true_deg`` and ``height_true_m``.
+        For a refracted radar the true range and elevation are the contract's:
+        the electrical length and the apparent elevation.
     adsb_truth : pandas.DataFrame or None
         One row per ADS-B report, same order: ``x_m, y_m, z_m`` true ECEF
         position and ``outlier`` (bool).
@@ -293,8 +307,7 @@ def earth_blocks(enu_m: Array, lat_rad: float, alt_m: float) -> NDArray[np.bool_
         Antenna height above the ellipsoid [m].
     """
     enu = np.asarray(enu_m, dtype=float)
-    sin_lat2 = np.sin(lat_rad) ** 2
-    radius = frames.WGS84_A_M * np.sqrt(1.0 - frames.WGS84_E2) / (1.0 - frames.WGS84_E2 * sin_lat2)
+    radius = frames.gaussian_radius_m(lat_rad)
     centre = np.array([0.0, 0.0, -(radius + alt_m)])
     norm2 = np.einsum("ij,ij->i", enu, enu)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -302,6 +315,27 @@ def earth_blocks(enu_m: Array, lat_rad: float, alt_m: float) -> NDArray[np.bool_
     s = np.where(norm2 > 0, s, 0.0)
     closest = np.linalg.norm(s[:, None] * enu - centre, axis=1)
     return closest < radius
+
+
+def refracted_coverage(
+    radar: RadarSpec, atmosphere: Atmosphere, enu_m: Array
+) -> tuple[Array, Array, Array, NDArray[np.bool_]]:
+    """Refracted true polar coordinates of ENU targets and whether the radar covers them.
+
+    Returns the electrical range [m], azimuth [rad] and apparent elevation [rad]
+    (:func:`graphcal.core.refraction.refracted_ray`) and a mask: within
+    ``max_range_m`` (electrical), at or above ``min_elevation_rad`` (apparent)
+    and, with ``horizon_check``, on a ray that stays above the Earth (its
+    lowest height at least 0).  Targets the ray solver leaves unsolved (deep
+    below the horizon) are not covered.
+    """
+    ray = refracted_ray(atmosphere, radar.lat_rad, radar.alt_m, enu_m)
+    with np.errstate(invalid="ignore"):
+        covered = (np.isfinite(ray.range_m) & (ray.range_m <= radar.max_range_m)
+                   & (ray.elevation_rad >= radar.min_elevation_rad))
+        if radar.horizon_check:
+            covered &= ray.lowest_height_m >= 0.0
+    return ray.range_m, ray.azimuth_rad, ray.elevation_rad, covered
 
 
 def _antenna_phases(scenario: Scenario, rng: np.random.Generator) -> dict[str, float]:
@@ -341,10 +375,15 @@ def _radar_plots(
     pos = np.concatenate(positions) if positions else np.empty((0, 3))
     order = np.argsort(t_true, kind="stable")
     t_true, target, pos = t_true[order], target[order], pos[order]
-    rng_m, az, el = frames.enu_to_polar((pos - radar_ecef) @ rotation.T)
-    covered = (rng_m <= radar.max_range_m) & (el >= radar.min_elevation_rad)
-    if radar.horizon_check:
-        covered &= ~earth_blocks((pos - radar_ecef) @ rotation.T, radar.lat_rad, radar.alt_m)
+    atmosphere = site.atmosphere
+    if atmosphere is None:
+        rng_m, az, el = frames.enu_to_polar((pos - radar_ecef) @ rotation.T)
+        covered = (rng_m <= radar.max_range_m) & (el >= radar.min_elevation_rad)
+        if radar.horizon_check:
+            covered &= ~earth_blocks((pos - radar_ecef) @ rotation.T, radar.lat_rad, radar.alt_m)
+    else:
+        rng_m, az, el, covered = refracted_coverage(
+            radar, atmosphere, (pos - radar_ecef) @ rotation.T)
     t_true, target, pos = t_true[covered], target[covered], pos[covered]
     rng_m, az, el = rng_m[covered], az[covered], el[covered]
     n = t_true.size

@@ -15,9 +15,21 @@ from graphcal.io.folder import load_dataset
 from graphcal.simulation.scenario import FOOT_M, load_scenario, parse_scenario
 from graphcal.simulation.simulate import simulate, truth_document, write_simulation
 from tests.paths import SCENARIOS
-from tests.simulation.test_simulate import _document
 
 QUANTUM_M = 25.0 * FOOT_M
+
+
+def small_scenario(**tables) -> dict:
+    """One 2-D radar, one level aircraft, ten minutes; ``tables`` added at the top level."""
+    return {
+        "scenario": {"name": "unit", "duration_s": 600.0,
+                     "origin": {"lat_deg": 48.85, "lon_deg": 2.35, "alt_m": 0.0}},
+        "radar": [{"id": "A", "lat_deg": 48.9, "lon_deg": 2.3, "alt_m": 100.0,
+                   "sigma_range_m": 50.0, "sigma_azimuth_mrad": 1.5, "scan_period_s": 4.0}],
+        "aircraft": [{"id": "abc123", "east_m": -40_000.0, "north_m": 10_000.0,
+                      "alt_m": 7000.0, "speed_mps": 220.0, "heading_deg": 80.0}],
+        **tables,
+    }
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +42,7 @@ def demo_pair():
 
 
 def test_scenario_keys_are_read_and_checked() -> None:
-    scenario = parse_scenario(_document(
+    scenario = parse_scenario(small_scenario(
         dataset={"plot_altitude": "pressure"},
         atmosphere={"height_offset_m": 210.0, "height_scale": 0.025},
     ))
@@ -38,8 +50,8 @@ def test_scenario_keys_are_read_and_checked() -> None:
     assert scenario.height_model.height_offset_m == 210.0
     assert scenario.height_model.height_scale == 0.025
     assert scenario.adsb_baro is True  # the default once the scenario has pressure altitudes
-    plain = parse_scenario(_document())
-    assert plain.plot_altitude == "geometric" and plain.atmosphere is None
+    plain = parse_scenario(small_scenario())
+    assert plain.plot_altitude == "geometric" and plain.true_height_model is None
     assert not plain.has_pressure and plain.adsb_baro is False
     for changes, field in [
         ({"dataset": {"plot_altitude": "baro"}}, "dataset.plot_altitude"),
@@ -49,7 +61,7 @@ def test_scenario_keys_are_read_and_checked() -> None:
         ({"adsb": {"baro_altitude": "yes"}}, "adsb.baro_altitude"),
     ]:
         with pytest.raises(ScenarioError) as info:
-            parse_scenario(_document(**changes))
+            parse_scenario(small_scenario(**changes))
         assert info.value.field == field
 
 
@@ -103,7 +115,7 @@ def test_truth_json_and_folder(demo_pair, tmp_path: Path) -> None:
 
 
 def test_baro_altitude_can_be_switched_off() -> None:
-    scenario = parse_scenario(_document(
+    scenario = parse_scenario(small_scenario(
         dataset={"plot_altitude": "pressure"}, atmosphere={"height_offset_m": 150.0},
         adsb={"enabled": True, "baro_altitude": False},
     ))
