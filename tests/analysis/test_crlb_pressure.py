@@ -10,13 +10,13 @@ import pytest
 from graphcal.analysis.crlb import crlb
 from graphcal.data.height import height_jacobian
 from graphcal.model.height import HEIGHT_PRIOR_SIGMA, adsb_height_segments
-from tests.model.test_height import TRUE_HEIGHT, _network
+from tests.model.test_height import TRUE_HEIGHT, pressure_network
 
 
 @pytest.fixture(scope="module")
 def pressure():
     """Three radars (2-D A and C, 3-D B), two aircraft; plots with pressure altitudes."""
-    dataset = _network(noise=True, seed=5)
+    dataset = pressure_network(noise=True, seed=5)
     adsb = dataset.adsb.copy()
     adsb["baro_alt_m"] = TRUE_HEIGHT.pressure(adsb["alt_m"].to_numpy())
     return dataclasses.replace(dataset, adsb=adsb)

@@ -42,7 +42,7 @@ def _pressure(dataset):
     return dataclasses.replace(dataset, plots=plots, plot_altitude="pressure")
 
 
-def _network(noise: bool, seed: int = 7):
+def pressure_network(noise: bool, seed: int = 7):
     rng = np.random.default_rng(seed)
     radars = [
         (site_at("A", -40e3, 0.0), BIAS_A),
@@ -71,7 +71,7 @@ def _factor(dataset, a: str, b: str, time_offset: bool = False, tau0=(0.0, 0.0))
 
 @pytest.mark.parametrize(("a", "b"), [("A", "B"), ("B", "A"), ("A", "C")])
 def test_pairwise_height_jacobians_match_numerical(a: str, b: str) -> None:
-    dataset = _network(noise=True)
+    dataset = pressure_network(noise=True)
     f = _factor(dataset, a, b)
     assert f is not None and len(f) > 50 and f.keys == [0, 1, 2]
     xa = np.array([100.0, 0.0015, 0.003, 0.001])[: len(f.terms_a.free)]
@@ -88,7 +88,7 @@ def test_pairwise_height_jacobians_match_numerical(a: str, b: str) -> None:
 
 def test_pairwise_height_jacobian_with_a_time_offset_shift() -> None:
     """The time-offset term moves radar a's interpolated position, its height part included."""
-    dataset = _network(noise=True)
+    dataset = pressure_network(noise=True)
     f = _factor(dataset, "A", "C", time_offset=True, tau0=(0.3, -0.2))
     xa = np.array([100.0, 0.0015, 0.003, 0.6])  # tau_a - tau_b != tau0_a - tau0_b
     xc = np.array([-60.0, -0.0008, -0.002, -0.1])
@@ -104,7 +104,7 @@ def test_pairwise_residual_vanishes_only_with_the_true_height_model() -> None:
     """Noise-free straight flights: the pressure altitudes placed by the true height model
     give residuals of the 2-D placement's spherical-earth approximation (below 1 m); taking
     them as heights (the model at zero) leaves the 180 m offset's metres in them."""
-    dataset = _network(noise=False)
+    dataset = pressure_network(noise=False)
     for a, b, bias_a, bias_b in (("A", "B", BIAS_A, BIAS_B), ("A", "C", BIAS_A, BIAS_C)):
         f = _factor(dataset, a, b)
         truth = (TRUE_HEIGHT.height_offset_m, TRUE_HEIGHT.height_scale)
@@ -116,7 +116,7 @@ def test_pairwise_residual_vanishes_only_with_the_true_height_model() -> None:
 
 @pytest.mark.parametrize("rid", ["A", "B"])
 def test_corrected_ecef_height_columns(rid: str) -> None:
-    dataset = _network(noise=True)
+    dataset = pressure_network(noise=True)
     site, plots = dataset.sites[rid], plot_arrays(dataset, rid)
     bias = np.array([30.0, 1e-4, 1e-3, 1e-3 if site.is_3d else 0.0])
     _, jac, _ = corrected_ecef(site, plots, bias, (0.0, 0.0), (150.0, 0.02))
