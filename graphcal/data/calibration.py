@@ -35,6 +35,7 @@ from graphcal.data.bias import (
     PARAMETER_NAMES,
     RadarBias,
 )
+from graphcal.data.height import HeightModelEstimate
 
 
 @dataclass
@@ -251,6 +252,12 @@ class Calibration:
         Fisher information the data alone give on the parameters (SI, ``labels``
         order, priors excluded), when the estimator computes it; the pipeline's
         analyses read it.  Not part of the result JSON.
+    atmosphere : HeightModelEstimate or None
+        The height model of pressure altitudes (contract v2), when the dataset's
+        plots carry pressure altitudes and the estimator models them: the result
+        JSON's ``atmosphere`` block.  It is not in ``labels``: ``covariance``
+        stays over the radar terms, and the block carries the pair's own
+        covariance and its cross-covariance with them.
     """
 
     method: str
@@ -266,6 +273,7 @@ class Calibration:
     info: dict[str, Any] = field(default_factory=dict)
     fixed: dict[tuple[str, str], float] = field(default_factory=dict)
     information: NDArray[np.float64] | None = field(default=None, repr=False, compare=False)
+    atmosphere: HeightModelEstimate | None = None
 
     # ----------------------------------------------------------------- queries
     def _position(self, radar_id: str, name: str) -> int | None:
@@ -422,11 +430,12 @@ class Calibration:
 
         Reads ``radars`` (values in contract units, ``n_plots``, ``residuals``),
         ``covariance.labels`` (``RADAR.key``) and ``covariance.matrix`` (in the
-        units of the labels), and ``method``, ``observability``, ``warnings``
-        and ``info`` when present.  Values and covariance are converted back
-        to SI, so every query (:meth:`value`, :meth:`sigma`, :meth:`marginal`,
-        ``covariance(...)``, :meth:`correlation`) works as on the estimator's
-        own result, and ``to_dict`` gives the same JSON back.  ``null`` values
+        units of the labels), and ``method``, ``observability``, ``warnings``,
+        ``info`` and ``atmosphere`` (contract v2) when present.  Values and
+        covariance are converted back to SI, so every query (:meth:`value`,
+        :meth:`sigma`, :meth:`marginal`, ``covariance(...)``, :meth:`correlation`)
+        works as on the estimator's own result, and ``to_dict`` gives the same
+        JSON back.  ``null`` values
         (NaN, infinite variance) become NaN.  Without an ``observability``
         entry the degree is NaN and the rank 0 (not recorded).  ``is_3d`` is
         true where an elevation bias is estimated (all the file tells).
@@ -533,6 +542,10 @@ class Calibration:
             warnings = [str(w) for w in data.get("warnings") or []]
             where = "info"
             info = dict(data.get("info") or {})
+            where = "atmosphere"
+            atmosphere = None
+            if data.get("atmosphere") is not None:
+                atmosphere = HeightModelEstimate.from_dict(data["atmosphere"])
         except (TypeError, ValueError, KeyError) as exc:
             if isinstance(exc, ResultError):
                 raise
@@ -550,6 +563,7 @@ class Calibration:
             warnings=warnings,
             info=info,
             fixed=fixed,
+            atmosphere=atmosphere,
         )
 
     @classmethod
@@ -615,9 +629,11 @@ class Calibration:
             if rid in self.residuals:
                 entry["residuals"] = self.residuals[rid].to_dict()
             radars[rid] = entry
+        document: dict[str, Any] = {"method": self.method, "radars": radars}
+        if self.atmosphere is not None:  # contract v2; absent from version-1 results
+            document["atmosphere"] = self.atmosphere.to_dict()
         return _jsonable({
-            "method": self.method,
-            "radars": radars,
+            **document,
             "covariance": {
                 "labels": self.contract_labels(),
                 "matrix": self.contract_covariance().tolist(),

@@ -34,8 +34,8 @@ PLOT_COLUMNS: tuple[str, ...] = (
 PLOT_OPTIONAL_COLUMNS: tuple[str, ...] = ("altitude_m",)
 #: Required ADS-B columns.
 ADSB_COLUMNS: tuple[str, ...] = ("time_s", "target_id", "lat_deg", "lon_deg", "alt_m")
-#: Optional ADS-B columns.
-ADSB_OPTIONAL_COLUMNS: tuple[str, ...] = ("sigma_m", "nacp")
+#: Optional ADS-B columns (``baro_alt_m``: the reported pressure altitude [m], contract v2).
+ADSB_OPTIONAL_COLUMNS: tuple[str, ...] = ("sigma_m", "nacp", "baro_alt_m")
 
 #: 1-sigma horizontal error [m] of an ADS-B report that gives neither ``sigma_m``
 #: nor ``nacp``.  A cautious figure, between NACp 8 (EPU < 92.6 m, sigma < 37.8 m) and
@@ -203,6 +203,9 @@ class Dataset:
     ``adsb`` has the contract columns with ``sigma_m`` always filled in.
     ``cleaning`` is the report of :func:`graphcal.data.cleaning.clean_dataset` when
     the tables were cleaned (by :func:`load_dataset`), else ``None``.
+    ``plot_altitude`` says what the plots' ``altitude_m`` is (``sites.toml``
+    ``[dataset] plot_altitude``, :mod:`graphcal.data.height`): ``"geometric"``, a
+    height above the ellipsoid (version 1), or ``"pressure"``, a pressure altitude.
     """
 
     sites: dict[str, Site]
@@ -210,6 +213,12 @@ class Dataset:
     adsb: pd.DataFrame | None = None
     path: Path | None = None
     cleaning: CleaningReport | None = None
+    plot_altitude: str = "geometric"
+
+    @property
+    def pressure_altitudes(self) -> bool:
+        """Whether the plots' ``altitude_m`` is a pressure altitude."""
+        return self.plot_altitude == "pressure"
 
     @property
     def radar_ids(self) -> list[str]:

@@ -31,6 +31,12 @@ Normalisation of the tables read:
   report's ``nacp`` (:func:`graphcal.data.sensor_models.adsb_sigma_from_nacp`), else
   :data:`ADSB_DEFAULT_SIGMA_M`.  ``nacp``, when the column exists, is kept as a
   nullable integer (``Int64``) and must be within 0..11.
+* ADS-B ``baro_alt_m`` (contract v2, optional): the reported pressure altitude
+  [m], NaN where a report has none.
+* ``sites.toml`` may hold a top-level ``[dataset]`` table (contract v2) whose
+  ``plot_altitude`` (``"geometric"``, the default, or ``"pressure"``) says what the
+  plots' ``altitude_m`` is; it becomes :attr:`Dataset.plot_altitude`
+  (:func:`load_plot_altitude`).
 * Columns beyond the contract's are kept unchanged after the contract columns.
 
 Reading never writes anything.  Writing (:func:`write_dataset`,
@@ -74,6 +80,7 @@ from graphcal.data.dataset import (
     Dataset,
     Site,
 )
+from graphcal.data.height import GEOMETRIC, PLOT_ALTITUDE_CHOICES
 from graphcal.data.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
 
 #: Text read as "no value" in a numeric column (compared after removing blanks).
@@ -307,13 +314,7 @@ def load_sites(path: str | Path) -> dict[str, Site]:
         ``[[radar]]`` table.
     """
     path = Path(path)
-    try:
-        with path.open("rb") as handle:
-            document = tomllib.load(handle)
-    except FileNotFoundError:
-        raise DatasetError("file not found", path=path) from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise DatasetError(f"cannot read TOML: {exc}", path=path) from None
+    document = _read_toml(path)
     entries = document.get("radar")
     if not isinstance(entries, list) or not entries:
         raise DatasetError("no [[radar]] tables", path=path, field="radar")
@@ -331,6 +332,60 @@ def load_sites(path: str | Path) -> dict[str, Site]:
         sites[site.id] = site
         first_row[site.id] = row
     return sites
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    """The parsed ``sites.toml``, or a :class:`DatasetError` naming the file."""
+    try:
+        with path.open("rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise DatasetError("file not found", path=path) from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise DatasetError(f"cannot read TOML: {exc}", path=path) from None
+
+
+#: Keys of the top-level ``[dataset]`` table of ``sites.toml`` (contract v2).
+DATASET_KEYS: tuple[str, ...] = ("plot_altitude",)
+
+
+def load_plot_altitude(path: str | Path) -> str:
+    """What the plots' ``altitude_m`` is, from ``sites.toml``'s ``[dataset]`` table.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``sites.toml`` file.
+
+    Returns
+    -------
+    str
+        ``"geometric"`` (a height above the ellipsoid; the default, also without a
+        ``[dataset]`` table) or ``"pressure"`` (a pressure altitude, see
+        :mod:`graphcal.data.height`).
+
+    Raises
+    ------
+    DatasetError
+        If ``[dataset]`` is not a table, has an unknown key, or ``plot_altitude`` is
+        not one of the choices; the message names the file, the table and the field.
+    """
+    path = Path(path)
+    table = _read_toml(path).get("dataset")
+    if table is None:
+        return GEOMETRIC
+    if not isinstance(table, dict):
+        raise DatasetError("[dataset] must be a table", path=path, field="dataset")
+    for key in table:
+        if key not in DATASET_KEYS:
+            raise DatasetError(f"[dataset]: unknown key; known keys: {', '.join(DATASET_KEYS)}",
+                               path=path, field=f"dataset.{key}")
+    value = table.get("plot_altitude", GEOMETRIC)
+    if not isinstance(value, str) or value not in PLOT_ALTITUDE_CHOICES:
+        choices = " or ".join(f'"{c}"' for c in PLOT_ALTITUDE_CHOICES)
+        raise DatasetError(f"[dataset]: plot_altitude must be {choices}, got {value!r}",
+                           path=path, field="dataset.plot_altitude")
+    return value
 
 
 def _to_file_units(value: float, to_file: Callable[[float], float],
@@ -400,7 +455,9 @@ def _site_to_toml(site: Site) -> dict[str, Any]:
     return entry
 
 
-def write_sites(sites: Mapping[str, Site], path: str | Path) -> None:
+def write_sites(
+    sites: Mapping[str, Site], path: str | Path, *, plot_altitude: str = GEOMETRIC
+) -> None:
     """Write ``sites.toml`` atomically; :func:`load_sites` reads it back.
 
     Parameters
@@ -411,8 +468,17 @@ def write_sites(sites: Mapping[str, Site], path: str | Path) -> None:
         Destination file.  Angles are written in degrees (positions) and
         milliradians (sigmas), chosen so that reading them back gives the same
         radians.
+    plot_altitude : {"geometric", "pressure"}, optional
+        Written as ``[dataset] plot_altitude`` when not the default, so that a
+        version-1 file is written exactly as before (:func:`load_plot_altitude`).
     """
-    document = {"radar": [_site_to_toml(site) for site in sites.values()]}
+    if plot_altitude not in PLOT_ALTITUDE_CHOICES:
+        raise ValueError(f"plot_altitude must be one of {', '.join(PLOT_ALTITUDE_CHOICES)}, "
+                         f"got {plot_altitude!r}")
+    document: dict[str, Any] = {}
+    if plot_altitude != GEOMETRIC:
+        document["dataset"] = {"plot_altitude": plot_altitude}
+    document["radar"] = [_site_to_toml(site) for site in sites.values()]
     atomic_write_text(path, _SITES_HEADER + tomli_w.dumps(document))
 
 
@@ -712,6 +778,10 @@ def _load_adsb(path: Path) -> pd.DataFrame:
     _flag_not_finite(problems, alt_m, "alt_m", required=True)
     nacp = _adsb_nacp(table, problems)
     sigma_m = _adsb_sigma(table, problems, nacp)
+    baro_alt_m = None
+    if "baro_alt_m" in table.frame.columns:
+        baro_alt_m = _numeric(table, problems, "baro_alt_m")
+        _flag_not_finite(problems, baro_alt_m, "baro_alt_m", required=False)
     problems.raise_first()
     columns: dict[str, Any] = {
         "time_s": time_s,
@@ -723,6 +793,8 @@ def _load_adsb(path: Path) -> pd.DataFrame:
     }
     if nacp is not None:
         columns["nacp"] = pd.array(np.where(np.isnan(nacp), None, nacp), dtype="Int64")
+    if baro_alt_m is not None:
+        columns["baro_alt_m"] = baro_alt_m
     return _assemble(table, columns)
 
 
@@ -769,7 +841,9 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
     sites = _three_d_without_sigmas(sites, plots, folder / SITES_FILE)
     adsb_path = _find_table(folder, "adsb")
     adsb = None if adsb_path is None else _load_adsb(adsb_path)
-    dataset = Dataset(sites=sites, plots=plots, adsb=adsb, path=folder)
+    plot_altitude = load_plot_altitude(folder / SITES_FILE)
+    dataset = Dataset(sites=sites, plots=plots, adsb=adsb, path=folder,
+                      plot_altitude=plot_altitude)
     if clean:
         from graphcal.data.cleaning import clean_dataset
 
@@ -884,7 +958,7 @@ def write_dataset(
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
     try:
         os.chmod(staging, 0o755)
-        write_sites(dataset.sites, staging / SITES_FILE)
+        write_sites(dataset.sites, staging / SITES_FILE, plot_altitude=dataset.plot_altitude)
         write_table(dataset.plots, staging / f"plots.{fmt}")
         if dataset.adsb is not None:
             write_table(dataset.adsb, staging / f"adsb.{fmt}")

@@ -23,7 +23,7 @@ they were exact); 2-D plots without an altitude are left out.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,6 +37,7 @@ from graphcal.core.refraction import (
 from graphcal.data.align import PlotArrays, PlotPairs, neighbour_plots, pair_plots
 from graphcal.data.bias import RadarBias, true_azimuth
 from graphcal.data.dataset import Dataset, Site
+from graphcal.data.height import height_jacobian
 from graphcal.model.measurement import RadarMeasurementModel
 from graphcal.model.parameters import ParameterLayout
 
@@ -90,6 +91,7 @@ def corrected_ecef(
     plots: PlotArrays,
     bias: FloatArray,
     eccentricity: tuple[float, float] | None = None,
+    height_model: tuple[float, float] | None = None,
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Plots corrected by ``bias`` -> ECEF, with the Jacobian w.r.t. the bias.
 
@@ -101,6 +103,11 @@ def corrected_ecef(
     differentiation of the azimuth model gives ``d az / d (az_bias, s, c) =
     -(1, sin az, cos az) / (1 + s cos az - c sin az)``.
 
+    With pressure altitudes, a 2-D plot is placed at the height ``h = (1 + k) p + d``
+    of its reported pressure altitude ``p`` (``height_model = (d, k)``,
+    :mod:`graphcal.data.height`), and ``d ecef / d (d, k) = (d ecef / d el)
+    (d el / d h) (1, p)`` with ``d el / d h = R_t / (r R_r cos el)``.
+
     Parameters
     ----------
     site : Site
@@ -110,12 +117,15 @@ def corrected_ecef(
     eccentricity : (float, float), optional
         The azimuth eccentricity ``(s, c)`` [rad]; when given, the Jacobian gains
         its two columns.
+    height_model : (float, float), optional
+        ``(height_offset_m, height_scale)`` when ``plots.altitude_m`` is a pressure
+        altitude; the Jacobian then gains two last columns (zero for a 3-D radar).
 
     Returns
     -------
     ecef_m : ndarray (n, 3)
-    jacobian : ndarray (n, 3, 4), or (n, 3, 6) with ``eccentricity``
-        ``d ecef / d (bias[, s, c])`` [m per unit of each term].
+    jacobian : ndarray (n, 3, 4), or (n, 3, 6) with ``eccentricity``, plus 2 with ``height_model``
+        ``d ecef / d (bias[, s, c][, d, k])`` [m per unit of each term].
     usable : ndarray (n,) of bool
         False for 2-D plots without a reported height or 3-D plots without elevation.
     """
@@ -124,6 +134,10 @@ def corrected_ecef(
     r = (plots.range_m - offset) / (1.0 + gain)
     az = true_azimuth(plots.azimuth_rad, RadarBias(azimuth_bias_rad=az_bias, azimuth_sin_rad=s,
                                                    azimuth_cos_rad=c))
+    pressure_m = plots.altitude_m
+    if height_model is not None and not site.is_3d:
+        offset_m, scale = (float(v) for v in height_model)
+        plots = replace(plots, altitude_m=(1.0 + scale) * pressure_m + offset_m)
     geometry = _plot_geometry(site, r, az, plots, el_bias)
     d_polar = np.zeros((len(r), 3, 4 if eccentricity is None else 6))
     d_polar[:, 0, 0] = -1.0 / (1.0 + gain)
@@ -137,7 +151,12 @@ def corrected_ecef(
         d_polar[:, 1, 5] = -np.cos(az) / slope
     if site.is_3d:
         d_polar[:, 2, 3] = -1.0
-    return geometry.ecef_m, geometry.ecef_jacobian @ d_polar, geometry.usable
+    jacobian = geometry.ecef_jacobian @ d_polar
+    if height_model is not None:
+        d_height = geometry.height_jacobian[:, :, None] * height_jacobian(
+            np.nan_to_num(pressure_m))[:, None, :]
+        jacobian = np.concatenate([jacobian, d_height], axis=2)
+    return geometry.ecef_m, jacobian, geometry.usable
 
 
 @dataclass
@@ -146,6 +165,7 @@ class _Geometry:
     ecef_jacobian: FloatArray  # (n, 3, 3) d ecef / d (r, az, el); 2-D: el follows r
     cov_m2: FloatArray  # (n, 3, 3) measurement noise in ECEF
     usable: NDArray[np.bool_]
+    height_jacobian: FloatArray  # (n, 3) d ecef / d reported height (2-D; 0 for 3-D)
 
 
 def _plot_geometry(
@@ -170,6 +190,7 @@ def _plot_geometry(
         usable = np.isfinite(el)
         cov_polar[:, 2, 2] = site.sigma_elevation_rad**2
         d_el_d_r = np.zeros(n)
+        d_el_d_h = np.zeros(n)
     else:
         el = frames.elevation_from_height(r, plots.altitude_m, site.lat_rad, site.alt_m)
         # Near the zenith (or where noise puts the reported height out of reach of
@@ -196,7 +217,9 @@ def _plot_geometry(
     ecef_jac = rot @ enu_jac
     ecef = site.ecef_from_polar(r, az, el)
     cov = convert_covariance(cov_polar, ecef_jac)
-    return _Geometry(ecef, ecef_jac, cov, usable)
+    # A reported height moves the plot in elevation, at fixed range and azimuth.
+    d_ecef_d_h = ecef_jac[:, :, 2] * np.nan_to_num(d_el_d_h)[:, None]
+    return _Geometry(ecef, ecef_jac, cov, usable, np.where(usable[:, None], d_ecef_d_h, 0.0))
 
 
 def _refracted_plot_geometry(
@@ -213,6 +236,7 @@ def _refracted_plot_geometry(
         usable = np.isfinite(el) & np.isfinite(r)
         cov_polar[:, 2, 2] = site.sigma_elevation_rad**2
         d_el_d_r = np.zeros(n)
+        d_el_d_h = np.zeros(n)
     else:
         height = plots.altitude_m
         el, d_el_d_r, d_el_d_h = apparent_elevation_from_height_jacobian(
@@ -234,7 +258,9 @@ def _refracted_plot_geometry(
     ecef_jac = site.ecef_to_enu.T @ enu_jac
     ecef = site.ecef_from_enu(enu)
     cov = convert_covariance(cov_polar, ecef_jac)
-    return _Geometry(ecef, ecef_jac, cov, usable)
+    # A reported height moves the plot in elevation, at fixed range and azimuth.
+    d_ecef_d_h = ecef_jac[:, :, 2] * np.nan_to_num(d_el_d_h)[:, None]
+    return _Geometry(ecef, ecef_jac, cov, usable, np.where(usable[:, None], d_ecef_d_h, 0.0))
 
 
 def _gaussian_radius_m(lat_rad: float) -> float:

@@ -18,6 +18,8 @@ _FORMATS = {
     "time_offset_s": "{:.3f}",
     "azimuth_sin_mrad": "{:.3f}",
     "azimuth_cos_mrad": "{:.3f}",
+    "height_offset_m": "{:.1f}",
+    "height_scale": "{:.5f}",
 }
 
 
@@ -77,7 +79,33 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
             row.append(str(cal.n_plots.get(rid, "")) if first else "")
             table.add_row(*row)
             first = False
+    if cal.atmosphere is not None:
+        _atmosphere_rows(table, cal, efficiency, truth)
     return table
+
+
+def _atmosphere_rows(
+    table: Table, cal: Calibration, efficiency: dict[str, Any], truth: dict[str, Any] | None
+) -> None:
+    """The height model of pressure altitudes, under the radars (``atmosphere`` rows)."""
+    atmosphere = cal.atmosphere
+    assert atmosphere is not None
+    true_block = (truth or {}).get("atmosphere") or {}
+    for i, key in enumerate(("height_offset_m", "height_scale")):
+        value, sigma = getattr(atmosphere, key), atmosphere.sigma[key]
+        shown = format_value(key, value, sigma)
+        if f"atmosphere.{key}" in cal.info.get("undetermined", []):
+            shown = f"not determined (prior ± {_FORMATS[key].format(sigma)})"
+        row = ["atmosphere" if i == 0 else "", key, shown]
+        if efficiency:
+            ratio = efficiency.get(f"atmosphere.{key}")
+            row.append("" if ratio is None else f"{ratio:.2f}")
+        if truth is not None:
+            true = true_block.get(key)
+            row.append(format_value(key, true))
+            row.append(f"{(value - true) / sigma:+.1f}" if true is not None and sigma else "")
+        row.append("")
+        table.add_row(*row)
 
 
 # ------------------------------------------------------------------ marginals

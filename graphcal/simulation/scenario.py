@@ -13,7 +13,11 @@ The format is documented in ``scenarios/README.md``.  In short::
     [[aircraft]] piecewise legs from a start state, or constant ECEF velocity
     [traffic]    random waypoint traffic
     [opensky]    replay of an OpenSky-style state-vector table
-    [adsb]       ADS-B reports of every equipped aircraft (equipped_fraction)
+    [adsb]       ADS-B reports of every equipped aircraft (equipped_fraction,
+                 baro_altitude)
+    [dataset]    plot_altitude: "geometric" (default) or "pressure" (contract v2)
+    [atmosphere] the true height model of pressure altitudes: height_offset_m,
+                 height_scale (refraction is per radar)
 
 File values carry their units in the key names (deg, mrad, m, s); the
 dataclasses hold SI values (radians).  Every problem raises
@@ -40,6 +44,7 @@ from graphcal.core.errors import ScenarioError, SensorModelError
 from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosphere
 from graphcal.data.bias import ESTIMATE_NAMES, RadarBias
 from graphcal.data.dataset import REFRACTION_MODELS, REFRACTIVITY_N_S_RANGE, Site
+from graphcal.data.height import GEOMETRIC, PLOT_ALTITUDE_CHOICES, PRESSURE, HeightModel
 from graphcal.data.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
 from graphcal.simulation.trajectories import (
     EcefTrajectory,
@@ -201,6 +206,13 @@ class AdsbSpec:
         Horizontal displacement of an outlier [m], in a random direction.
     dropout_probability : float
         Probability that a report is lost.
+    baro_altitude : bool or None
+        Write each report's pressure altitude ``baro_alt_m`` (the true height
+        through the inverse height model, quantised to ``baro_quantum_m``);
+        ``None``: when the scenario has an ``[atmosphere]`` table or pressure
+        plot altitudes.
+    baro_quantum_m : float
+        Quantum of ``baro_alt_m`` [m] (25 ft; 0: not quantised).
     """
 
     enabled: bool = False
@@ -212,6 +224,8 @@ class AdsbSpec:
     outlier_fraction: float = 0.0
     outlier_distance_m: float = 5000.0
     dropout_probability: float = 0.0
+    baro_altitude: bool | None = None
+    baro_quantum_m: float = DEFAULT_ALTITUDE_QUANTUM_FT * FOOT_M
 
     @property
     def horizontal_sigma_m(self) -> float:
@@ -255,6 +269,14 @@ class Scenario:
         ADS-B settings.
     path : Path or None
         The scenario file.
+    plot_altitude : {"geometric", "pressure"}
+        What the plots' ``altitude_m`` is (``[dataset] plot_altitude``): the true
+        height above the ellipsoid, or the pressure altitude of that height
+        through :attr:`height_model`; both with the radar's altitude noise and quantum.
+    true_height_model : HeightModel or None
+        The true height model ``h = (1 + height_scale) p + height_offset_m``
+        (``[atmosphere]``); ``None``: none given (the standard atmosphere,
+        pressure altitude = height).
     """
 
     name: str
@@ -267,6 +289,25 @@ class Scenario:
     opensky: OpenSkySpec | None = None
     adsb: AdsbSpec = field(default_factory=AdsbSpec)
     path: Path | None = None
+    plot_altitude: str = GEOMETRIC
+    true_height_model: HeightModel | None = None
+
+    @property
+    def height_model(self) -> HeightModel:
+        """The true height model (the identity without ``[atmosphere]``)."""
+        return HeightModel() if self.true_height_model is None else self.true_height_model
+
+    @property
+    def has_pressure(self) -> bool:
+        """Whether pressure altitudes are simulated: pressure plots or an ``[atmosphere]``."""
+        return self.plot_altitude == PRESSURE or self.true_height_model is not None
+
+    @property
+    def adsb_baro(self) -> bool:
+        """Whether the ADS-B reports carry ``baro_alt_m``."""
+        if self.adsb.baro_altitude is None:
+            return self.has_pressure
+        return self.adsb.baro_altitude
 
     def radar(self, radar_id: str) -> RadarSpec:
         """The radar with this id (``KeyError`` if there is none)."""
@@ -787,9 +828,36 @@ def _parse_adsb(t: _Table | None) -> AdsbSpec:
         outlier_fraction=t.number("outlier_fraction", 0.0, low=0.0, high=1.0),
         outlier_distance_m=t.number("outlier_distance_m", 5000.0, low=0.0),
         dropout_probability=t.number("dropout_probability", 0.0, low=0.0, high=1.0),
+        baro_altitude=t.boolean("baro_altitude", None) if t.has("baro_altitude") else None,
+        baro_quantum_m=t.number("baro_quantum_ft", DEFAULT_ALTITUDE_QUANTUM_FT, low=0.0,
+                                high=1000.0) * FOOT_M,
     )
     t.finish()
     return spec
+
+
+def _parse_plot_altitude(t: _Table | None) -> str:
+    """``[dataset] plot_altitude``: ``"geometric"`` (default) or ``"pressure"``."""
+    if t is None:
+        return GEOMETRIC
+    value = t.string("plot_altitude", GEOMETRIC)
+    if value not in PLOT_ALTITUDE_CHOICES:
+        choices = " or ".join(f'"{c}"' for c in PLOT_ALTITUDE_CHOICES)
+        raise t.error("plot_altitude", f"must be {choices}, got {value!r}")
+    t.finish()
+    return value
+
+
+def _parse_atmosphere(t: _Table | None) -> HeightModel | None:
+    """``[atmosphere]``: the true height model (``height_offset_m`` [m], ``height_scale``)."""
+    if t is None:
+        return None
+    model = HeightModel(
+        height_offset_m=t.number("height_offset_m", 0.0, low=-5000.0, high=5000.0),
+        height_scale=t.number("height_scale", 0.0, low=-0.5, high=0.5),
+    )
+    t.finish()
+    return model
 
 
 def _unique(items: list[Any], key: str, tables: list[_Table], what: str) -> None:
@@ -849,6 +917,8 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
     opensky_table = root.table("opensky")
     opensky = None if opensky_table is None else _parse_opensky(opensky_table, duration)
     adsb = _parse_adsb(root.table("adsb"))
+    plot_altitude = _parse_plot_altitude(root.table("dataset"))
+    true_height_model = _parse_atmosphere(root.table("atmosphere"))
     root.finish()
     if not aircraft and traffic is None and opensky is None:
         raise root.error("aircraft", "no aircraft: give [[aircraft]], [traffic] or [opensky]")
@@ -863,6 +933,8 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
         opensky=opensky,
         adsb=adsb,
         path=path,
+        plot_altitude=plot_altitude,
+        true_height_model=true_height_model,
     )
 
 
