@@ -194,3 +194,26 @@ def test_plots_near_the_zenith_are_not_placeable() -> None:
     assert not ok[ground < 10e3].any()
     three_d = site_at("B", 0.0, 0.0, sigma_elevation_mrad=1.0)
     assert placeable_over_prior(three_d, plots).all()
+
+
+def test_height_jacobians_along_refracted_rays() -> None:
+    """A 2-D radar with refraction (contract v2) places its plots at their modelled height
+    along the refracted ray: the height columns follow, checked numerically."""
+    dataset = pressure_network(noise=True)
+    sites = {rid: dataclasses.replace(site, refraction="exponential")
+             for rid, site in dataset.sites.items()}
+    refracted = dataclasses.replace(dataset, sites=sites)
+    site, plots = sites["A"], plot_arrays(refracted, "A")
+    assert site.atmosphere is not None
+    bias = np.array([30.0, 1e-4, 1e-3, 0.0])
+    _, jac, _ = corrected_ecef(site, plots, bias, (0.0, 0.0), (150.0, 0.02))
+    numeric = numerical_jacobian(
+        lambda v: corrected_ecef(site, plots, bias, (0.0, 0.0), tuple(v))[0],
+        np.array([150.0, 0.02]), HEIGHT_STEPS)
+    np.testing.assert_allclose(jac[:, :, 6:], numeric, rtol=1e-5, atol=1e-5)
+    f = _factor(refracted, "A", "B")
+    xa, xb, xh = np.array([100.0, 0.0015, 0.003]), np.array([-60.0, -8e-4, -2e-3, 1.5e-3]), \
+        np.array([150.0, 0.02])
+    _, (_, _, jh) = f.whitened([xa, xb, xh])
+    nh = numerical_jacobian(lambda v: f.whitened([xa, xb, v])[0], xh, HEIGHT_STEPS)
+    np.testing.assert_allclose(jh, nh, rtol=1e-5, atol=1e-6 * np.abs(nh).max())
