@@ -84,7 +84,9 @@ def make_dataset(
             nr = rng.normal(0, site.sigma_range_m, k) if noise else 0.0
             na = rng.normal(0, site.sigma_azimuth_rad, k) if noise else 0.0
             r_meas = (1 + bias.range_gain) * rng_m + bias.range_offset_m + nr
-            az_meas = np.mod(az_rad + bias.azimuth_bias_rad + na, 2 * np.pi)
+            eccentricity = (bias.azimuth_sin_rad * np.sin(az_rad)
+                            + bias.azimuth_cos_rad * np.cos(az_rad))
+            az_meas = np.mod(az_rad + bias.azimuth_bias_rad + eccentricity + na, 2 * np.pi)
             if site.is_3d:
                 ne = rng.normal(0, site.sigma_elevation_rad, k) if noise else 0.0
                 el_meas = np.rad2deg(el_rad + bias.elevation_bias_rad + ne)

@@ -38,6 +38,17 @@ Geometry of the ADS-B terms: the Jacobians and ``S_k`` are evaluated at the
 ADS-B positions interpolated to the plot times (what the graph uses), or at
 the true positions when a ``truth`` trajectory table is given.
 
+Pressure altitudes (``dataset.plot_altitude == "pressure"``, contract v2): the
+graph estimates the height model ``h = (1 + k) p + d`` beside the biases, so
+the bound carries ``(d, k)`` as two more unknowns and reports the radar terms'
+bound with them eliminated (a nuisance), plus their own bound
+(:attr:`CrlbResult.atmosphere_sigma`).  A 2-D plot's reported pressure
+altitude ``p`` is then a measurement of ``(h - d) / (1 + k)``: its height row
+gains ``d/d(d, k) = -(1, p) / sigma`` (to first order in ``k``), the plot is
+placed at the height of ``height_model``, and the ADS-B reports with both
+heights add the information of their segment means
+(:func:`graphcal.model.height.adsb_height_segments`), as in the graph.
+
 Without ADS-B a network has gauge freedoms (e.g. a common rotation of all
 azimuths); its Fisher matrix is singular.  :func:`crlb` then returns the
 pseudo-inverse, its ``rank`` and the undetermined directions, whose
@@ -58,11 +69,14 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.refraction import apparent_elevation_from_height, target_from_refracted
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb, plot_arrays
 from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
+from graphcal.data.height import HEIGHT_MODEL_KEYS, HeightModel, height_jacobian
 from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, MAX_2D_ELEVATION_RAD
+from graphcal.model.height import HEIGHT_PRIOR_SIGMA, adsb_height_segments
 from graphcal.model.information import pseudo_inverse
 from graphcal.model.measurement import RadarMeasurementModel, measurement_model
 from graphcal.model.parameters import TERM_NAMES, prior_sigmas, radar_terms
@@ -96,6 +110,10 @@ class CrlbResult:
         Parameters with a component in the null space; their ``sigma`` is infinite.
     info : dict
         Counts: ADS-B plots, cross-radar events and plots, timing.
+    atmosphere_sigma : dict or None
+        With pressure altitudes, the bound's 1-sigma of ``height_offset_m`` [m] and
+        ``height_scale``; ``fisher`` and ``covariance`` are then the radar terms'
+        with the height model eliminated.  ``None`` otherwise.
     """
 
     labels: list[Label]
@@ -105,6 +123,7 @@ class CrlbResult:
     null_space: FloatArray
     undetermined: list[Label] = field(default_factory=list)
     info: dict[str, Any] = field(default_factory=dict)
+    atmosphere_sigma: dict[str, float] | None = None
 
     def _index(self, radar_id: str, name: str) -> int | None:
         try:
@@ -232,6 +251,9 @@ def _adsb_information(
         jac[:, :, :4] = RadarMeasurementModel.bias_jacobian(polar[:, 0])[:, :m, :]
         # Time offset: the plot was made at t - tau, so d h / d tau = -(d polar/dt).
         jac[:, :, 4] = -np.einsum("nij,nj->ni", d_polar, al.reference_velocity_ecef_m_s)[:, :m]
+        # Azimuth eccentricity: d az / d (s, c) = (sin az, cos az).
+        jac[:, 1, 5] = np.sin(polar[:, 1])
+        jac[:, 1, 6] = np.cos(polar[:, 1])
         jac = jac[:, :, list(pos)]
         info = np.einsum("nip,nij,njq->pq", jac, np.linalg.inv(cov), jac)
         fisher[np.ix_(glob, glob)] += info
@@ -244,8 +266,13 @@ def _cross_information(
     p: int,
     exclude: set[int],
     event_s: float,
+    height: tuple[HeightModel, list[int]] | None = None,
 ) -> tuple[FloatArray, dict[str, Any]]:
-    """Fisher information of the cross-radar events, trajectories eliminated."""
+    """Fisher information of the cross-radar events, trajectories eliminated.
+
+    ``height``: pressure altitudes, with the height model that places the 2-D plots
+    and the two columns of ``(d, k)``.
+    """
     blocks = []  # per radar: event key parts and whitened Jacobians
     for r_index, (rid, site) in enumerate(dataset.sites.items()):
         plots = plot_arrays(dataset, rid)
@@ -254,20 +281,25 @@ def _cross_information(
         if len(plots) == 0:
             continue
         r, az = plots.range_m, plots.azimuth_rad
+        pressure_m = plots.altitude_m
+        if height is not None:
+            plots.altitude_m = height[0].geometric(pressure_m)
         if site.is_3d:
             el = plots.elevation_rad
             usable = np.isfinite(el) & np.isfinite(r) & np.isfinite(az)
         else:
-            el = frames.elevation_from_height(r, plots.altitude_m, site.lat_rad, site.alt_m)
+            el = apparent_elevation_from_height(site.atmosphere, site.lat_rad, site.alt_m, r,
+                                                plots.altitude_m)
             with np.errstate(invalid="ignore"):
                 usable = (np.isfinite(el) & np.isfinite(plots.altitude_m)
                           & (np.abs(el) < MAX_2D_ELEVATION_RAD))
         plots = plots.subset(usable)
-        r, az, el = r[usable], az[usable], el[usable]
+        r, az, el, pressure_m = r[usable], az[usable], el[usable], pressure_m[usable]
         n = len(plots)
         if n == 0:
             continue
-        ecef = site.ecef_from_polar(r, az, el)
+        ecef = site.ecef_from_enu(target_from_refracted(site.atmosphere, site.lat_rad,
+                                                        site.alt_m, r, az, el))
         _, d_polar = measurement_model(site).position_jacobian(ecef)
         m = 3 if site.is_3d else 2
         sig = site.measurement_sigmas()[:m]
@@ -279,6 +311,8 @@ def _cross_information(
         # The time offsets are taken as known in the cross-radar events (zero column).
         bias_jac = np.zeros((n, m, len(TERM_NAMES)))
         bias_jac[:, :, :4] = RadarMeasurementModel.bias_jacobian(r)[:, :m, :] / sig[None, :, None]
+        bias_jac[:, 1, 5] = np.sin(az) / sig[1]
+        bias_jac[:, 1, 6] = np.cos(az) / sig[1]
         for pos, glob in columns.get(rid, []):
             hb[:, :m, glob] = bias_jac[:, :, pos]
         if not site.is_3d:
@@ -286,6 +320,8 @@ def _cross_information(
             up = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)],
                           axis=-1)
             hx[:, 2, :] = up / ALTITUDE_SIGMA_M
+            if height is not None:  # p measures (h - d) / (1 + k)
+                hb[:, 2, height[1]] = -height_jacobian(pressure_m) / ALTITUDE_SIGMA_M
         blocks.append((r_index, plots.target_id.astype(str), plots.time_s, hx, hb))
     empty = {"n_events": 0, "n_event_plots": 0}
     if not blocks:
@@ -343,6 +379,7 @@ def crlb(
     max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
     event_s: float | None = None,
     time_offset: bool = False,
+    height_model: HeightModel | None = None,
 ) -> CrlbResult:
     """Cramér-Rao lower bound of the bias parameters (see the module docstring).
 
@@ -375,6 +412,11 @@ def crlb(
         (``graph(..., time_offset=True)``'s labels).  A time offset is informed
         by the ADS-B-matched plots (``d h / d tau = -d polar / dt`` along the ADS-B
         track); the cross-radar events take it as known.
+    height_model : HeightModel, optional
+        With pressure altitudes: the model that places the 2-D plots (e.g. the
+        graph's estimate); default the identity.  The height model is an unknown
+        of the bound whenever the dataset's plots carry pressure altitudes, with
+        the graph's weak priors when ``priors`` is given.
 
     Returns
     -------
@@ -403,21 +445,31 @@ def crlb(
     columns: dict[str, list[tuple[int, int]]] = {}
     for i, (rid, name) in enumerate(candidate):
         columns.setdefault(rid, []).append((TERM_NAMES.index(name), i))
-    fisher = np.zeros((p, p))
+    # Pressure altitudes: the height model (d, k) takes the last two columns.
+    height_cols = [p, p + 1] if dataset.pressure_altitudes else []
+    size = p + len(height_cols)
+    fisher = np.zeros((size, size))
     info: dict[str, Any] = {}
     matched: set[int] = set()
     if have_adsb:
-        f_adsb, matched, counts = _adsb_information(dataset, columns, p, truth, max_gap_s)
+        f_adsb, matched, counts = _adsb_information(dataset, columns, size, truth, max_gap_s)
         fisher += f_adsb
         info["n_adsb_plots"] = counts
+        if height_cols:
+            segments = adsb_height_segments(dataset.adsb)
+            jac = height_jacobian(segments.pressure_m) / segments.sigma_m[:, None]
+            fisher[np.ix_(height_cols, height_cols)] += jac.T @ jac
+            info["n_adsb_height_segments"] = len(segments)
     if cross:
         if event_s is None:
             periods = [s.scan_period_s for s in dataset.sites.values() if s.scan_period_s]
             event_s = EVENT_SCANS * max(periods) if periods else DEFAULT_EVENT_S
-        f_cross, counts = _cross_information(dataset, columns, p, matched, event_s)
+        height = (height_model or HeightModel(), height_cols) if height_cols else None
+        f_cross, counts = _cross_information(dataset, columns, size, matched, event_s, height)
         fisher += f_cross
         info.update(counts)
         info["event_s"] = event_s
+    keep = list(range(p))
     if labels is None:
         # Drop the radars without any observation, as the graph does.
         radars_seen = {
@@ -425,13 +477,33 @@ def crlb(
         }
         keep = [i for i, (rid, _) in enumerate(candidate) if rid in radars_seen]
         candidate = [candidate[i] for i in keep]
-        fisher = fisher[np.ix_(keep, keep)]
         p = len(candidate)
+    fisher = fisher[np.ix_(keep + height_cols, keep + height_cols)]
     if priors is not None:
-        fisher = fisher + np.diag(_prior_information(dataset, candidate, priors))
+        prior_information = _prior_information(dataset, candidate, priors)
+        if height_cols:
+            prior_information = np.concatenate([prior_information,
+                                                np.array(HEIGHT_PRIOR_SIGMA) ** -2.0])
+        fisher = fisher + np.diag(prior_information)
+    atmosphere_sigma = None
+    if height_cols:
+        fisher, atmosphere_sigma = _eliminate_height(fisher, p)
     covariance, rank, null_space, undetermined = _invert(fisher, candidate)
     info["timing_s"] = time.perf_counter() - start
-    return CrlbResult(candidate, fisher, covariance, rank, null_space, undetermined, info)
+    return CrlbResult(candidate, fisher, covariance, rank, null_space, undetermined, info,
+                      atmosphere_sigma)
+
+
+def _eliminate_height(fisher: FloatArray, p: int) -> tuple[FloatArray, dict[str, float]]:
+    """The radar terms' information with the height model (last two columns) eliminated,
+    ``F_rr - F_rh F_hh^+ F_hr``, and the height model's own bound (inf where undetermined)."""
+    f_rr, f_rh, f_hh = fisher[:p, :p], fisher[:p, p:], fisher[p:, p:]
+    reduced = f_rr - f_rh @ pseudo_inverse(f_hh).covariance @ f_rh.T
+    inverse = pseudo_inverse(fisher)
+    variance = np.where(inverse.undetermined[p:], np.inf, np.diag(inverse.covariance)[p:])
+    sigma = dict(zip(HEIGHT_MODEL_KEYS, (float(np.sqrt(max(v, 0.0))) for v in variance),
+                     strict=True))
+    return 0.5 * (reduced + reduced.T), sigma
 
 
 def _prior_information(

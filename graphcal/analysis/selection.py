@@ -557,7 +557,8 @@ def select_dataset(dataset: Dataset, selection: Selection) -> Dataset:
     """
     rows = selection.plot_rows()
     plots = dataset.plots.loc[dataset.plots.index.isin(rows)]
-    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path, dataset.cleaning)
+    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path, dataset.cleaning,
+                   dataset.plot_altitude)
 
 
 def select_for_calibration(

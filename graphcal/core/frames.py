@@ -249,6 +249,19 @@ def polar_to_ecef(
     return enu_to_ecef(polar_to_enu(range_m, azimuth_rad, elevation_rad), lat_rad, lon_rad, alt_m)
 
 
+def gaussian_radius_m(lat_rad: ArrayLike) -> Array:
+    """Gaussian (mean) radius of curvature of the WGS-84 ellipsoid at a latitude [m].
+
+    ``R = sqrt(M N) = a sqrt(1 - e^2) / (1 - e^2 sin^2(lat))``, the geometric mean
+    of the meridional (``M``) and prime-vertical (``N``) radii: the radius of the
+    sphere that best fits the ellipsoid around a point in every direction.  It is
+    the local earth sphere of :func:`elevation_from_height` and of the refraction
+    model (:mod:`graphcal.core.refraction`).
+    """
+    sin_lat2 = np.sin(np.asarray(lat_rad, dtype=float)) ** 2
+    return WGS84_A_M * np.sqrt(1.0 - WGS84_E2) / (1.0 - WGS84_E2 * sin_lat2)
+
+
 def elevation_from_height(
     range_m: ArrayLike, target_alt_m: ArrayLike, lat_rad: float, alt_m: float
 ) -> Array:
@@ -264,8 +277,7 @@ def elevation_from_height(
         (R + h_t)^2 = (R + h_r)^2 + r^2 + 2 r (R + h_r) sin(el)
     """
     r = np.asarray(range_m, dtype=float)
-    sin_lat2 = np.sin(lat_rad) ** 2
-    radius = WGS84_A_M * np.sqrt(1.0 - WGS84_E2) / (1.0 - WGS84_E2 * sin_lat2)
+    radius = gaussian_radius_m(lat_rad)
     rt = radius + np.asarray(target_alt_m, dtype=float)
     rr = radius + alt_m
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -22,6 +22,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.refraction import refracted_polar
 from graphcal.data.dataset import Dataset, Site
 
 #: Default longest gap [s] between two ADS-B reports that is bridged by interpolation.
@@ -287,7 +288,13 @@ def align_adsb(
     cov[:, 0, 0] = var_h
     cov[:, 1, 1] = var_h
     cov[:, 2, 2] = ADSB_VERTICAL_SIGMA_RATIO**2 * var_h
-    polar = np.stack(site.polar_from_ecef(ref), axis=-1) if len(plots) else np.zeros((0, 3))
+    if not len(plots):
+        polar = np.zeros((0, 3))
+    elif site.atmosphere is not None:  # contract v2: electrical length, apparent elevation
+        polar = np.stack(refracted_polar(site.atmosphere, site.lat_rad, site.alt_m,
+                                         site.enu_from_ecef(ref)), axis=-1)
+    else:
+        polar = np.stack(site.polar_from_ecef(ref), axis=-1)
     return AdsbAlignment(radar_id, plots, ref, polar, cov, int(n - matched.sum()), vel,
                          float(time_offset_s))
 

@@ -7,6 +7,12 @@ Contract, per radar::
     elevation_measured = elevation_true + elevation_bias + noise  (3-D radars only)
     time_reported      = time_true + time_offset_s
 
+and, for a radar that estimates its azimuth eccentricity (contract v2; an
+antenna or encoder mounted off the turning axis), an azimuth error that varies
+with azimuth::
+
+    azimuth_measured  += s * sin(azimuth_true) + c * cos(azimuth_true)
+
 This is paper 001 eq. 1-2 (azimuth bias, range offset ``delta_rb`` and range
 gain ``delta_rg``) with the elevation bias of a 3-D radar added.  Correcting a
 plot applies the inverse map.  Inside the code angles are radians.
@@ -24,6 +30,13 @@ from graphcal.core.frames import wrap_to_2pi
 #: Internal parameter names, in the order used by every estimator's state vector.
 PARAMETER_NAMES: tuple[str, ...] = ("range_offset", "range_gain", "azimuth_bias", "elevation_bias")
 
+#: The azimuth eccentricity terms ``s`` and ``c`` [rad] (contract v2).
+ECCENTRICITY_NAMES: tuple[str, ...] = ("azimuth_sin", "azimuth_cos")
+#: The name in a site's ``estimate`` list that asks for both eccentricity terms.
+ECCENTRICITY = "azimuth_eccentricity"
+#: Every name a site's ``estimate`` list may hold.
+ESTIMATE_NAMES: tuple[str, ...] = (*PARAMETER_NAMES, ECCENTRICITY)
+
 #: Contract (JSON/CSV) key of each parameter and the factor from SI to that unit.
 CONTRACT_KEYS: dict[str, tuple[str, float]] = {
     "range_offset": ("range_offset_m", 1.0),
@@ -31,6 +44,8 @@ CONTRACT_KEYS: dict[str, tuple[str, float]] = {
     "azimuth_bias": ("azimuth_bias_mrad", 1e3),
     "elevation_bias": ("elevation_bias_mrad", 1e3),
     "time_offset": ("time_offset_s", 1.0),
+    "azimuth_sin": ("azimuth_sin_mrad", 1e3),
+    "azimuth_cos": ("azimuth_cos_mrad", 1e3),
 }
 
 #: Contract key -> internal name.
@@ -63,6 +78,8 @@ class RadarBias:
         Elevation bias [rad]; 0 for 2-D radars.
     time_offset_s : float
         Time-stamping bias [s]: ``time_reported = time_true + time_offset_s``.
+    azimuth_sin_rad, azimuth_cos_rad : float
+        Azimuth eccentricity [rad]: the azimuth error ``s sin(az) + c cos(az)``.
     """
 
     range_offset_m: float = 0.0
@@ -70,6 +87,8 @@ class RadarBias:
     azimuth_bias_rad: float = 0.0
     elevation_bias_rad: float = 0.0
     time_offset_s: float = 0.0
+    azimuth_sin_rad: float = 0.0
+    azimuth_cos_rad: float = 0.0
 
     def as_vector(self) -> NDArray[np.float64]:
         """The four spatial biases in :data:`PARAMETER_NAMES` order."""
@@ -78,10 +97,20 @@ class RadarBias:
         )
 
     def value(self, name: str) -> float:
-        """One bias by its name in :data:`PARAMETER_NAMES` (or ``time_offset``), SI units."""
+        """One bias by its name (:data:`PARAMETER_NAMES`, ``time_offset``,
+        :data:`ECCENTRICITY_NAMES`), SI units."""
         if name == "time_offset":
             return self.time_offset_s
+        if name == "azimuth_sin":
+            return self.azimuth_sin_rad
+        if name == "azimuth_cos":
+            return self.azimuth_cos_rad
         return float(self.as_vector()[PARAMETER_NAMES.index(name)])
+
+    @property
+    def has_eccentricity(self) -> bool:
+        """Whether either azimuth eccentricity term is non-zero."""
+        return self.azimuth_sin_rad != 0.0 or self.azimuth_cos_rad != 0.0
 
     @classmethod
     def from_vector(cls, values: ArrayLike, time_offset_s: float = 0.0) -> RadarBias:
@@ -102,9 +131,34 @@ def apply_bias(
     ``[0, 2 pi)``.  NaN elevations (2-D radars) stay NaN.
     """
     r = (1.0 + bias.range_gain) * np.asarray(range_true_m, dtype=float) + bias.range_offset_m
-    az = wrap_to_2pi(np.asarray(azimuth_true_rad, dtype=float) + bias.azimuth_bias_rad)
+    az_true = np.asarray(azimuth_true_rad, dtype=float)
+    az = az_true + bias.azimuth_bias_rad
+    if bias.has_eccentricity:
+        az = az + bias.azimuth_sin_rad * np.sin(az_true) + bias.azimuth_cos_rad * np.cos(az_true)
     el = np.asarray(elevation_true_rad, dtype=float) + bias.elevation_bias_rad
-    return r, az, el
+    return r, wrap_to_2pi(az), el
+
+
+#: Newton steps of the eccentricity inverse; each multiplies the error by about
+#: ``(|s| + |c|)^2``, so three reach round-off for any plausible eccentricity.
+ECCENTRICITY_INVERSE_STEPS = 3
+
+
+def true_azimuth(azimuth_measured_rad: ArrayLike, bias: RadarBias) -> NDArray[np.float64]:
+    """Invert the azimuth model: ``az_t + b + s sin(az_t) + c cos(az_t) = az_m`` for ``az_t``.
+
+    Newton's method from ``az_m - b``; without eccentricity the exact ``az_m - b``.
+    Wrapped to ``[0, 2 pi)``.
+    """
+    az_m = np.asarray(azimuth_measured_rad, dtype=float) - bias.azimuth_bias_rad
+    if not bias.has_eccentricity:
+        return wrap_to_2pi(az_m)
+    s, c = bias.azimuth_sin_rad, bias.azimuth_cos_rad
+    az = az_m.copy()
+    for _ in range(ECCENTRICITY_INVERSE_STEPS):
+        f = az + s * np.sin(az) + c * np.cos(az) - az_m
+        az = az - f / (1.0 + s * np.cos(az) - c * np.sin(az))
+    return wrap_to_2pi(az)
 
 
 def correct_bias(
@@ -115,10 +169,11 @@ def correct_bias(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Inverse of :func:`apply_bias`: remove the biases from measurements.
 
-    ``range_true = (range_measured - range_offset) / (1 + range_gain)``.
+    ``range_true = (range_measured - range_offset) / (1 + range_gain)``; the
+    azimuth by :func:`true_azimuth`.
     """
     r = (np.asarray(range_measured_m, dtype=float) - bias.range_offset_m) / (1.0 + bias.range_gain)
-    az = wrap_to_2pi(np.asarray(azimuth_measured_rad, dtype=float) - bias.azimuth_bias_rad)
+    az = true_azimuth(azimuth_measured_rad, bias)
     el = np.asarray(elevation_measured_rad, dtype=float) - bias.elevation_bias_rad
     return r, az, el
 

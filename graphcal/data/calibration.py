@@ -28,7 +28,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from graphcal.core.errors import ResultError
-from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY, PARAMETER_NAMES, RadarBias
+from graphcal.data.bias import (
+    CONTRACT_KEYS,
+    ECCENTRICITY_NAMES,
+    NAME_FROM_KEY,
+    PARAMETER_NAMES,
+    RadarBias,
+)
+from graphcal.data.height import HeightModelEstimate
 
 
 @dataclass
@@ -245,6 +252,12 @@ class Calibration:
         Fisher information the data alone give on the parameters (SI, ``labels``
         order, priors excluded), when the estimator computes it; the pipeline's
         analyses read it.  Not part of the result JSON.
+    atmosphere : HeightModelEstimate or None
+        The height model of pressure altitudes (contract v2), when the dataset's
+        plots carry pressure altitudes and the estimator models them: the result
+        JSON's ``atmosphere`` block.  It is not in ``labels``: ``covariance``
+        stays over the radar terms, and the block carries the pair's own
+        covariance and its cross-covariance with them.
     """
 
     method: str
@@ -260,6 +273,7 @@ class Calibration:
     info: dict[str, Any] = field(default_factory=dict)
     fixed: dict[tuple[str, str], float] = field(default_factory=dict)
     information: NDArray[np.float64] | None = field(default=None, repr=False, compare=False)
+    atmosphere: HeightModelEstimate | None = None
 
     # ----------------------------------------------------------------- queries
     def _position(self, radar_id: str, name: str) -> int | None:
@@ -280,7 +294,7 @@ class Calibration:
     def bias(self, radar_id: str) -> RadarBias:
         """The estimated biases of one radar (zero where not estimated), SI units."""
         self._check_radar(radar_id)
-        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset")}
+        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset", *ECCENTRICITY_NAMES)}
         for (rid, name), value in self.fixed.items():
             if rid == radar_id:
                 values[name] = float(value)
@@ -290,6 +304,7 @@ class Calibration:
         return RadarBias(
             values["range_offset"], values["range_gain"], values["azimuth_bias"],
             values["elevation_bias"], values["time_offset"],
+            azimuth_sin_rad=values["azimuth_sin"], azimuth_cos_rad=values["azimuth_cos"],
         )
 
     def value(self, radar_id: str, key: str) -> float | None:
@@ -415,11 +430,12 @@ class Calibration:
 
         Reads ``radars`` (values in contract units, ``n_plots``, ``residuals``),
         ``covariance.labels`` (``RADAR.key``) and ``covariance.matrix`` (in the
-        units of the labels), and ``method``, ``observability``, ``warnings``
-        and ``info`` when present.  Values and covariance are converted back
-        to SI, so every query (:meth:`value`, :meth:`sigma`, :meth:`marginal`,
-        ``covariance(...)``, :meth:`correlation`) works as on the estimator's
-        own result, and ``to_dict`` gives the same JSON back.  ``null`` values
+        units of the labels), and ``method``, ``observability``, ``warnings``,
+        ``info`` and ``atmosphere`` (contract v2) when present.  Values and
+        covariance are converted back to SI, so every query (:meth:`value`,
+        :meth:`sigma`, :meth:`marginal`, ``covariance(...)``, :meth:`correlation`)
+        works as on the estimator's own result, and ``to_dict`` gives the same
+        JSON back.  ``null`` values
         (NaN, infinite variance) become NaN.  Without an ``observability``
         entry the degree is NaN and the rank 0 (not recorded).  ``is_3d`` is
         true where an elevation bias is estimated (all the file tells).
@@ -526,6 +542,10 @@ class Calibration:
             warnings = [str(w) for w in data.get("warnings") or []]
             where = "info"
             info = dict(data.get("info") or {})
+            where = "atmosphere"
+            atmosphere = None
+            if data.get("atmosphere") is not None:
+                atmosphere = HeightModelEstimate.from_dict(data["atmosphere"])
         except (TypeError, ValueError, KeyError) as exc:
             if isinstance(exc, ResultError):
                 raise
@@ -543,6 +563,7 @@ class Calibration:
             warnings=warnings,
             info=info,
             fixed=fixed,
+            atmosphere=atmosphere,
         )
 
     @classmethod
@@ -575,6 +596,10 @@ class Calibration:
     def to_dict(self) -> dict[str, Any]:
         """The result JSON of the contract (plus optional extra keys)."""
         radars: dict[str, Any] = {}
+        # Contract v2: the eccentricity keys appear (null where not estimated) once any
+        # radar has them; a version-1 result keeps exactly the version-1 keys.
+        eccentric = any(name in ECCENTRICITY_NAMES for _, name in self.labels) or any(
+            name in ECCENTRICITY_NAMES for _, name in self.fixed)
         for rid in self.radar_ids:
             entry: dict[str, Any] = {}
             sigma: dict[str, float] = {}
@@ -592,6 +617,11 @@ class Calibration:
             if self._position(rid, "time_offset") is not None:
                 entry["time_offset_s"] = self.value(rid, "time_offset_s")
                 sigma["time_offset_s"] = self.sigma(rid, "time_offset_s")
+            for name in ECCENTRICITY_NAMES if eccentric else ():
+                key = CONTRACT_KEYS[name][0]
+                entry[key] = self.value(rid, key)
+                if self._position(rid, name) is not None:
+                    sigma[key] = self.sigma(rid, key)
             entry["sigma"] = sigma
             if fixed:
                 entry["fixed"] = fixed
@@ -599,9 +629,11 @@ class Calibration:
             if rid in self.residuals:
                 entry["residuals"] = self.residuals[rid].to_dict()
             radars[rid] = entry
+        document: dict[str, Any] = {"method": self.method, "radars": radars}
+        if self.atmosphere is not None:  # contract v2; absent from version-1 results
+            document["atmosphere"] = self.atmosphere.to_dict()
         return _jsonable({
-            "method": self.method,
-            "radars": radars,
+            **document,
             "covariance": {
                 "labels": self.contract_labels(),
                 "matrix": self.contract_covariance().tolist(),
@@ -687,7 +719,7 @@ def read_biases(path: str | Path) -> dict[str, RadarBias]:
     for rid, entry in radars.items():
         if not isinstance(entry, Mapping):
             raise ResultError("not an object", path=path, field=f"radars.{rid}")
-        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset")}
+        values = {name: 0.0 for name in (*PARAMETER_NAMES, "time_offset", *ECCENTRICITY_NAMES)}
         fixed = entry.get("fixed") or {}
         items = list(fixed.items()) if isinstance(fixed, Mapping) else []
         items += [(k, v) for k, v in entry.items() if k in NAME_FROM_KEY]
@@ -702,5 +734,6 @@ def read_biases(path: str | Path) -> dict[str, RadarBias]:
         out[str(rid)] = RadarBias(
             values["range_offset"], values["range_gain"], values["azimuth_bias"],
             values["elevation_bias"], values["time_offset"],
+            azimuth_sin_rad=values["azimuth_sin"], azimuth_cos_rad=values["azimuth_cos"],
         )
     return out

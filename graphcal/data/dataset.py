@@ -20,6 +20,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosphere
 from graphcal.data.bias import PARAMETER_NAMES
 
 if TYPE_CHECKING:
@@ -33,8 +34,8 @@ PLOT_COLUMNS: tuple[str, ...] = (
 PLOT_OPTIONAL_COLUMNS: tuple[str, ...] = ("altitude_m",)
 #: Required ADS-B columns.
 ADSB_COLUMNS: tuple[str, ...] = ("time_s", "target_id", "lat_deg", "lon_deg", "alt_m")
-#: Optional ADS-B columns.
-ADSB_OPTIONAL_COLUMNS: tuple[str, ...] = ("sigma_m", "nacp")
+#: Optional ADS-B columns (``baro_alt_m``: the reported pressure altitude [m], contract v2).
+ADSB_OPTIONAL_COLUMNS: tuple[str, ...] = ("sigma_m", "nacp", "baro_alt_m")
 
 #: 1-sigma horizontal error [m] of an ADS-B report that gives neither ``sigma_m``
 #: nor ``nacp``.  A cautious figure, between NACp 8 (EPU < 92.6 m, sigma < 37.8 m) and
@@ -50,7 +51,15 @@ TABLE_FORMATS: tuple[str, ...] = ("csv", "parquet")
 SITE_KEYS: tuple[str, ...] = (
     "id", "lat_deg", "lon_deg", "alt_m", "sigma_range_m", "sigma_azimuth_mrad",
     "sigma_elevation_mrad", "scan_period_s", "model", "estimate", "sac", "sic",
+    "refraction", "refractivity_n_s", "refractivity_scale_height_m",
 )
+
+#: Propagation models of a radar's ``refraction`` key (contract v2): ``"none"``,
+#: straight lines of sight (version 1); ``"exponential"``, rays refracted by an
+#: exponential atmosphere (:mod:`graphcal.core.refraction`).
+REFRACTION_MODELS: tuple[str, ...] = ("none", "exponential")
+#: Accepted surface refractivities ``refractivity_n_s`` [N-units].
+REFRACTIVITY_N_S_RANGE: tuple[float, float] = (0.0, 500.0)
 
 
 @dataclass(frozen=True)
@@ -84,6 +93,15 @@ class Site:
         ASTERIX System Area Code and System Identification Code of the radar
         (optional ``sites.toml`` keys, 0..255, both or neither), used to name it
         in ASTERIX imports and in the CAT063 export.
+    refraction : str
+        Propagation model, one of :data:`REFRACTION_MODELS`: ``"none"`` (straight
+        lines of sight, the default) or ``"exponential"`` (contract v2: the true
+        range is the ray's electrical length, the true elevation its apparent
+        elevation at the antenna).
+    refractivity_n_s : float
+        Surface refractivity ``N_s`` of the exponential atmosphere [N-units].
+    refractivity_scale_height_m : float
+        Its scale height ``H`` [m].
     """
 
     id: str
@@ -98,11 +116,30 @@ class Site:
     estimate: tuple[str, ...] = field(default=())
     sac: int | None = None
     sic: int | None = None
+    refraction: str = "none"
+    refractivity_n_s: float = DEFAULT_N_S
+    refractivity_scale_height_m: float = DEFAULT_SCALE_HEIGHT_M
 
     def __post_init__(self) -> None:
         if not self.estimate:
             names = PARAMETER_NAMES if self.is_3d else PARAMETER_NAMES[:3]
             object.__setattr__(self, "estimate", tuple(names))
+        if self.refraction not in REFRACTION_MODELS:
+            raise ValueError(f"refraction must be one of {', '.join(REFRACTION_MODELS)}, "
+                             f"got {self.refraction!r}")
+
+    @property
+    def atmosphere(self) -> Atmosphere | None:
+        """The atmosphere the radar's rays cross, or ``None`` for straight lines of sight.
+
+        Raises
+        ------
+        ValueError
+            If the refractivity values are not a valid :class:`Atmosphere`.
+        """
+        if self.refraction == "none":
+            return None
+        return Atmosphere(self.refractivity_n_s, self.refractivity_scale_height_m)
 
     @property
     def is_3d(self) -> bool:
@@ -166,6 +203,9 @@ class Dataset:
     ``adsb`` has the contract columns with ``sigma_m`` always filled in.
     ``cleaning`` is the report of :func:`graphcal.data.cleaning.clean_dataset` when
     the tables were cleaned (by :func:`load_dataset`), else ``None``.
+    ``plot_altitude`` says what the plots' ``altitude_m`` is (``sites.toml``
+    ``[dataset] plot_altitude``, :mod:`graphcal.data.height`): ``"geometric"``, a
+    height above the ellipsoid (version 1), or ``"pressure"``, a pressure altitude.
     """
 
     sites: dict[str, Site]
@@ -173,6 +213,12 @@ class Dataset:
     adsb: pd.DataFrame | None = None
     path: Path | None = None
     cleaning: CleaningReport | None = None
+    plot_altitude: str = "geometric"
+
+    @property
+    def pressure_altitudes(self) -> bool:
+        """Whether the plots' ``altitude_m`` is a pressure altitude."""
+        return self.plot_altitude == "pressure"
 
     @property
     def radar_ids(self) -> list[str]:

@@ -31,6 +31,12 @@ Normalisation of the tables read:
   report's ``nacp`` (:func:`graphcal.data.sensor_models.adsb_sigma_from_nacp`), else
   :data:`ADSB_DEFAULT_SIGMA_M`.  ``nacp``, when the column exists, is kept as a
   nullable integer (``Int64``) and must be within 0..11.
+* ADS-B ``baro_alt_m`` (contract v2, optional): the reported pressure altitude
+  [m], NaN where a report has none.
+* ``sites.toml`` may hold a top-level ``[dataset]`` table (contract v2) whose
+  ``plot_altitude`` (``"geometric"``, the default, or ``"pressure"``) says what the
+  plots' ``altitude_m`` is; it becomes :attr:`Dataset.plot_altitude`
+  (:func:`load_plot_altitude`).
 * Columns beyond the contract's are kept unchanged after the contract columns.
 
 Reading never writes anything.  Writing (:func:`write_dataset`,
@@ -60,17 +66,21 @@ from numpy.typing import NDArray
 
 from graphcal.core.atomic import atomic_write_text, write_table
 from graphcal.core.errors import DatasetError, SensorModelError
-from graphcal.data.bias import PARAMETER_NAMES
+from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosphere
+from graphcal.data.bias import ESTIMATE_NAMES
 from graphcal.data.dataset import (
     ADSB_COLUMNS,
     ADSB_DEFAULT_SIGMA_M,
     PLOT_COLUMNS,
+    REFRACTION_MODELS,
+    REFRACTIVITY_N_S_RANGE,
     SITE_KEYS,
     SITES_FILE,
     TABLE_FORMATS,
     Dataset,
     Site,
 )
+from graphcal.data.height import GEOMETRIC, PLOT_ALTITUDE_CHOICES
 from graphcal.data.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
 
 #: Text read as "no value" in a numeric column (compared after removing blanks).
@@ -157,12 +167,41 @@ def _site_estimate(entry: Mapping[str, Any], where: _Where) -> tuple[str, ...] |
     if not value:
         raise where.error("estimate", "must name at least one parameter")
     for name in value:
-        if name not in PARAMETER_NAMES:
-            known = ", ".join(PARAMETER_NAMES)
+        if name not in ESTIMATE_NAMES:
+            known = ", ".join(ESTIMATE_NAMES)
             raise where.error("estimate", f"unknown parameter {name!r}; known: {known}")
     if len(set(value)) != len(value):
         raise where.error("estimate", "names a parameter twice")
     return tuple(value)
+
+
+def _site_refraction(entry: Mapping[str, Any], where: _Where) -> tuple[str, float, float]:
+    """``(refraction, refractivity_n_s, refractivity_scale_height_m)`` of a ``[[radar]]`` table.
+
+    Contract v2: ``refraction`` is one of :data:`REFRACTION_MODELS` (default
+    ``"none"``), ``N_s`` within :data:`REFRACTIVITY_N_S_RANGE` (default 313), ``H``
+    positive (default 7000 m); an ``"exponential"`` atmosphere must also be one
+    :class:`~graphcal.core.refraction.Atmosphere` accepts (no super-refraction).
+    """
+    model = entry.get("refraction", "none")
+    if not isinstance(model, str):
+        raise where.error("refraction", f"must be a string, got {model!r}")
+    if model not in REFRACTION_MODELS:
+        known = ", ".join(f'"{m}"' for m in REFRACTION_MODELS)
+        raise where.error("refraction", f"unknown refraction model {model!r}; known: {known}")
+    low, high = REFRACTIVITY_N_S_RANGE
+    n_s = _site_number(entry, "refractivity_n_s", where, low=low, high=high)
+    height = _site_number(entry, "refractivity_scale_height_m", where, positive=True)
+    n_s = DEFAULT_N_S if n_s is None else n_s
+    height = DEFAULT_SCALE_HEIGHT_M if height is None else height
+    if model != "none":
+        try:
+            Atmosphere(n_s, height)
+        except ValueError as exc:
+            key = "refractivity_scale_height_m" if "refractivity_scale_height_m" in entry \
+                else "refractivity_n_s"
+            raise where.error(key, str(exc)) from None
+    return model, n_s, height
 
 
 def _required(value: Any, key: str, where: _Where) -> Any:
@@ -207,6 +246,7 @@ def _parse_site(entry: Any, where: _Where) -> Site:
     sac, sic = _site_code(entry, "sac", where), _site_code(entry, "sic", where)
     if (sac is None) != (sic is None):
         raise where.error("sac" if sac is None else "sic", "give both sac and sic, or neither")
+    refraction, n_s, scale_height = _site_refraction(entry, where)
     return Site(
         id=site_id,
         lat_rad=math.radians(_required(lat_deg, "lat_deg", where)),
@@ -220,6 +260,9 @@ def _parse_site(entry: Any, where: _Where) -> Site:
         estimate=() if estimate is None else estimate,
         sac=sac,
         sic=sic,
+        refraction=refraction,
+        refractivity_n_s=n_s,
+        refractivity_scale_height_m=scale_height,
     )
 
 
@@ -250,7 +293,10 @@ def load_sites(path: str | Path) -> dict[str, Site]:
         period and ``estimate`` the table does not give) and ``estimate`` (the
         bias parameters to estimate, names from
         :data:`graphcal.data.bias.PARAMETER_NAMES`; ``elevation_bias`` only for a
-        3-D radar; default: all the radar has).
+        3-D radar; default: all the radar has), and (contract v2) ``refraction``
+        (``"none"``, the default, or ``"exponential"``), ``refractivity_n_s``
+        [N-units, 0-500, default 313] and ``refractivity_scale_height_m`` [m,
+        default 7000].
 
     Returns
     -------
@@ -262,17 +308,13 @@ def load_sites(path: str | Path) -> dict[str, Site]:
     DatasetError
         If the file is missing or not TOML, or any table is invalid (missing or
         unknown key, empty or duplicate id, latitude outside [-90, 90] deg,
-        longitude outside [-180, 180] deg, a non-positive sigma, ...).  "row N"
-        in the message is the N-th ``[[radar]]`` table.
+        longitude outside [-180, 180] deg, a non-positive sigma, an unknown
+        refraction model, a refractivity outside [0, 500] N-units, a
+        non-positive scale height, ...).  "row N" in the message is the N-th
+        ``[[radar]]`` table.
     """
     path = Path(path)
-    try:
-        with path.open("rb") as handle:
-            document = tomllib.load(handle)
-    except FileNotFoundError:
-        raise DatasetError("file not found", path=path) from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise DatasetError(f"cannot read TOML: {exc}", path=path) from None
+    document = _read_toml(path)
     entries = document.get("radar")
     if not isinstance(entries, list) or not entries:
         raise DatasetError("no [[radar]] tables", path=path, field="radar")
@@ -290,6 +332,60 @@ def load_sites(path: str | Path) -> dict[str, Site]:
         sites[site.id] = site
         first_row[site.id] = row
     return sites
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    """The parsed ``sites.toml``, or a :class:`DatasetError` naming the file."""
+    try:
+        with path.open("rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise DatasetError("file not found", path=path) from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise DatasetError(f"cannot read TOML: {exc}", path=path) from None
+
+
+#: Keys of the top-level ``[dataset]`` table of ``sites.toml`` (contract v2).
+DATASET_KEYS: tuple[str, ...] = ("plot_altitude",)
+
+
+def load_plot_altitude(path: str | Path) -> str:
+    """What the plots' ``altitude_m`` is, from ``sites.toml``'s ``[dataset]`` table.
+
+    Parameters
+    ----------
+    path : str or Path
+        The ``sites.toml`` file.
+
+    Returns
+    -------
+    str
+        ``"geometric"`` (a height above the ellipsoid; the default, also without a
+        ``[dataset]`` table) or ``"pressure"`` (a pressure altitude, see
+        :mod:`graphcal.data.height`).
+
+    Raises
+    ------
+    DatasetError
+        If ``[dataset]`` is not a table, has an unknown key, or ``plot_altitude`` is
+        not one of the choices; the message names the file, the table and the field.
+    """
+    path = Path(path)
+    table = _read_toml(path).get("dataset")
+    if table is None:
+        return GEOMETRIC
+    if not isinstance(table, dict):
+        raise DatasetError("[dataset] must be a table", path=path, field="dataset")
+    for key in table:
+        if key not in DATASET_KEYS:
+            raise DatasetError(f"[dataset]: unknown key; known keys: {', '.join(DATASET_KEYS)}",
+                               path=path, field=f"dataset.{key}")
+    value = table.get("plot_altitude", GEOMETRIC)
+    if not isinstance(value, str) or value not in PLOT_ALTITUDE_CHOICES:
+        choices = " or ".join(f'"{c}"' for c in PLOT_ALTITUDE_CHOICES)
+        raise DatasetError(f"[dataset]: plot_altitude must be {choices}, got {value!r}",
+                           path=path, field="dataset.plot_altitude")
+    return value
 
 
 def _to_file_units(value: float, to_file: Callable[[float], float],
@@ -327,7 +423,8 @@ def _site_to_toml(site: Site) -> dict[str, Any]:
     The sigmas are always written (except those not known, NaN), so the file
     does not depend on the sensor model; ``estimate`` is written when it differs
     from the radar's default or when a model is named (whose own ``estimate``
-    would otherwise apply).
+    would otherwise apply); the refraction keys only when the radar's rays are
+    refracted (so that a version-1 file is written as it was).
     """
     entry: dict[str, Any] = {
         "id": site.id,
@@ -351,10 +448,16 @@ def _site_to_toml(site: Site) -> dict[str, Any]:
         entry["estimate"] = list(site.estimate)
     if site.sac is not None and site.sic is not None:
         entry["sac"], entry["sic"] = int(site.sac), int(site.sic)
+    if site.refraction != "none":
+        entry["refraction"] = site.refraction
+        entry["refractivity_n_s"] = float(site.refractivity_n_s)
+        entry["refractivity_scale_height_m"] = float(site.refractivity_scale_height_m)
     return entry
 
 
-def write_sites(sites: Mapping[str, Site], path: str | Path) -> None:
+def write_sites(
+    sites: Mapping[str, Site], path: str | Path, *, plot_altitude: str = GEOMETRIC
+) -> None:
     """Write ``sites.toml`` atomically; :func:`load_sites` reads it back.
 
     Parameters
@@ -365,8 +468,17 @@ def write_sites(sites: Mapping[str, Site], path: str | Path) -> None:
         Destination file.  Angles are written in degrees (positions) and
         milliradians (sigmas), chosen so that reading them back gives the same
         radians.
+    plot_altitude : {"geometric", "pressure"}, optional
+        Written as ``[dataset] plot_altitude`` when not the default, so that a
+        version-1 file is written exactly as before (:func:`load_plot_altitude`).
     """
-    document = {"radar": [_site_to_toml(site) for site in sites.values()]}
+    if plot_altitude not in PLOT_ALTITUDE_CHOICES:
+        raise ValueError(f"plot_altitude must be one of {', '.join(PLOT_ALTITUDE_CHOICES)}, "
+                         f"got {plot_altitude!r}")
+    document: dict[str, Any] = {}
+    if plot_altitude != GEOMETRIC:
+        document["dataset"] = {"plot_altitude": plot_altitude}
+    document["radar"] = [_site_to_toml(site) for site in sites.values()]
     atomic_write_text(path, _SITES_HEADER + tomli_w.dumps(document))
 
 
@@ -666,6 +778,10 @@ def _load_adsb(path: Path) -> pd.DataFrame:
     _flag_not_finite(problems, alt_m, "alt_m", required=True)
     nacp = _adsb_nacp(table, problems)
     sigma_m = _adsb_sigma(table, problems, nacp)
+    baro_alt_m = None
+    if "baro_alt_m" in table.frame.columns:
+        baro_alt_m = _numeric(table, problems, "baro_alt_m")
+        _flag_not_finite(problems, baro_alt_m, "baro_alt_m", required=False)
     problems.raise_first()
     columns: dict[str, Any] = {
         "time_s": time_s,
@@ -677,6 +793,8 @@ def _load_adsb(path: Path) -> pd.DataFrame:
     }
     if nacp is not None:
         columns["nacp"] = pd.array(np.where(np.isnan(nacp), None, nacp), dtype="Int64")
+    if baro_alt_m is not None:
+        columns["baro_alt_m"] = baro_alt_m
     return _assemble(table, columns)
 
 
@@ -723,7 +841,9 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
     sites = _three_d_without_sigmas(sites, plots, folder / SITES_FILE)
     adsb_path = _find_table(folder, "adsb")
     adsb = None if adsb_path is None else _load_adsb(adsb_path)
-    dataset = Dataset(sites=sites, plots=plots, adsb=adsb, path=folder)
+    plot_altitude = load_plot_altitude(folder / SITES_FILE)
+    dataset = Dataset(sites=sites, plots=plots, adsb=adsb, path=folder,
+                      plot_altitude=plot_altitude)
     if clean:
         from graphcal.data.cleaning import clean_dataset
 
@@ -838,7 +958,7 @@ def write_dataset(
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
     try:
         os.chmod(staging, 0o755)
-        write_sites(dataset.sites, staging / SITES_FILE)
+        write_sites(dataset.sites, staging / SITES_FILE, plot_altitude=dataset.plot_altitude)
         write_table(dataset.plots, staging / f"plots.{fmt}")
         if dataset.adsb is not None:
             write_table(dataset.adsb, staging / f"adsb.{fmt}")

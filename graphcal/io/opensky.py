@@ -3,8 +3,9 @@
 Input columns (CSV or Parquet): ``timestamp`` (unix seconds, or a datetime;
 naive datetimes are UTC), ``icao24``, ``latitude``, ``longitude`` [deg], and
 a height: ``geoaltitude`` [m, GNSS height] when the column exists, else
-``altitude`` [ft, barometric].  Optional: ``lastposupdate`` [unix s, time of
-the last position update] and ``onground`` (bool).
+``altitude`` [ft, barometric], else ``baroaltitude`` [m, barometric].
+Optional: ``lastposupdate`` [unix s, time of the last position update] and
+``onground`` (bool).
 
 Cleaning, in this order (each step's drops are counted):
 
@@ -30,6 +31,15 @@ barometric ``altitude`` [ft] is converted to metres and used as if it were a
 height above the WGS-84 ellipsoid: pressure altitude and ellipsoidal height
 differ by up to a few hundred metres (weather, geoid), which matters for 3-D
 radars; ``frame.attrs["height_source"]`` says which was used.
+
+Pressure altitudes (contract v2): when the height is ``geoaltitude`` and the table
+also has a barometric altitude, ``baroaltitude`` [m] (OpenSky's historical
+state vectors) or else ``altitude`` [ft], it becomes the column ``baro_alt_m``
+[m] (NaN where missing or outside the plausible heights), from which the
+calibration estimates the height model (:mod:`graphcal.data.height`);
+``frame.attrs["baro_source"]`` names it (``None`` without one).  A table whose
+only height is barometric gives no ``baro_alt_m``: its ``alt_m`` already is that
+altitude, and the two would say nothing about the height model.
 """
 
 from __future__ import annotations
@@ -48,6 +58,10 @@ FOOT_M = 0.3048
 HEIGHT_RANGE_M: tuple[float, float] = (-500.0, 20000.0)
 #: Columns the input must have (plus ``geoaltitude`` or ``altitude``).
 REQUIRED_COLUMNS: tuple[str, ...] = ("timestamp", "icao24", "latitude", "longitude")
+#: Height columns, by preference, with the factor to metres.
+HEIGHT_COLUMNS: dict[str, float] = {"geoaltitude": 1.0, "altitude": FOOT_M, "baroaltitude": 1.0}
+#: Barometric altitude columns read into ``baro_alt_m`` beside ``geoaltitude``, by preference.
+BARO_COLUMNS: dict[str, float] = {"baroaltitude": 1.0, "altitude": FOOT_M}
 #: Unix times above this are taken as milliseconds (year 5138 in seconds).
 _MILLISECONDS_ABOVE = 1e11
 
@@ -108,10 +122,13 @@ def read_opensky_adsb(path: str | Path, *, epoch_unix_s: float | None = None) ->
     -------
     pandas.DataFrame
         Columns ``time_s`` [s since the epoch], ``target_id`` (lower-case hex),
-        ``lat_deg``, ``lon_deg`` [deg], ``alt_m`` [m], sorted by time then
-        target.  ``attrs``: ``epoch_unix_s`` (float), ``height_source``
-        (``"geoaltitude"`` or ``"altitude (barometric)"``), ``rows_read`` (int)
-        and ``dropped`` (dict of reason to row count, in cleaning order).
+        ``lat_deg``, ``lon_deg`` [deg], ``alt_m`` [m], and ``baro_alt_m`` [m]
+        when a barometric altitude accompanies ``geoaltitude``; sorted by time
+        then target.  ``attrs``: ``epoch_unix_s`` (float), ``height_source``
+        (``"geoaltitude"``, ``"altitude (barometric)"`` or ``"baroaltitude
+        (barometric)"``), ``baro_source`` (column name or ``None``),
+        ``rows_read`` (int) and ``dropped`` (dict of reason to row count, in
+        cleaning order).
 
     Raises
     ------
@@ -122,13 +139,18 @@ def read_opensky_adsb(path: str | Path, *, epoch_unix_s: float | None = None) ->
     path = Path(path)
     table = _read(path)
     missing = [c for c in REQUIRED_COLUMNS if c not in table.columns]
-    height_col = next((c for c in ("geoaltitude", "altitude") if c in table.columns), None)
+    height_col = next((c for c in HEIGHT_COLUMNS if c in table.columns), None)
     if height_col is None:
-        missing.append("geoaltitude or altitude")
+        missing.append("geoaltitude or altitude (or baroaltitude)")
     if missing:
         found = ", ".join(map(str, table.columns)) or "none"
         raise DatasetError(f"missing column(s) {', '.join(missing)} (found: {found})", path=path)
-    scale = 1.0 if height_col == "geoaltitude" else FOOT_M
+    scale = HEIGHT_COLUMNS[height_col]
+    baro_col = None
+    if height_col == "geoaltitude":
+        baro_col = next((c for c in BARO_COLUMNS if c in table.columns), None)
+    baro = (_numbers(table, baro_col) * BARO_COLUMNS[baro_col] if baro_col is not None
+            else np.full(len(table), np.nan))
     time_col = "lastposupdate" if "lastposupdate" in table.columns else "timestamp"
     df = pd.DataFrame({
         "unix": _unix_seconds(table[time_col]),
@@ -137,6 +159,7 @@ def read_opensky_adsb(path: str | Path, *, epoch_unix_s: float | None = None) ->
         "lat": _numbers(table, "latitude"),
         "lon": _numbers(table, "longitude"),
         "h": _numbers(table, height_col) * scale,
+        "baro": baro,
         "onground": (table["onground"].fillna(False).astype(bool).to_numpy()
                      if "onground" in table.columns else np.zeros(len(table), dtype=bool)),
     })
@@ -177,10 +200,16 @@ def read_opensky_adsb(path: str | Path, *, epoch_unix_s: float | None = None) ->
         "lon_deg": df["lon"].to_numpy(),
         "alt_m": df["h"].to_numpy(),
     })
+    if baro_col is not None:
+        baro = df["baro"].to_numpy()
+        plausible = (baro >= HEIGHT_RANGE_M[0]) & (baro <= HEIGHT_RANGE_M[1])
+        out["baro_alt_m"] = np.where(plausible, baro, np.nan)
     out = out.sort_values(["time_s", "target_id"], kind="stable").reset_index(drop=True)
     out.attrs.update({
         "epoch_unix_s": float(epoch_unix_s),
-        "height_source": "geoaltitude" if height_col == "geoaltitude" else "altitude (barometric)",
+        "height_source": ("geoaltitude" if height_col == "geoaltitude"
+                          else f"{height_col} (barometric)"),
+        "baro_source": baro_col,
         "rows_read": len(table),
         "dropped": dropped,
     })

@@ -23,15 +23,21 @@ they were exact); 2-D plots without an altitude are left out.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core import frames
 from graphcal.core.covariance import convert_covariance
+from graphcal.core.refraction import (
+    apparent_elevation_from_height_jacobian,
+    target_from_refracted_jacobian,
+)
 from graphcal.data.align import PlotArrays, PlotPairs, neighbour_plots, pair_plots
+from graphcal.data.bias import RadarBias, true_azimuth
 from graphcal.data.dataset import Dataset, Site
+from graphcal.data.height import height_jacobian
 from graphcal.model.measurement import RadarMeasurementModel
 from graphcal.model.parameters import ParameterLayout
 
@@ -81,14 +87,26 @@ def convert_plots(
 
 
 def corrected_ecef(
-    site: Site, plots: PlotArrays, bias: FloatArray
+    site: Site,
+    plots: PlotArrays,
+    bias: FloatArray,
+    eccentricity: tuple[float, float] | None = None,
+    height_model: tuple[float, float] | None = None,
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Plots corrected by ``bias`` -> ECEF, with the Jacobian w.r.t. the bias.
 
     The correction is the inverse bias model (:func:`graphcal.data.bias.correct_bias`):
-    ``r = (r_m - offset) / (1 + gain)``, ``az = az_m - az_bias``,
-    ``el = el_m - el_bias`` (3-D) or the elevation of the reported height at
-    the corrected range (2-D).
+    ``r = (r_m - offset) / (1 + gain)``, ``az`` from ``az_m = az + az_bias +
+    s sin(az) + c cos(az)`` (:func:`graphcal.data.bias.true_azimuth`; ``az_m -
+    az_bias`` without eccentricity), ``el = el_m - el_bias`` (3-D) or the
+    elevation of the reported height at the corrected range (2-D).  Implicit
+    differentiation of the azimuth model gives ``d az / d (az_bias, s, c) =
+    -(1, sin az, cos az) / (1 + s cos az - c sin az)``.
+
+    With pressure altitudes, a 2-D plot is placed at the height ``h = (1 + k) p + d``
+    of its reported pressure altitude ``p`` (``height_model = (d, k)``,
+    :mod:`graphcal.data.height`), and ``d ecef / d (d, k) = (d ecef / d el)
+    (d el / d h) (1, p)`` with ``d el / d h = R_t / (r R_r cos el)``.
 
     Parameters
     ----------
@@ -96,26 +114,49 @@ def corrected_ecef(
     plots : PlotArrays
     bias : ndarray (4,)
         ``(range_offset_m, range_gain, azimuth_bias_rad, elevation_bias_rad)``.
+    eccentricity : (float, float), optional
+        The azimuth eccentricity ``(s, c)`` [rad]; when given, the Jacobian gains
+        its two columns.
+    height_model : (float, float), optional
+        ``(height_offset_m, height_scale)`` when ``plots.altitude_m`` is a pressure
+        altitude; the Jacobian then gains two last columns (zero for a 3-D radar).
 
     Returns
     -------
     ecef_m : ndarray (n, 3)
-    jacobian : ndarray (n, 3, 4)
-        ``d ecef / d bias`` [m per unit of each bias].
+    jacobian : ndarray (n, 3, 4), or (n, 3, 6) with ``eccentricity``, plus 2 with ``height_model``
+        ``d ecef / d (bias[, s, c][, d, k])`` [m per unit of each term].
     usable : ndarray (n,) of bool
         False for 2-D plots without a reported height or 3-D plots without elevation.
     """
     offset, gain, az_bias, el_bias = (float(v) for v in bias)
+    s, c = (0.0, 0.0) if eccentricity is None else (float(v) for v in eccentricity)
     r = (plots.range_m - offset) / (1.0 + gain)
-    az = plots.azimuth_rad - az_bias
+    az = true_azimuth(plots.azimuth_rad, RadarBias(azimuth_bias_rad=az_bias, azimuth_sin_rad=s,
+                                                   azimuth_cos_rad=c))
+    pressure_m = plots.altitude_m
+    if height_model is not None and not site.is_3d:
+        offset_m, scale = (float(v) for v in height_model)
+        plots = replace(plots, altitude_m=(1.0 + scale) * pressure_m + offset_m)
     geometry = _plot_geometry(site, r, az, plots, el_bias)
-    d_polar = np.zeros((len(r), 3, 4))
+    d_polar = np.zeros((len(r), 3, 4 if eccentricity is None else 6))
     d_polar[:, 0, 0] = -1.0 / (1.0 + gain)
     d_polar[:, 0, 1] = -r / (1.0 + gain)
-    d_polar[:, 1, 2] = -1.0
+    if eccentricity is None:
+        d_polar[:, 1, 2] = -1.0
+    else:
+        slope = 1.0 + s * np.cos(az) - c * np.sin(az)
+        d_polar[:, 1, 2] = -1.0 / slope
+        d_polar[:, 1, 4] = -np.sin(az) / slope
+        d_polar[:, 1, 5] = -np.cos(az) / slope
     if site.is_3d:
         d_polar[:, 2, 3] = -1.0
-    return geometry.ecef_m, geometry.ecef_jacobian @ d_polar, geometry.usable
+    jacobian = geometry.ecef_jacobian @ d_polar
+    if height_model is not None:
+        d_height = geometry.height_jacobian[:, :, None] * height_jacobian(
+            np.nan_to_num(pressure_m))[:, None, :]
+        jacobian = np.concatenate([jacobian, d_height], axis=2)
+    return geometry.ecef_m, jacobian, geometry.usable
 
 
 @dataclass
@@ -124,12 +165,22 @@ class _Geometry:
     ecef_jacobian: FloatArray  # (n, 3, 3) d ecef / d (r, az, el); 2-D: el follows r
     cov_m2: FloatArray  # (n, 3, 3) measurement noise in ECEF
     usable: NDArray[np.bool_]
+    height_jacobian: FloatArray  # (n, 3) d ecef / d reported height (2-D; 0 for 3-D)
 
 
 def _plot_geometry(
     site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float = 0.0
 ) -> _Geometry:
-    """ECEF position, d ecef / d polar and converted noise of plots at ``(r, az)``."""
+    """ECEF position, d ecef / d polar and converted noise of plots at ``(r, az)``.
+
+    With refraction (``site.atmosphere``), ``r`` is the electrical length and the
+    elevation the apparent one: the plot is placed along the refracted ray
+    (:func:`graphcal.core.refraction.target_from_refracted_jacobian`) and a 2-D
+    plot's elevation comes from its height along it
+    (:func:`graphcal.core.refraction.apparent_elevation_from_height_jacobian`).
+    """
+    if site.atmosphere is not None:
+        return _refracted_plot_geometry(site, r, az, plots, elevation_bias)
     n = len(r)
     cov_polar = np.zeros((n, 3, 3))
     cov_polar[:, 0, 0] = site.sigma_range_m**2
@@ -139,6 +190,7 @@ def _plot_geometry(
         usable = np.isfinite(el)
         cov_polar[:, 2, 2] = site.sigma_elevation_rad**2
         d_el_d_r = np.zeros(n)
+        d_el_d_h = np.zeros(n)
     else:
         el = frames.elevation_from_height(r, plots.altitude_m, site.lat_rad, site.alt_m)
         # Near the zenith (or where noise puts the reported height out of reach of
@@ -165,7 +217,50 @@ def _plot_geometry(
     ecef_jac = rot @ enu_jac
     ecef = site.ecef_from_polar(r, az, el)
     cov = convert_covariance(cov_polar, ecef_jac)
-    return _Geometry(ecef, ecef_jac, cov, usable)
+    # A reported height moves the plot in elevation, at fixed range and azimuth.
+    d_ecef_d_h = ecef_jac[:, :, 2] * np.nan_to_num(d_el_d_h)[:, None]
+    return _Geometry(ecef, ecef_jac, cov, usable, np.where(usable[:, None], d_ecef_d_h, 0.0))
+
+
+def _refracted_plot_geometry(
+    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float
+) -> _Geometry:
+    """:func:`_plot_geometry` along refracted rays (contract v2)."""
+    atmosphere = site.atmosphere
+    n = len(r)
+    cov_polar = np.zeros((n, 3, 3))
+    cov_polar[:, 0, 0] = site.sigma_range_m**2
+    cov_polar[:, 1, 1] = site.sigma_azimuth_rad**2
+    if site.is_3d:
+        el = plots.elevation_rad - elevation_bias
+        usable = np.isfinite(el) & np.isfinite(r)
+        cov_polar[:, 2, 2] = site.sigma_elevation_rad**2
+        d_el_d_r = np.zeros(n)
+        d_el_d_h = np.zeros(n)
+    else:
+        height = plots.altitude_m
+        el, d_el_d_r, d_el_d_h = apparent_elevation_from_height_jacobian(
+            atmosphere, site.lat_rad, site.alt_m, np.where(np.isfinite(r), r, 0.0),
+            np.nan_to_num(height))
+        with np.errstate(invalid="ignore"):
+            usable = np.isfinite(el) & np.isfinite(height) & (np.abs(el) < MAX_2D_ELEVATION_RAD)
+        cov_polar[:, 2, 2] = np.nan_to_num(d_el_d_h) ** 2 * ALTITUDE_SIGMA_M**2
+    el = np.where(usable, el, 0.0)
+    r_safe = np.where(usable, r, 0.0)
+    enu, enu_jac = target_from_refracted_jacobian(atmosphere, site.lat_rad, site.alt_m, r_safe,
+                                                  az, el)
+    bad = ~np.all(np.isfinite(enu), axis=1) | ~np.all(np.isfinite(enu_jac), axis=(1, 2))
+    usable = usable & ~bad
+    enu = np.where(usable[:, None], enu, 0.0)
+    enu_jac = np.where(usable[:, None, None], enu_jac, 0.0)
+    if not site.is_3d:
+        enu_jac[:, :, 0] += enu_jac[:, :, 2] * np.nan_to_num(d_el_d_r)[:, None]
+    ecef_jac = site.ecef_to_enu.T @ enu_jac
+    ecef = site.ecef_from_enu(enu)
+    cov = convert_covariance(cov_polar, ecef_jac)
+    # A reported height moves the plot in elevation, at fixed range and azimuth.
+    d_ecef_d_h = ecef_jac[:, :, 2] * np.nan_to_num(d_el_d_h)[:, None]
+    return _Geometry(ecef, ecef_jac, cov, usable, np.where(usable[:, None], d_ecef_d_h, 0.0))
 
 
 def _gaussian_radius_m(lat_rad: float) -> float:

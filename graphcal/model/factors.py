@@ -33,11 +33,17 @@ from graphcal.core import frames
 from graphcal.data.align import PlotArrays
 from graphcal.data.dataset import Site
 from graphcal.model.cross_radar import convert_plots, corrected_ecef
+from graphcal.model.height import placeable_over_prior
 from graphcal.model.measurement import RadarMeasurementModel
 from graphcal.model.parameters import TERM_NAMES, RadarTerms
 from graphcal.model.robust import RobustKernel
 
 FloatArray = NDArray[np.float64]
+
+#: Columns of :data:`TERM_NAMES` that a plot's corrected position depends on: the four
+#: biases and the eccentricity terms (:func:`~graphcal.model.cross_radar.corrected_ecef`).
+SPATIAL: list[int] = [0, 1, 2, 3, 5, 6]
+
 
 def whitening_matrices(cov: FloatArray) -> FloatArray:
     """``L^-1`` per measurement with ``L L^T = cov``, so ``||L^-1 r||^2 = r^T cov^-1 r``."""
@@ -112,10 +118,16 @@ class AdsbFactor:
         return len(self.measured) * self.rows
 
     def residual(
-        self, bias: FloatArray, time_offset_s: float = 0.0
+        self, bias: FloatArray, time_offset_s: float = 0.0,
+        eccentricity: tuple[float, float] = (0.0, 0.0),
     ) -> tuple[FloatArray, FloatArray]:
-        """Unwhitened residual ``(n, m)`` and its Jacobian ``(n, m, 5)`` (:data:`TERM_NAMES`)."""
+        """Unwhitened residual ``(n, m)`` and its Jacobian ``(n, m, 7)`` (:data:`TERM_NAMES`).
+
+        With an azimuth eccentricity ``(s, c)`` the predicted azimuth gains
+        ``s sin(az) + c cos(az)`` at the reference azimuth ``az``.
+        """
         offset, gain, az_bias, el_bias = bias
+        s, c = eccentricity
         m = self.rows
         reference = self.reference
         if self.rate is not None:
@@ -123,18 +135,24 @@ class AdsbFactor:
         r_true, az_true, el_true = reference.T
         res = np.empty((len(r_true), m))
         res[:, 0] = self.measured[:, 0] - ((1.0 + gain) * r_true + offset)
-        res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - (az_true + az_bias))
+        az_pred = az_true + az_bias
+        if s != 0.0 or c != 0.0:
+            az_pred = az_pred + s * np.sin(az_true) + c * np.cos(az_true)
+        res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - az_pred)
         if m == 3:
             res[:, 2] = self.measured[:, 2] - (el_true + el_bias)
         jac = np.zeros((len(r_true), m, len(TERM_NAMES)))
         jac[:, :, :4] = -RadarMeasurementModel.bias_jacobian(r_true)[:, :m, :]
+        jac[:, 1, 5] = -np.sin(az_true)
+        jac[:, 1, 6] = -np.cos(az_true)
         if self.rate is not None:
             jac[:, :, 4] = self.rate[:, :m]
             jac[:, 0, 4] *= 1.0 + gain
         return res, jac
 
     def whitened(self, values: list[FloatArray]) -> tuple[FloatArray, list[FloatArray]]:
-        res, jac = self.residual(self.terms.full(values[0]), self.terms.time_offset(values[0]))
+        res, jac = self.residual(self.terms.full(values[0]), self.terms.time_offset(values[0]),
+                                 self.terms.eccentricity(values[0]))
         e = np.einsum("nij,nj->ni", self.whitening, res)
         j = self.whitening @ self.terms.select(jac)
         return e, [j]
@@ -196,6 +214,11 @@ class PairwiseFactor:
     moves ``a``'s interpolated position along its track,
     ``- v_a [(tau_a - tau_b) - (tau0_a - tau0_b)]`` with ``v_a`` the slope of
     ``a``'s bracketing segment.
+
+    Pressure altitudes (``height_key`` set): the 2-D plots are placed at the
+    height ``(1 + k) p + d`` of their pressure altitude ``p``, and the factor has a
+    third variable, the height model ``(d, k)``
+    (:func:`graphcal.model.cross_radar.corrected_ecef`).
     """
 
     terms_a: RadarTerms
@@ -215,9 +238,12 @@ class PairwiseFactor:
     kernel: RobustKernel
     tau0_a: float = 0.0
     tau0_b: float = 0.0
+    height_key: int | None = None
 
     @property
     def keys(self) -> list[int]:
+        if self.height_key is not None:
+            return [self.key_a, self.key_b, self.height_key]
         return [self.key_a, self.key_b]
 
     @property
@@ -228,40 +254,56 @@ class PairwiseFactor:
         return len(self.ib)
 
     def residual(
-        self, bias_a: FloatArray, bias_b: FloatArray, tau_a: float = 0.0, tau_b: float = 0.0
+        self, bias_a: FloatArray, bias_b: FloatArray, tau_a: float = 0.0, tau_b: float = 0.0,
+        ecc_a: tuple[float, float] = (0.0, 0.0), ecc_b: tuple[float, float] = (0.0, 0.0),
+        height: tuple[float, float] | None = None,
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Unwhitened residual ``(n, 3)`` [m] and its Jacobians ``(n, 3, 5)`` for a and b."""
-        ecef_a, jac_a, _ = corrected_ecef(self.site_a, self.a_plots, bias_a)
-        ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b)
+        """Unwhitened residual ``(n, 3)`` [m] and its Jacobians ``(n, 3, 7)`` for a and b
+        (:data:`TERM_NAMES`; ``ecc_a``, ``ecc_b``: the radars' azimuth eccentricities).
+
+        ``height``: the height model ``(d, k)`` of pressure altitudes; each Jacobian
+        then has two more columns, the residual's dependence on ``(d, k)`` through
+        that radar's plots (their sum is ``d e / d (d, k)``).
+        """
+        ecef_a, jac_a, _ = corrected_ecef(self.site_a, self.a_plots, bias_a, ecc_a, height)
+        ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b, ecc_b, height)
         w1 = self.weight[:, None]
         w0 = 1.0 - w1
         i0, i1 = self.i0, self.i0 + 1
         res = ecef_b[self.ib] - (w0 * ecef_a[i0] + w1 * ecef_a[i1])
         n = len(self.ib)
-        d_a = np.zeros((n, 3, len(TERM_NAMES)))
-        d_b = np.zeros((n, 3, len(TERM_NAMES)))
-        d_a[:, :, :4] = -(w0[:, :, None] * jac_a[i0] + w1[:, :, None] * jac_a[i1])
-        d_b[:, :, :4] = jac_b[self.ib]
+        columns = len(TERM_NAMES) + (0 if height is None else 2)
+        d_a = np.zeros((n, 3, columns))
+        d_b = np.zeros((n, 3, columns))
+        own = [*SPATIAL, *range(len(TERM_NAMES), columns)]  # jac_a's columns in d_a
+        d_a[:, :, own] = -(w0[:, :, None] * jac_a[i0] + w1[:, :, None] * jac_a[i1])
+        d_b[:, :, own] = jac_b[self.ib]
         dt = (self.a_plots.time_s[i1] - self.a_plots.time_s[i0])[:, None]
         dt = np.where(dt > 0.0, dt, np.inf)  # two plots at one time: no velocity
         velocity = (ecef_a[i1] - ecef_a[i0]) / dt
         shift = (tau_a - tau_b) - (self.tau0_a - self.tau0_b)
         if shift != 0.0:
             res = res - velocity * shift
-            d_a[:, :, :4] -= shift * (jac_a[i1] - jac_a[i0]) / dt[:, :, None]
+            d_a[:, :, own] -= shift * (jac_a[i1] - jac_a[i0]) / dt[:, :, None]
         d_a[:, :, 4] = -velocity
         d_b[:, :, 4] = velocity
         return res, d_a, d_b
 
     def whitened(self, values: list[FloatArray]) -> tuple[FloatArray, list[FloatArray]]:
         ta, tb = self.terms_a, self.terms_b
+        height = None if self.height_key is None else (float(values[2][0]), float(values[2][1]))
         res, d_a, d_b = self.residual(
             ta.full(values[0]), tb.full(values[1]),
             ta.time_offset(values[0]), tb.time_offset(values[1]),
+            ta.eccentricity(values[0]), tb.eccentricity(values[1]), height,
         )
         e = np.einsum("nij,nj->ni", self.whitening, res)
-        jac_a = self.whitening @ self.terms_a.select(d_a)
-        return e, [jac_a, self.whitening @ self.terms_b.select(d_b)]
+        n_terms = len(TERM_NAMES)
+        jac_a = self.whitening @ self.terms_a.select(d_a[..., :n_terms])
+        jacobians = [jac_a, self.whitening @ self.terms_b.select(d_b[..., :n_terms])]
+        if height is not None:
+            jacobians.append(self.whitening @ (d_a[..., n_terms:] + d_b[..., n_terms:]))
+        return e, jacobians
 
     def error(
         self, values: list[FloatArray], want_jacobians: bool
@@ -298,12 +340,15 @@ def pairwise_factor(
     kernel: RobustKernel,
     tau0_a: float = 0.0,
     tau0_b: float = 0.0,
+    height_key: int | None = None,
 ) -> PairwiseFactor | None:
     """Build the pairwise factor from :func:`graphcal.data.align.pair_plots` indices.
 
     Only the plots that enter a pair are kept; pairs with an unusable plot (a
     2-D plot without reported height) are dropped.  ``None`` when nothing is left.
-    ``tau0_a``, ``tau0_b``: the time offsets [s] the pairs were formed with.
+    ``tau0_a``, ``tau0_b``: the time offsets [s] the pairs were formed with;
+    ``height_key``: the height-model variable, for pairs with a 2-D radar whose
+    plots carry pressure altitudes (the noise is converted at the reported heights).
     """
     used_a = np.unique(np.concatenate([i0, i0 + 1]))
     used_b = np.unique(ib)
@@ -314,6 +359,9 @@ def pairwise_factor(
     conv_a = convert_plots(site_a, a_sub)
     conv_b = convert_plots(site_b, b_sub)
     ok = conv_b.usable[ib] & conv_a.usable[i0] & conv_a.usable[i0 + 1]
+    if height_key is not None:  # pressure altitudes: the heights move with the model
+        placeable_a = placeable_over_prior(site_a, a_sub)
+        ok &= placeable_over_prior(site_b, b_sub)[ib] & placeable_a[i0] & placeable_a[i0 + 1]
     # used_a holds both bracketing plots, so i0 + 1 is still the later one.
     if not np.any(ok):
         return None
@@ -324,5 +372,5 @@ def pairwise_factor(
     return PairwiseFactor(
         terms_a, terms_b, key_a, key_b, site_a, site_b, a_sub, b_sub, i0, weight, ib,
         whitening_matrices(cov), conv_a.cov_m2, conv_b.cov_m2, kernel, float(tau0_a),
-        float(tau0_b),
+        float(tau0_b), height_key,
     )

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.refraction import refracted_polar, refracted_polar_jacobian
 from graphcal.data.align import AdsbAlignment
 from graphcal.data.bias import RadarBias, apply_bias, correct_bias, measurement_bias_jacobian
 from graphcal.data.calibration import ResidualStats
@@ -52,8 +53,16 @@ class RadarMeasurementModel:
 
     # ------------------------------------------------------------------ function
     def true_polar(self, ecef_m: FloatArray) -> FloatArray:
-        """True ``(range_m, azimuth_rad, elevation_rad)`` ``(n, 3)`` of ECEF points ``(n, 3)``."""
-        return np.stack(frames.enu_to_polar(self.site.enu_from_ecef(ecef_m)), axis=-1)
+        """True ``(range_m, azimuth_rad, elevation_rad)`` ``(n, 3)`` of ECEF points ``(n, 3)``.
+
+        With refraction (contract v2) the range is the ray's electrical length and
+        the elevation its apparent elevation (:mod:`graphcal.core.refraction`).
+        """
+        site = self.site
+        if site.atmosphere is not None:
+            return np.stack(refracted_polar(site.atmosphere, site.lat_rad, site.alt_m,
+                                            site.enu_from_ecef(ecef_m)), axis=-1)
+        return np.stack(frames.enu_to_polar(site.enu_from_ecef(ecef_m)), axis=-1)
 
     def function(self, ecef_m: FloatArray, bias: RadarBias | None = None) -> FloatArray:
         """Measured polar coordinates ``(n, 3)`` [m, rad] of ECEF points, biases applied.
@@ -80,9 +89,20 @@ class RadarMeasurementModel:
 
     def position_jacobian(self, ecef_m: FloatArray) -> tuple[FloatArray, FloatArray]:
         """True polar coordinates ``(n, 3)`` and ``d polar / d ecef`` ``(n, 3, 3)``."""
-        enu = self.site.enu_from_ecef(ecef_m)
-        polar = np.stack(frames.enu_to_polar(enu), axis=-1)
-        return polar, frames.enu_to_polar_jacobian(enu) @ self.site.ecef_to_enu
+        polar, jac_enu = self.enu_jacobian(self.site.enu_from_ecef(ecef_m))
+        return polar, jac_enu @ self.site.ecef_to_enu
+
+    def enu_jacobian(self, enu_m: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """True polar coordinates ``(n, 3)`` and ``d polar / d enu`` ``(n, 3, 3)`` of ENU points.
+
+        Refracted with an atmosphere
+        (:func:`graphcal.core.refraction.refracted_polar_jacobian`).
+        """
+        site = self.site
+        if site.atmosphere is not None:
+            return refracted_polar_jacobian(site.atmosphere, site.lat_rad, site.alt_m, enu_m)
+        polar = np.stack(frames.enu_to_polar(enu_m), axis=-1)
+        return polar, frames.enu_to_polar_jacobian(enu_m)
 
     # ------------------------------------------------------------------ noise
     def covar(self, n: int) -> FloatArray:
@@ -114,14 +134,18 @@ def measured_polar(al: AdsbAlignment) -> FloatArray:
     return np.stack([p.range_m, p.azimuth_rad, p.elevation_rad], axis=-1)
 
 
-def reference_polar_covariance(al: AdsbAlignment) -> FloatArray:
+def reference_polar_covariance(al: AdsbAlignment, site: Site | None = None) -> FloatArray:
     """ADS-B position covariance mapped to the radar's polar coordinates ``(n, 3, 3)``.
 
     ``J C J^T`` with ``J = d polar / d enu`` at the reference (paper 002's
-    first-order conversion, eq. 17-19).
+    first-order conversion, eq. 17-19); along refracted rays when ``site`` has
+    an atmosphere.
     """
-    enu = frames.polar_to_enu(*al.reference_polar.T)
-    jac = frames.enu_to_polar_jacobian(enu)
+    if site is not None and site.atmosphere is not None:
+        _, jac = measurement_model(site).enu_jacobian(site.enu_from_ecef(al.reference_ecef_m))
+    else:
+        enu = frames.polar_to_enu(*al.reference_polar.T)
+        jac = frames.enu_to_polar_jacobian(enu)
     return jac @ al.reference_enu_cov_m2 @ np.swapaxes(jac, -1, -2)
 
 
@@ -135,7 +159,7 @@ def residual_stats(site: Site, al: AdsbAlignment, bias: RadarBias) -> ResidualSt
     model = measurement_model(site)
     measured = measured_polar(al)
     ref = al.reference_polar
-    noise = model.covar(len(al)) + reference_polar_covariance(al)
+    noise = model.covar(len(al)) + reference_polar_covariance(al, site)
 
     def stats(b: RadarBias) -> tuple[dict[str, dict[str, float]], float]:
         corrected = model.inverse_function(measured, b)

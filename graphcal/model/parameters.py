@@ -17,14 +17,22 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from graphcal.data.bias import CONTRACT_KEYS, PARAMETER_NAMES, from_contract_units
+from graphcal.data.bias import (
+    CONTRACT_KEYS,
+    ECCENTRICITY,
+    ECCENTRICITY_NAMES,
+    PARAMETER_NAMES,
+    RadarBias,
+    from_contract_units,
+)
 from graphcal.data.dataset import Site
 from graphcal.data.sensor_models import load_sensor_model
 
 FloatArray = NDArray[np.float64]
 
-#: Every term a radar variable can hold: the four biases, then the time-stamping bias.
-TERM_NAMES: tuple[str, ...] = (*PARAMETER_NAMES, "time_offset")
+#: Every term a radar variable can hold: the four biases, the time-stamping bias, then
+#: the azimuth eccentricity terms ``s`` and ``c`` (contract v2).
+TERM_NAMES: tuple[str, ...] = (*PARAMETER_NAMES, "time_offset", *ECCENTRICITY_NAMES)
 
 
 #: Prior 1-sigma of each term [SI] when the radar's sensor model gives no typical size.
@@ -34,6 +42,8 @@ DEFAULT_PRIOR_SIGMA: dict[str, float] = {
     "azimuth_bias": 0.05,
     "elevation_bias": 0.02,
     "time_offset": 10.0,
+    "azimuth_sin": 0.02,
+    "azimuth_cos": 0.02,
 }
 #: With a sensor model, the prior sigma is at least this multiple of its typical bias.
 PRIOR_TYPICAL_MULTIPLE = 25.0
@@ -57,10 +67,11 @@ class RadarTerms:
 
     @property
     def positions(self) -> list[int]:
-        """Positions of the free terms in the full 5-vector of :data:`TERM_NAMES`."""
+        """Positions of the free terms in the full vector of :data:`TERM_NAMES`."""
         return [TERM_NAMES.index(name) for name in self.free]
 
     def full_terms(self, free_values: FloatArray) -> FloatArray:
+        """Every term of :data:`TERM_NAMES` from the free values (fixed and zero terms filled)."""
         values = np.zeros(len(TERM_NAMES))
         for name, value in self.fixed.items():
             values[TERM_NAMES.index(name)] = value
@@ -75,13 +86,26 @@ class RadarTerms:
         """The time-stamping bias [s]: free, fixed, or 0."""
         return float(self.full_terms(free_values)[4])
 
-    def select(self, jacobian_full: FloatArray) -> FloatArray:
-        """Columns of a ``(..., 4)`` or ``(..., 5)`` Jacobian that belong to the free terms.
+    def eccentricity(self, free_values: FloatArray) -> tuple[float, float]:
+        """The azimuth eccentricity ``(s, c)`` [rad]: free, fixed, or 0."""
+        values = self.full_terms(free_values)
+        return float(values[5]), float(values[6])
 
-        A 4-column Jacobian does not depend on the time offset (zero column).
+    def bias(self, free_values: FloatArray) -> RadarBias:
+        """Every term as a :class:`~graphcal.data.bias.RadarBias`."""
+        v = self.full_terms(free_values)
+        return RadarBias(*(float(x) for x in v[:5]), azimuth_sin_rad=float(v[5]),
+                         azimuth_cos_rad=float(v[6]))
+
+    def select(self, jacobian_full: FloatArray) -> FloatArray:
+        """Columns of a Jacobian over the first k :data:`TERM_NAMES` that belong to the free terms.
+
+        Missing trailing columns (a Jacobian over the four biases only, or without
+        the eccentricity terms) are zero: the measurement does not depend on them.
         """
-        if jacobian_full.shape[-1] == len(PARAMETER_NAMES):
-            pad = np.zeros((*jacobian_full.shape[:-1], 1))
+        missing = len(TERM_NAMES) - jacobian_full.shape[-1]
+        if missing > 0:
+            pad = np.zeros((*jacobian_full.shape[:-1], missing))
             jacobian_full = np.concatenate([jacobian_full, pad], axis=-1)
         return jacobian_full[..., self.positions]
 
@@ -104,7 +128,14 @@ def radar_terms(
     )
     if time_offset and "time_offset" not in own_fixed:
         free = (*free, "time_offset")
+    if ECCENTRICITY in site.estimate:
+        free = (*free, *(name for name in ECCENTRICITY_NAMES if name not in own_fixed))
     return RadarTerms(site.id, free, own_fixed)
+
+
+def terms_vector(bias: RadarBias) -> FloatArray:
+    """A :class:`~graphcal.data.bias.RadarBias` as the full vector of :data:`TERM_NAMES`."""
+    return np.array([bias.value(name) for name in TERM_NAMES])
 
 
 def prior_sigmas(site: Site, terms: RadarTerms) -> FloatArray:

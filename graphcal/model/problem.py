@@ -5,7 +5,10 @@
 variable, and the observation blocks that :func:`build_factors` builds from a
 dataset: one vectorised ADS-B factor per radar (plots against the ADS-B
 position of their aircraft) and one pairwise factor per radar pair (paper
-001's differences of converted positions).  The graph solver optimises it; the
+001's differences of converted positions).  With pressure altitudes
+(``height_key`` set) it also holds the height-model variable: the pairs with a
+2-D radar depend on it, and the ADS-B reports with both heights measure it
+(:mod:`graphcal.model.height`).  The graph solver optimises it; the
 observability analysis and the selection read its information.
 """
 
@@ -18,11 +21,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from graphcal.core import frames
 from graphcal.data.align import AdsbAlignment, align_adsb, pair_plots
 from graphcal.data.dataset import Dataset, Site
 from graphcal.model.factors import AdsbFactor, PairwiseFactor, adsb_factor, pairwise_factor
-from graphcal.model.measurement import reference_polar_covariance
+from graphcal.model.height import AdsbHeightFactor, adsb_height_factor
+from graphcal.model.measurement import measurement_model, reference_polar_covariance
 from graphcal.model.parameters import RadarTerms
 from graphcal.model.robust import RobustKernel
 
@@ -45,6 +48,8 @@ class Problem:
     alignments: dict[str, AdsbAlignment] = field(default_factory=dict)
     pairs: list[PairwiseFactor] = field(default_factory=list)
     target_state: Any = None
+    height_key: int | None = None
+    height: AdsbHeightFactor | None = None
 
     def variable_radars(self) -> list[str]:
         """Radars with at least one factor and one free term, in dataset order."""
@@ -61,7 +66,8 @@ def without_plots(dataset: Dataset, exclude_rows: NDArray[np.int64]) -> Dataset:
     if len(exclude_rows) == 0:
         return dataset
     plots = dataset.plots.drop(index=exclude_rows)
-    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path)
+    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path,
+                   plot_altitude=dataset.plot_altitude)
 
 
 def polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
@@ -75,7 +81,8 @@ def polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
     velocity = al.reference_velocity_ecef_m_s
     plausible = np.linalg.norm(velocity, axis=1) <= ADSB_MAX_SPEED_M_S
     velocity_enu = np.where(plausible[:, None], velocity, 0.0) @ site.ecef_to_enu.T
-    return np.einsum("nij,nj->ni", frames.enu_to_polar_jacobian(enu), velocity_enu)
+    _, jac = measurement_model(site).enu_jacobian(enu)
+    return np.einsum("nij,nj->ni", jac, velocity_enu)
 
 
 def build_factors(
@@ -95,6 +102,9 @@ def build_factors(
     problem.adsb.clear()
     problem.alignments.clear()
     problem.pairs.clear()
+    problem.height = None
+    if use_adsb and problem.height_key is not None:
+        problem.height = adsb_height_factor(dataset.adsb, problem.height_key, kernel)
     matched: list[NDArray[np.int64]] = []
     if use_adsb:
         for i, rid in enumerate(radar_ids):
@@ -108,7 +118,7 @@ def build_factors(
             rate = polar_rate(site, al) if "time_offset" in problem.terms[rid].free else None
             problem.adsb[rid] = adsb_factor(
                 site, problem.terms[rid], problem.keys[rid], al.plots,
-                al.reference_polar, reference_polar_covariance(al), kernel, rate, tau0[rid],
+                al.reference_polar, reference_polar_covariance(al, site), kernel, rate, tau0[rid],
             )
             matched.append(al.plots.index)
     if cross != "pairwise":
@@ -121,10 +131,12 @@ def build_factors(
             progress("cross-radar pairs", n + 1, len(todo))
         if len(pairs) == 0:
             continue
+        both_3d = dataset.sites[ra].is_3d and dataset.sites[rb].is_3d
         factor = pairwise_factor(
             dataset.sites[ra], dataset.sites[rb], problem.terms[ra], problem.terms[rb],
             problem.keys[ra], problem.keys[rb], pairs.a_plots, pairs.b_plots,
             pairs.a_index0, pairs.weight, pairs.b_index, kernel, tau0[ra], tau0[rb],
+            None if both_3d else problem.height_key,
         )
         if factor is not None:
             problem.pairs.append(factor)

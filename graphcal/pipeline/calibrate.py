@@ -283,7 +283,9 @@ def bound_info(
 
     The bound is computed for the calibration's own labels, with the weak priors
     the estimator recorded in ``info["priors"]`` (contract units), so that the
-    two are comparable.
+    two are comparable.  With pressure altitudes the height model is an unknown of
+    the bound too (its 2-D plots placed at the calibration's estimate), and its two
+    parameters get entries ``atmosphere.height_offset_m`` and ``atmosphere.height_scale``.
     """
     priors: dict[tuple[str, str], float] = {}
     for rid, entries in (cal.info.get("priors") or {}).items():
@@ -294,6 +296,8 @@ def bound_info(
                                "priors": priors or None}
     if max_gap_s is not None:
         options["max_gap_s"] = max_gap_s
+    if cal.atmosphere is not None:
+        options["height_model"] = cal.atmosphere.model
     result = crlb(dataset, **options)
     sigma, efficiency = {}, {}
     for i, (rid, name) in enumerate(cal.labels):
@@ -302,6 +306,12 @@ def bound_info(
         sigma[f"{rid}.{key}"] = float(bound_sigma)
         reported = float(np.sqrt(cal.covariance[i, i])) * scale
         efficiency[f"{rid}.{key}"] = float(reported / bound_sigma) if bound_sigma > 0 else None
+    if cal.atmosphere is not None and result.atmosphere_sigma is not None:
+        for key, bound_sigma in result.atmosphere_sigma.items():
+            sigma[f"atmosphere.{key}"] = bound_sigma
+            reported = cal.atmosphere.sigma[key]
+            efficiency[f"atmosphere.{key}"] = (
+                reported / bound_sigma if 0 < bound_sigma < np.inf else None)
     note = "targets from ADS-B" if use_adsb else "targets estimated"
     if cross:
         note += ", cross-radar events with straight-line target segments"

@@ -6,7 +6,7 @@ from typing import Any
 
 from rich.table import Table
 
-from graphcal.data.bias import CONTRACT_KEYS, PARAMETER_NAMES
+from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY_NAMES, PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
 
 #: Display precision per contract key.
@@ -16,6 +16,10 @@ _FORMATS = {
     "azimuth_bias_mrad": "{:.3f}",
     "elevation_bias_mrad": "{:.3f}",
     "time_offset_s": "{:.3f}",
+    "azimuth_sin_mrad": "{:.3f}",
+    "azimuth_cos_mrad": "{:.3f}",
+    "height_offset_m": "{:.1f}",
+    "height_scale": "{:.5f}",
 }
 
 
@@ -30,6 +34,10 @@ def format_value(key: str, value: float | None, sigma: float | None = None) -> s
     if sigma != sigma or sigma == float("inf"):
         return f"{text} ± undetermined"
     return f"{text} ± {fmt.format(sigma)}"
+
+
+#: Parameters shown only for the radars that estimate them.
+OPTIONAL_ROWS: tuple[str, ...] = ("time_offset", *ECCENTRICITY_NAMES)
 
 
 def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> Table:
@@ -47,10 +55,10 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
     table.add_column("plots", justify="right")
     for rid in cal.radar_ids:
         first = True
-        for name in (*PARAMETER_NAMES, "time_offset"):
+        for name in (*PARAMETER_NAMES, *ECCENTRICITY_NAMES, "time_offset"):
             key = CONTRACT_KEYS[name][0]
             value, sigma = cal.value(rid, key), cal.sigma(rid, key)
-            if value is None or (name == "time_offset" and not sigma):
+            if value is None or (name in OPTIONAL_ROWS and not sigma):
                 continue
             shown = format_value(key, value, sigma)
             if f"{rid}.{key}" in cal.info.get("undetermined", []):
@@ -61,8 +69,8 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
                 row.append("" if ratio is None else f"{ratio:.2f}")
             if truth is not None:
                 true = truth.get("radars", {}).get(rid, {}).get(key)
-                if true is None and name == "time_offset" and rid in truth.get("radars", {}):
-                    true = 0.0  # truth.json leaves out a zero time offset
+                if true is None and name in OPTIONAL_ROWS and rid in truth.get("radars", {}):
+                    true = 0.0  # truth.json leaves out a zero time offset or eccentricity
                 row.append(format_value(key, true))
                 if true is not None and sigma and sigma == sigma and sigma != float("inf"):
                     row.append(f"{(value - true) / sigma:+.1f}")
@@ -71,7 +79,33 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
             row.append(str(cal.n_plots.get(rid, "")) if first else "")
             table.add_row(*row)
             first = False
+    if cal.atmosphere is not None:
+        _atmosphere_rows(table, cal, efficiency, truth)
     return table
+
+
+def _atmosphere_rows(
+    table: Table, cal: Calibration, efficiency: dict[str, Any], truth: dict[str, Any] | None
+) -> None:
+    """The height model of pressure altitudes, under the radars (``atmosphere`` rows)."""
+    atmosphere = cal.atmosphere
+    assert atmosphere is not None
+    true_block = (truth or {}).get("atmosphere") or {}
+    for i, key in enumerate(("height_offset_m", "height_scale")):
+        value, sigma = getattr(atmosphere, key), atmosphere.sigma[key]
+        shown = format_value(key, value, sigma)
+        if f"atmosphere.{key}" in cal.info.get("undetermined", []):
+            shown = f"not determined (prior ± {_FORMATS[key].format(sigma)})"
+        row = ["atmosphere" if i == 0 else "", key, shown]
+        if efficiency:
+            ratio = efficiency.get(f"atmosphere.{key}")
+            row.append("" if ratio is None else f"{ratio:.2f}")
+        if truth is not None:
+            true = true_block.get(key)
+            row.append(format_value(key, true))
+            row.append(f"{(value - true) / sigma:+.1f}" if true is not None and sigma else "")
+        row.append("")
+        table.add_row(*row)
 
 
 # ------------------------------------------------------------------ marginals

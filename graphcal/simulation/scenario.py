@@ -6,13 +6,18 @@ The format is documented in ``scenarios/README.md``.  In short::
     [[radar]]    id, site (lat_deg/lon_deg/alt_m or ecef_m), model and/or sigmas,
                  dimensions, scan_period_s, detection_probability, max_range_m,
                  min_elevation_deg, horizon_check, estimate, antenna_phase_deg,
-                 altitude_sigma_m, altitude_quantum_ft,
+                 altitude_sigma_m, altitude_quantum_ft, refraction,
+                 refractivity_n_s, refractivity_scale_height_m,
                  [radar.bias] range_offset_m, range_gain, azimuth_bias_mrad,
-                 elevation_bias_mrad, time_offset_s
+                 elevation_bias_mrad, time_offset_s, azimuth_sin_mrad, azimuth_cos_mrad
     [[aircraft]] piecewise legs from a start state, or constant ECEF velocity
     [traffic]    random waypoint traffic
     [opensky]    replay of an OpenSky-style state-vector table
-    [adsb]       ADS-B reports of every equipped aircraft (equipped_fraction)
+    [adsb]       ADS-B reports of every equipped aircraft (equipped_fraction,
+                 baro_altitude)
+    [dataset]    plot_altitude: "geometric" (default) or "pressure" (contract v2)
+    [atmosphere] the true height model of pressure altitudes: height_offset_m,
+                 height_scale (refraction is per radar)
 
 File values carry their units in the key names (deg, mrad, m, s); the
 dataclasses hold SI values (radians).  Every problem raises
@@ -36,8 +41,10 @@ import pandas as pd
 
 from graphcal.core import frames
 from graphcal.core.errors import ScenarioError, SensorModelError
-from graphcal.data.bias import PARAMETER_NAMES, RadarBias
-from graphcal.data.dataset import Site
+from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosphere
+from graphcal.data.bias import ESTIMATE_NAMES, RadarBias
+from graphcal.data.dataset import REFRACTION_MODELS, REFRACTIVITY_N_S_RANGE, Site
+from graphcal.data.height import GEOMETRIC, PLOT_ALTITUDE_CHOICES, PRESSURE, HeightModel
 from graphcal.data.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
 from graphcal.simulation.trajectories import (
     EcefTrajectory,
@@ -110,6 +117,14 @@ class RadarSpec:
         1-sigma noise of the reported altitude [m].
     altitude_quantum_m : float
         Quantum of the reported altitude [m] (0: not quantised).
+    refraction : str
+        ``"none"`` (straight lines of sight) or ``"exponential"`` (contract v2:
+        the plots measure the refracted ray's electrical length and apparent
+        elevation), written to ``sites.toml``.
+    refractivity_n_s : float
+        Surface refractivity of the exponential atmosphere [N-units].
+    refractivity_scale_height_m : float
+        Its scale height [m].
     """
 
     id: str
@@ -130,11 +145,19 @@ class RadarSpec:
     antenna_phase_rad: float | None = None
     altitude_sigma_m: float = DEFAULT_ALTITUDE_SIGMA_M
     altitude_quantum_m: float = DEFAULT_ALTITUDE_QUANTUM_FT * FOOT_M
+    refraction: str = "none"
+    refractivity_n_s: float = DEFAULT_N_S
+    refractivity_scale_height_m: float = DEFAULT_SCALE_HEIGHT_M
 
     @property
     def is_3d(self) -> bool:
         """True when the radar measures elevation."""
         return self.sigma_elevation_rad is not None
+
+    @property
+    def atmosphere(self) -> Atmosphere | None:
+        """The atmosphere of the radar's rays, ``None`` for straight lines of sight."""
+        return self.site().atmosphere
 
     def site(self) -> Site:
         """The :class:`graphcal.data.dataset.Site` written to ``sites.toml``."""
@@ -149,6 +172,9 @@ class RadarSpec:
             scan_period_s=self.scan_period_s,
             model=self.model,
             estimate=self.estimate,
+            refraction=self.refraction,
+            refractivity_n_s=self.refractivity_n_s,
+            refractivity_scale_height_m=self.refractivity_scale_height_m,
         )
 
 
@@ -180,6 +206,13 @@ class AdsbSpec:
         Horizontal displacement of an outlier [m], in a random direction.
     dropout_probability : float
         Probability that a report is lost.
+    baro_altitude : bool or None
+        Write each report's pressure altitude ``baro_alt_m`` (the true height
+        through the inverse height model, quantised to ``baro_quantum_m``);
+        ``None``: when the scenario has an ``[atmosphere]`` table or pressure
+        plot altitudes.
+    baro_quantum_m : float
+        Quantum of ``baro_alt_m`` [m] (25 ft; 0: not quantised).
     """
 
     enabled: bool = False
@@ -191,6 +224,8 @@ class AdsbSpec:
     outlier_fraction: float = 0.0
     outlier_distance_m: float = 5000.0
     dropout_probability: float = 0.0
+    baro_altitude: bool | None = None
+    baro_quantum_m: float = DEFAULT_ALTITUDE_QUANTUM_FT * FOOT_M
 
     @property
     def horizontal_sigma_m(self) -> float:
@@ -234,6 +269,14 @@ class Scenario:
         ADS-B settings.
     path : Path or None
         The scenario file.
+    plot_altitude : {"geometric", "pressure"}
+        What the plots' ``altitude_m`` is (``[dataset] plot_altitude``): the true
+        height above the ellipsoid, or the pressure altitude of that height
+        through :attr:`height_model`; both with the radar's altitude noise and quantum.
+    true_height_model : HeightModel or None
+        The true height model ``h = (1 + height_scale) p + height_offset_m``
+        (``[atmosphere]``); ``None``: none given (the standard atmosphere,
+        pressure altitude = height).
     """
 
     name: str
@@ -246,6 +289,25 @@ class Scenario:
     opensky: OpenSkySpec | None = None
     adsb: AdsbSpec = field(default_factory=AdsbSpec)
     path: Path | None = None
+    plot_altitude: str = GEOMETRIC
+    true_height_model: HeightModel | None = None
+
+    @property
+    def height_model(self) -> HeightModel:
+        """The true height model (the identity without ``[atmosphere]``)."""
+        return HeightModel() if self.true_height_model is None else self.true_height_model
+
+    @property
+    def has_pressure(self) -> bool:
+        """Whether pressure altitudes are simulated: pressure plots or an ``[atmosphere]``."""
+        return self.plot_altitude == PRESSURE or self.true_height_model is not None
+
+    @property
+    def adsb_baro(self) -> bool:
+        """Whether the ADS-B reports carry ``baro_alt_m``."""
+        if self.adsb.baro_altitude is None:
+            return self.has_pressure
+        return self.adsb.baro_altitude
 
     def radar(self, radar_id: str) -> RadarSpec:
         """The radar with this id (``KeyError`` if there is none)."""
@@ -441,8 +503,8 @@ def _radar_estimate(t: _Table, default: tuple[str, ...], is_3d: bool) -> tuple[s
         if not value:
             raise t.error("estimate", "must name at least one parameter")
         for name in value:
-            if name not in PARAMETER_NAMES:
-                known = ", ".join(PARAMETER_NAMES)
+            if name not in ESTIMATE_NAMES:
+                known = ", ".join(ESTIMATE_NAMES)
                 raise t.error("estimate", f"unknown parameter {name!r}; known: {known}")
         if len(set(value)) != len(value):
             raise t.error("estimate", "names a parameter twice")
@@ -465,9 +527,28 @@ def _radar_bias(t: _Table, is_3d: bool) -> RadarBias:
         azimuth_bias_rad=b.number("azimuth_bias_mrad", 0.0, low=-1000.0, high=1000.0) * 1e-3,
         elevation_bias_rad=el * 1e-3,
         time_offset_s=b.number("time_offset_s", 0.0, low=-60.0, high=60.0),
+        azimuth_sin_rad=b.number("azimuth_sin_mrad", 0.0, low=-100.0, high=100.0) * 1e-3,
+        azimuth_cos_rad=b.number("azimuth_cos_mrad", 0.0, low=-100.0, high=100.0) * 1e-3,
     )
     b.finish()
     return bias
+
+
+def _radar_refraction(t: _Table) -> tuple[str, float, float]:
+    """``(refraction, refractivity_n_s, refractivity_scale_height_m)`` (contract v2 keys)."""
+    model = t.string("refraction", "none")
+    if model not in REFRACTION_MODELS:
+        known = ", ".join(f'"{m}"' for m in REFRACTION_MODELS)
+        raise t.error("refraction", f"unknown refraction model {model!r}; known: {known}")
+    low, high = REFRACTIVITY_N_S_RANGE
+    n_s = t.number("refractivity_n_s", DEFAULT_N_S, low=low, high=high)
+    height = t.number("refractivity_scale_height_m", DEFAULT_SCALE_HEIGHT_M, positive=True)
+    if model != "none":
+        try:
+            Atmosphere(n_s, height)
+        except ValueError as exc:
+            raise t.error("refractivity_scale_height_m", str(exc)) from None
+    return model, n_s, height
 
 
 def _model_value(t: _Table, key: str, model_value: Any, **checks: Any) -> Any:
@@ -524,6 +605,7 @@ def _parse_radar(t: _Table) -> RadarSpec:
         high=90.0,
     )
     phase = t.number("antenna_phase_deg", None)
+    refraction, n_s, scale_height = _radar_refraction(t)
     spec = RadarSpec(
         id=radar_id.strip(),
         lat_rad=lat,
@@ -546,6 +628,9 @@ def _parse_radar(t: _Table) -> RadarSpec:
             "altitude_quantum_ft", DEFAULT_ALTITUDE_QUANTUM_FT, low=0.0, high=1000.0
         )
         * FOOT_M,
+        refraction=refraction,
+        refractivity_n_s=n_s,
+        refractivity_scale_height_m=scale_height,
     )
     t.finish()
     return spec
@@ -743,9 +828,36 @@ def _parse_adsb(t: _Table | None) -> AdsbSpec:
         outlier_fraction=t.number("outlier_fraction", 0.0, low=0.0, high=1.0),
         outlier_distance_m=t.number("outlier_distance_m", 5000.0, low=0.0),
         dropout_probability=t.number("dropout_probability", 0.0, low=0.0, high=1.0),
+        baro_altitude=t.boolean("baro_altitude", None) if t.has("baro_altitude") else None,
+        baro_quantum_m=t.number("baro_quantum_ft", DEFAULT_ALTITUDE_QUANTUM_FT, low=0.0,
+                                high=1000.0) * FOOT_M,
     )
     t.finish()
     return spec
+
+
+def _parse_plot_altitude(t: _Table | None) -> str:
+    """``[dataset] plot_altitude``: ``"geometric"`` (default) or ``"pressure"``."""
+    if t is None:
+        return GEOMETRIC
+    value = t.string("plot_altitude", GEOMETRIC)
+    if value not in PLOT_ALTITUDE_CHOICES:
+        choices = " or ".join(f'"{c}"' for c in PLOT_ALTITUDE_CHOICES)
+        raise t.error("plot_altitude", f"must be {choices}, got {value!r}")
+    t.finish()
+    return value
+
+
+def _parse_atmosphere(t: _Table | None) -> HeightModel | None:
+    """``[atmosphere]``: the true height model (``height_offset_m`` [m], ``height_scale``)."""
+    if t is None:
+        return None
+    model = HeightModel(
+        height_offset_m=t.number("height_offset_m", 0.0, low=-5000.0, high=5000.0),
+        height_scale=t.number("height_scale", 0.0, low=-0.5, high=0.5),
+    )
+    t.finish()
+    return model
 
 
 def _unique(items: list[Any], key: str, tables: list[_Table], what: str) -> None:
@@ -805,6 +917,8 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
     opensky_table = root.table("opensky")
     opensky = None if opensky_table is None else _parse_opensky(opensky_table, duration)
     adsb = _parse_adsb(root.table("adsb"))
+    plot_altitude = _parse_plot_altitude(root.table("dataset"))
+    true_height_model = _parse_atmosphere(root.table("atmosphere"))
     root.finish()
     if not aircraft and traffic is None and opensky is None:
         raise root.error("aircraft", "no aircraft: give [[aircraft]], [traffic] or [opensky]")
@@ -819,6 +933,8 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
         opensky=opensky,
         adsb=adsb,
         path=path,
+        plot_altitude=plot_altitude,
+        true_height_model=true_height_model,
     )
 
 

@@ -20,12 +20,29 @@ plot is :func:`graphcal.data.bias.apply_bias` of the true polar coordinates plus
 Gaussian noise, azimuth wrapped to ``[0, 360)`` deg; 2-D radars write NaN
 elevation.  The reported time is the true time plus ``time_offset_s``.
 ``altitude_m`` is the true height above the ellipsoid plus Gaussian noise,
-quantised (Mode C style).
+quantised (Mode C style); with ``[dataset] plot_altitude = "pressure"`` the
+height is first turned into its pressure altitude by the scenario's true height
+model (:meth:`graphcal.data.height.HeightModel.pressure`,
+``p = (h - height_offset_m) / (1 + height_scale)``).
+
+A radar with ``refraction = "exponential"`` (contract v2) sees its targets
+along rays refracted by its atmosphere (:func:`graphcal.core.refraction.refracted_ray`):
+the true polar coordinates are then the ray's electrical length, the
+straight-line azimuth and the ray's apparent elevation at the antenna, the
+biases and noise apply on top as above, and the coverage tests use them
+(``max_range_m`` the electrical length, ``min_elevation_deg`` the apparent
+elevation, the horizon the ray's lowest point, which sees beyond the straight
+line's horizon).  ``altitude_m`` stays the geometric height.  Without
+refraction nothing changes: the same scenario and seed give the same files as
+before.
 
 ADS-B reports come every ``period_s`` from a random phase per aircraft, with
 Gaussian noise per axis in the ENU frame at the aircraft, optional outliers and
 dropouts.  With ``equipped_fraction < 1`` only a random subset of the aircraft
-broadcasts (:func:`adsb_equipage`).
+broadcasts (:func:`adsb_equipage`).  When the scenario simulates pressure
+altitudes, each report also carries ``baro_alt_m``: the pressure altitude of the
+true height, quantised to 25 ft (no random draw, so the random stream is that
+of the same scenario without it).
 
 Every random number is drawn from the one :class:`numpy.random.Generator`
 passed in, in a fixed order (traffic, antenna phases, radars in file order,
@@ -48,8 +65,16 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.atomic import atomic_write_text
 from graphcal.core.errors import ScenarioError
-from graphcal.data.bias import CONTRACT_KEYS, PARAMETER_NAMES, RadarBias, apply_bias
+from graphcal.core.refraction import Atmosphere, refracted_ray
+from graphcal.data.bias import (
+    CONTRACT_KEYS,
+    ECCENTRICITY_NAMES,
+    PARAMETER_NAMES,
+    RadarBias,
+    apply_bias,
+)
 from graphcal.data.dataset import PLOT_COLUMNS, Dataset
+from graphcal.data.height import HeightModel
 from graphcal.io.folder import write_dataset
 from graphcal.simulation.scenario import AdsbSpec, RadarSpec, Scenario
 from graphcal.simulation.trajectories import (
@@ -98,6 +123,8 @@ class SimulationResult:
         One row per plot, same order as ``dataset.plots``: ``time_true_s``,
         true ECEF position ``x_m, y_m, z_m``, true ``range_true_m``,
         ``azimuth_true_deg``, ``elevation_true_deg`` and ``height_true_m``.
+        For a refracted radar the true range and elevation are the contract's:
+        the electrical length and the apparent elevation.
     adsb_truth : pandas.DataFrame or None
         One row per ADS-B report, same order: ``x_m, y_m, z_m`` true ECEF
         position and ``outlier`` (bool).
@@ -280,8 +307,7 @@ def earth_blocks(enu_m: Array, lat_rad: float, alt_m: float) -> NDArray[np.bool_
         Antenna height above the ellipsoid [m].
     """
     enu = np.asarray(enu_m, dtype=float)
-    sin_lat2 = np.sin(lat_rad) ** 2
-    radius = frames.WGS84_A_M * np.sqrt(1.0 - frames.WGS84_E2) / (1.0 - frames.WGS84_E2 * sin_lat2)
+    radius = frames.gaussian_radius_m(lat_rad)
     centre = np.array([0.0, 0.0, -(radius + alt_m)])
     norm2 = np.einsum("ij,ij->i", enu, enu)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -289,6 +315,27 @@ def earth_blocks(enu_m: Array, lat_rad: float, alt_m: float) -> NDArray[np.bool_
     s = np.where(norm2 > 0, s, 0.0)
     closest = np.linalg.norm(s[:, None] * enu - centre, axis=1)
     return closest < radius
+
+
+def refracted_coverage(
+    radar: RadarSpec, atmosphere: Atmosphere, enu_m: Array
+) -> tuple[Array, Array, Array, NDArray[np.bool_]]:
+    """Refracted true polar coordinates of ENU targets and whether the radar covers them.
+
+    Returns the electrical range [m], azimuth [rad] and apparent elevation [rad]
+    (:func:`graphcal.core.refraction.refracted_ray`) and a mask: within
+    ``max_range_m`` (electrical), at or above ``min_elevation_rad`` (apparent)
+    and, with ``horizon_check``, on a ray that stays above the Earth (its
+    lowest height at least 0).  Targets the ray solver leaves unsolved (deep
+    below the horizon) are not covered.
+    """
+    ray = refracted_ray(atmosphere, radar.lat_rad, radar.alt_m, enu_m)
+    with np.errstate(invalid="ignore"):
+        covered = (np.isfinite(ray.range_m) & (ray.range_m <= radar.max_range_m)
+                   & (ray.elevation_rad >= radar.min_elevation_rad))
+        if radar.horizon_check:
+            covered &= ray.lowest_height_m >= 0.0
+    return ray.range_m, ray.azimuth_rad, ray.elevation_rad, covered
 
 
 def _antenna_phases(scenario: Scenario, rng: np.random.Generator) -> dict[str, float]:
@@ -306,8 +353,13 @@ def _radar_plots(
     flights: list[Trajectory],
     duration_s: float,
     rng: np.random.Generator,
+    pressure: HeightModel | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame, int]:
-    """Plots of one radar and their truth; also the number of in-coverage hits."""
+    """Plots of one radar and their truth; also the number of in-coverage hits.
+
+    ``pressure``: report the pressure altitude of the true height through this
+    height model instead of the height itself.
+    """
     site = radar.site()
     radar_ecef, rotation = site.ecef_m, site.ecef_to_enu
     times, ids = [], []
@@ -323,10 +375,15 @@ def _radar_plots(
     pos = np.concatenate(positions) if positions else np.empty((0, 3))
     order = np.argsort(t_true, kind="stable")
     t_true, target, pos = t_true[order], target[order], pos[order]
-    rng_m, az, el = frames.enu_to_polar((pos - radar_ecef) @ rotation.T)
-    covered = (rng_m <= radar.max_range_m) & (el >= radar.min_elevation_rad)
-    if radar.horizon_check:
-        covered &= ~earth_blocks((pos - radar_ecef) @ rotation.T, radar.lat_rad, radar.alt_m)
+    atmosphere = site.atmosphere
+    if atmosphere is None:
+        rng_m, az, el = frames.enu_to_polar((pos - radar_ecef) @ rotation.T)
+        covered = (rng_m <= radar.max_range_m) & (el >= radar.min_elevation_rad)
+        if radar.horizon_check:
+            covered &= ~earth_blocks((pos - radar_ecef) @ rotation.T, radar.lat_rad, radar.alt_m)
+    else:
+        rng_m, az, el, covered = refracted_coverage(
+            radar, atmosphere, (pos - radar_ecef) @ rotation.T)
     t_true, target, pos = t_true[covered], target[covered], pos[covered]
     rng_m, az, el = rng_m[covered], az[covered], el[covered]
     n = t_true.size
@@ -343,7 +400,8 @@ def _radar_plots(
     else:
         el_meas = el_meas + radar.sigma_elevation_rad * noise[:, 2]
     height = frames.ecef_to_geodetic(pos)[2]
-    altitude = height + radar.altitude_sigma_m * alt_noise
+    reported = height if pressure is None else pressure.pressure(height)
+    altitude = reported + radar.altitude_sigma_m * alt_noise
     if radar.altitude_quantum_m > 0:
         altitude = np.round(altitude / radar.altitude_quantum_m) * radar.altitude_quantum_m
     az_deg = np.degrees(az_meas)
@@ -396,9 +454,14 @@ def adsb_equipage(
 
 
 def _adsb_reports(
-    spec: AdsbSpec, flights: list[Trajectory], duration_s: float, rng: np.random.Generator
+    spec: AdsbSpec, flights: list[Trajectory], duration_s: float, rng: np.random.Generator,
+    baro: HeightModel | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame, tuple[str, ...]]:
-    """ADS-B reports of the equipped flights, their truth and the equipped addresses."""
+    """ADS-B reports of the equipped flights, their truth and the equipped addresses.
+
+    ``baro``: add ``baro_alt_m``, the pressure altitude of the true height through this
+    height model, quantised to ``spec.baro_quantum_m``.
+    """
     equipped = adsb_equipage(spec.equipped_fraction, len(flights), rng)
     # One phase per flight, equipped or not: fixed draw shapes.
     phases = rng.uniform(0.0, spec.period_s, size=len(flights))
@@ -448,6 +511,11 @@ def _adsb_reports(
     }
     if spec.nacp is not None:
         columns["nacp"] = np.full(n, spec.nacp, dtype=np.int64)
+    if baro is not None:
+        pressure = baro.pressure(frames.ecef_to_geodetic(pos)[2])
+        if spec.baro_quantum_m > 0:
+            pressure = np.round(pressure / spec.baro_quantum_m) * spec.baro_quantum_m
+        columns["baro_alt_m"] = pressure
     reports = pd.DataFrame(columns)[kept].reset_index(drop=True)
     truth = pd.DataFrame(
         {"x_m": pos[:, 0], "y_m": pos[:, 1], "z_m": pos[:, 2], "outlier": outlier}
@@ -500,9 +568,10 @@ def simulate(
     report(f"{len(flights)} flights")
     phases = _antenna_phases(scenario, rng)
     plot_frames, truth_frames, candidates = [], [], {}
+    pressure = scenario.height_model if scenario.plot_altitude == "pressure" else None
     for radar in scenario.radars:
         plots, truth, n_hits = _radar_plots(
-            radar, phases[radar.id], flights, scenario.duration_s, rng
+            radar, phases[radar.id], flights, scenario.duration_s, rng, pressure
         )
         plot_frames.append(plots)
         truth_frames.append(truth)
@@ -516,14 +585,18 @@ def simulate(
     adsb = adsb_truth = None
     equipped: tuple[str, ...] = ()
     if scenario.adsb.enabled:
-        adsb, adsb_truth, equipped = _adsb_reports(scenario.adsb, flights, scenario.duration_s, rng)
+        adsb, adsb_truth, equipped = _adsb_reports(
+            scenario.adsb, flights, scenario.duration_s, rng,
+            scenario.height_model if scenario.adsb_baro else None,
+        )
         if adsb.empty:
             # No report at all (e.g. equipped_fraction = 0): no table, as a
             # dataset's ADS-B file must have rows to be read back.
             adsb = adsb_truth = None
     report(f"ADS-B: {0 if adsb is None else len(adsb)} reports")
     sites = {r.id: r.site() for r in scenario.radars}
-    dataset = Dataset(sites=sites, plots=plots, adsb=adsb)
+    dataset = Dataset(sites=sites, plots=plots, adsb=adsb,
+                      plot_altitude=scenario.plot_altitude)
     return SimulationResult(
         scenario=scenario,
         dataset=dataset,
@@ -546,7 +619,10 @@ def truth_document(result: SimulationResult) -> dict:
 
     Every radar gets the four bias keys in contract units
     (``elevation_bias_mrad`` null for a 2-D radar), ``time_offset_s`` when it
-    is not zero, an empty ``sigma`` and ``n_plots``.
+    is not zero, ``azimuth_sin_mrad`` and ``azimuth_cos_mrad`` when the radar
+    has an azimuth eccentricity, an empty ``sigma`` and ``n_plots``.  A scenario
+    that simulates pressure altitudes adds the ``atmosphere`` block: the true
+    ``height_offset_m`` and ``height_scale`` (contract v2).
     """
     counts = result.n_plots()
     radars = {}
@@ -563,10 +639,21 @@ def truth_document(result: SimulationResult) -> dict:
         if bias.time_offset_s != 0.0:
             key, factor = CONTRACT_KEYS["time_offset"]
             entry[key] = float(bias.time_offset_s) * factor
+        if bias.has_eccentricity:
+            for name in ECCENTRICITY_NAMES:
+                key, factor = CONTRACT_KEYS[name]
+                entry[key] = float(bias.value(name)) * factor
         entry["sigma"] = {}
         entry["n_plots"] = counts[radar.id]
         radars[radar.id] = entry
-    return {"method": "truth", "scenario": result.scenario.name, "radars": radars}
+    document: dict[str, object] = {
+        "method": "truth", "scenario": result.scenario.name, "radars": radars,
+    }
+    if result.scenario.has_pressure:
+        model = result.scenario.height_model
+        document["atmosphere"] = {"height_offset_m": float(model.height_offset_m),
+                                  "height_scale": float(model.height_scale), "sigma": {}}
+    return document
 
 
 def write_simulation(

@@ -115,7 +115,7 @@ def ls_radar(
     h = jac_r @ RadarMeasurementModel.bias_jacobian(measured[:, 0])[:, :, positions]
     # Noise of z: radar noise plus the ADS-B noise, both mapped to the plane.
     jac_a = frames.polar_to_enu_jacobian(*reference.T)[:, :rows, :]
-    ref_cov = reference_polar_covariance(al)
+    ref_cov = reference_polar_covariance(al, site)
     if not site.is_3d:
         ref_cov[:, 2, :] = 0.0
         ref_cov[:, :, 2] = 0.0

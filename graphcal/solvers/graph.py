@@ -28,6 +28,14 @@ factors:
   physically plausible range (:func:`prior_sigmas`); they are reported, and a
   term whose posterior variance is more than a quarter of its prior variance
   is flagged as not determined by the data.
+* **Pressure altitudes** (``dataset.plot_altitude == "pressure"``): one more
+  variable, the height model ``(height_offset_m, height_scale)`` of
+  :mod:`graphcal.data.height`, with weak priors
+  (:data:`~graphcal.model.height.HEIGHT_PRIOR_SIGMA`).  The pairwise factors place
+  2-D plots at its height, and the ADS-B reports with both heights measure it
+  (:class:`~graphcal.model.height.AdsbHeightFactor`).  It is reported in the
+  result's ``atmosphere`` block (:attr:`Calibration.atmosphere`), with the
+  "not determined" rule of the radar terms.
 
 Every measurement goes through a robust kernel (:mod:`graphcal.model.robust`).
 The problem is solved by Levenberg-Marquardt from the closed-form estimates
@@ -48,14 +56,22 @@ from numpy.typing import NDArray
 
 from graphcal.core.errors import EstimationError
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb
-from graphcal.data.bias import CONTRACT_KEYS, RadarBias
+from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY, RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
+from graphcal.data.height import HEIGHT_MODEL_KEYS, HeightModelEstimate
 from graphcal.model.cross_radar import gradient_noise_middle
 from graphcal.model.factors import AdsbFactor, PairwiseFactor
+from graphcal.model.height import HEIGHT_PRIOR_SIGMA
 from graphcal.model.information import describe_weak_directions, observability
 from graphcal.model.measurement import residual_stats
-from graphcal.model.parameters import TERM_NAMES, RadarTerms, prior_sigmas, radar_terms
+from graphcal.model.parameters import (
+    TERM_NAMES,
+    RadarTerms,
+    prior_sigmas,
+    radar_terms,
+    terms_vector,
+)
 from graphcal.model.problem import CROSS_MODES, Problem, build_factors, radars_with_adsb
 from graphcal.model.robust import RobustKernel
 from graphcal.noise import fills_missing_sigmas
@@ -120,7 +136,7 @@ def initial_biases(
 def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) -> FloatArray:
     if bias is None:
         return np.zeros(len(terms.free))
-    values = np.append(bias.as_vector(), bias.time_offset_s)[terms.positions]
+    values = terms_vector(bias)[terms.positions]
     # A closed-form estimate far outside the prior is not a useful start.
     return np.where(np.abs(values) <= 3.0 * prior, values, 0.0)
 
@@ -141,10 +157,12 @@ def _pairwise_sandwich_terms(
     plot_cov: dict[int, FloatArray] = {}
     for f in problem.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
-        e, (ja, jb) = f.whitened([values[ra], values[rb]])
+        e, jacobians = f.whitened(_pair_values(f, values))
         w = f.kernel.weight(np.linalg.norm(e, axis=1), 3)
         cols = columns[ra] + columns[rb]
-        jac = np.concatenate([ja, jb], axis=2)  # (n, 3, k): this pair's own columns
+        if f.height_key is not None:
+            cols = cols + columns[HEIGHT]
+        jac = np.concatenate(jacobians, axis=2)  # (n, 3, k): this pair's own columns
         information[np.ix_(cols, cols)] += np.einsum("nip,niq,n->pq", jac, jac, w)
         share = np.zeros((len(f), p, 3))
         share[:, cols, :] = w[:, None, None] * np.swapaxes(jac, 1, 2) @ f.whitening
@@ -161,6 +179,19 @@ def _pairwise_sandwich_terms(
     return information, middle
 
 
+#: Key of the height model in the value and column dictionaries (never a radar id:
+#: radar ids are stripped, non-empty strings).
+HEIGHT = ""
+
+
+def _pair_values(f: PairwiseFactor, values: dict[str, FloatArray]) -> list[FloatArray]:
+    """The current values of a pairwise factor's variables, in its key order."""
+    current = [values[f.terms_a.radar_id], values[f.terms_b.radar_id]]
+    if f.height_key is not None:
+        current.append(values[HEIGHT])
+    return current
+
+
 # --------------------------------------------------------------------------- solving
 @dataclass
 class _Settings:
@@ -174,6 +205,7 @@ class _Settings:
     process_noise_m2_s3: float | None
     max_iterations: int
     progress: Progress | None
+    height_key: int | None = None
 
 
 @dataclass
@@ -189,6 +221,7 @@ class _Solved:
     priors: dict[str, FloatArray]
     variable: set[str]
     realignments: int
+    height: FloatArray | None = None
 
 
 def _solve(
@@ -212,7 +245,7 @@ def _solve(
     terms = {
         rid: radar_terms(dataset.sites[rid], fixed, rid in tau_radars) for rid in radar_ids
     }
-    problem = Problem(terms, keys)
+    problem = Problem(terms, keys, height_key=s.height_key)
     tau0 = {rid: terms[rid].time_offset(np.zeros(len(terms[rid].free))) for rid in radar_ids}
     start_values: dict[str, FloatArray] = {}
     iterations = realignments = 0
@@ -253,6 +286,15 @@ def _solve(
             fg.add_variable(keys[rid], start)
             fg.add_prior(keys[rid], np.zeros(len(terms[rid].free)), priors[rid])
         variable = set(radars)
+        height_used = problem.height is not None or any(
+            f.height_key is not None for f in problem.pairs)
+        if height_used:
+            fg.add_variable(s.height_key, start_values.get(HEIGHT, np.zeros(2)))
+            fg.add_prior(s.height_key, np.zeros(2), np.array(HEIGHT_PRIOR_SIGMA))
+            variable.add(HEIGHT)
+            if problem.height is not None:
+                fg.add_custom(problem.height.keys, problem.height.dimension,
+                              problem.height.error)
         for factor in [*problem.adsb.values(), *problem.pairs]:
             add_factor(fg, factor, variable)
         if problem.target_state is not None:
@@ -264,6 +306,8 @@ def _solve(
         iterations += result.iterations
         timing["optimisation_s"] = timing.get("optimisation_s", 0.0) + time.perf_counter() - t0
         values = {rid: result.vector(keys[rid]) for rid in radars}
+        if height_used:
+            values[HEIGHT] = result.vector(s.height_key)
         moved = [
             abs(terms[rid].time_offset(values[rid]) - tau0[rid])
             for rid in radars if "time_offset" in terms[rid].free
@@ -274,7 +318,8 @@ def _solve(
         start_values = values
         realignments += 1
     result = dataclasses.replace(result, iterations=iterations)
-    return _Solved(terms, problem, fg, result, radars, values, priors, variable, realignments)
+    return _Solved(terms, problem, fg, result, radars, values, priors, variable, realignments,
+                   values.get(HEIGHT))
 
 
 def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
@@ -393,8 +438,23 @@ def graph(
     auto_time = time_offset is None
     if time_offset and not have_adsb:
         raise ValueError("time offsets need ADS-B: the dataset has none (or use_adsb=False)")
+    if cross == "target-state" and any(ECCENTRICITY in s.estimate for s in dataset.sites.values()):
+        raise ValueError(
+            "azimuth eccentricity is estimated with the pairwise or no cross-radar factors, "
+            "not in target-state mode"
+        )
+    if cross == "target-state" and any(s.atmosphere is not None for s in dataset.sites.values()):
+        raise ValueError(
+            "refraction is modelled with the pairwise or no cross-radar factors, "
+            "not in target-state mode"
+        )
     if time_offset and cross == "target-state":
         raise ValueError("time offsets are not estimated in target-state mode; use pairwise")
+    if cross == "target-state" and dataset.pressure_altitudes:
+        raise ValueError(
+            "pressure altitudes (plot_altitude = \"pressure\") are modelled with the pairwise "
+            "or no cross-radar factors, not in target-state mode"
+        )
     want_time = have_adsb and cross != "target-state" if auto_time else bool(time_offset)
     tau_radars = radars_with_adsb(dataset) if want_time else set()
     keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
@@ -405,7 +465,8 @@ def graph(
     )
     timing["initialisation_s"] = time.perf_counter() - t0
     settings = _Settings(have_adsb, cross, kernel, max_gap_s, pair_max_gap_s,
-                         process_noise_m2_s3, max_iterations, progress)
+                         process_noise_m2_s3, max_iterations, progress,
+                         symbol("h", 0) if dataset.pressure_altitudes else None)
     solved = _solve(dataset, fixed, tau_radars, keys, init_biases, settings, timing)
     time_notes: list[str] = []
     if auto_time and tau_radars:
@@ -422,26 +483,38 @@ def graph(
     full_values = {
         rid: values[rid] if rid in values else np.zeros(0) for rid in radar_ids
     }
+    if solved.height is not None:
+        full_values[HEIGHT] = solved.height
     # ---------------------------------------------------------------- covariance
     t0 = time.perf_counter()
     if progress is not None:
         progress("marginals", 0, 1)
-    marginal = fg.joint_covariance(result.values, [keys[rid] for rid in radars])
+    joint_keys = [keys[rid] for rid in radars]
+    if solved.height is not None:  # the height model joins the joint covariance last
+        joint_keys.append(settings.height_key)
+    marginal = fg.joint_covariance(result.values, joint_keys)
     labels = [(rid, name) for rid in radars for name in terms[rid].free]
     p = len(labels)
     columns: dict[str, list[int]] = {rid: [] for rid in radar_ids}
     for i, (rid, _) in enumerate(labels):
         columns[rid].append(i)
+    columns[HEIGHT] = list(range(p, len(marginal)))
     prior_information = np.diag(np.concatenate([priors[rid] for rid in radars]) ** -2.0)
     information = np.linalg.inv(marginal)
     information = 0.5 * (information + information.T)
     covariance = marginal
     covariance_note = "GTSAM marginals"
     if problem.pairs:
-        a_pair, m_pair = _pairwise_sandwich_terms(problem, full_values, columns, p)
+        a_pair, m_pair = _pairwise_sandwich_terms(problem, full_values, columns, len(marginal))
         covariance = marginal @ (information - a_pair + m_pair) @ marginal
         covariance = 0.5 * (covariance + covariance.T)
         covariance_note = "GTSAM marginals, corrected for plots shared between pairs"
+    height_covariance, height_cross = covariance[p:, p:], covariance[:p, p:]
+    if solved.height is not None:
+        # The radar terms' information with the height model eliminated (a nuisance).
+        covariance = covariance[:p, :p]
+        information = np.linalg.inv(marginal[:p, :p])
+        information = 0.5 * (information + information.T)
     timing["marginals_s"] = time.perf_counter() - t0
     data_information = information - prior_information
     obs = observability(data_information)
@@ -457,6 +530,13 @@ def graph(
             f"{rid} {name.replace('_', ' ')} is not determined by the data: its estimate "
             "and sigma come from the weak prior"
         )
+    atmosphere, height_undetermined = None, []
+    if dataset.pressure_altitudes:
+        atmosphere, height_undetermined, note = _height_model_estimate(
+            solved, height_covariance, height_cross,
+            [f"{rid}.{CONTRACT_KEYS[name][0]}" for rid, name in labels],
+        )
+        warnings.extend(note)
     warnings.extend(describe_weak_directions(labels, obs))
     if not result.converged:
         warnings.append(
@@ -470,6 +550,8 @@ def graph(
     total_dimension = sum(f.dimension for f in [*problem.adsb.values(), *problem.pairs])
     if problem.target_state is not None:
         total_dimension += problem.target_state.dimension
+    if solved.height is not None:
+        total_dimension += (0 if problem.height is None else problem.height.dimension) - 2
     info: dict[str, Any] = {
         "cross": cross,
         "robust": {"kernel": kernel.name, "scale": kernel.scale,
@@ -496,7 +578,8 @@ def graph(
                   for name, v in terms[rid].fixed.items()}
             for rid in radar_ids if terms[rid].fixed
         },
-        "undetermined": [f"{rid}.{CONTRACT_KEYS[name][0]}" for rid, name in undetermined],
+        "undetermined": [f"{rid}.{CONTRACT_KEYS[name][0]}" for rid, name in undetermined]
+        + [f"atmosphere.{key}" for key in height_undetermined],
         "cleaning": cleaning.to_dict() if cleaning is not None else None,
         "time_offset": {
             "estimated": [rid for rid in radars if "time_offset" in terms[rid].free],
@@ -507,6 +590,8 @@ def graph(
     }
     if problem.target_state is not None:
         info["target_state"] = problem.target_state.summary()
+    if atmosphere is not None:
+        info["plot_altitude"] = dataset.plot_altitude
     timing["total_s"] = time.perf_counter() - start
     info["timing_s"] = timing
     cal = Calibration(
@@ -521,22 +606,69 @@ def graph(
         warnings=warnings,
         info=info,
         fixed={(rid, name): v for rid in radars for name, v in terms[rid].fixed.items()},
+        atmosphere=atmosphere,
     )
     cal.information = data_information
     for rid, al in problem.alignments.items():
         if rid in radars:
-            bias = RadarBias.from_vector(terms[rid].full(values[rid]))
+            bias = terms[rid].bias(values[rid])
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, bias)
     return cal
 
 
+def _height_model_estimate(
+    solved: _Solved, covariance: FloatArray, cross: FloatArray, cross_labels: list[str]
+) -> tuple[HeightModelEstimate, list[str], list[str]]:
+    """The ``atmosphere`` block, the undetermined height-model keys and the warnings.
+
+    Without any factor on the height model (no ADS-B report with both heights and
+    no pair with a 2-D radar) the estimate is the prior: 0 with the prior sigmas.
+    A parameter whose variance exceeds :data:`UNDETERMINED_VARIANCE_RATIO` of its
+    prior variance is not determined by the data, as for the radar terms.
+    """
+    prior = np.array(HEIGHT_PRIOR_SIGMA)
+    problem = solved.problem
+    if solved.height is None:
+        value = np.zeros(2)
+        covariance = np.diag(prior**2)
+        cross = np.zeros((len(cross_labels), 2))
+    else:
+        value = solved.height
+    undetermined = [key for key, variance, s in zip(
+        HEIGHT_MODEL_KEYS, np.diag(covariance), prior, strict=True)
+        if variance > UNDETERMINED_VARIANCE_RATIO * s**2]
+    estimate = HeightModelEstimate(
+        height_offset_m=float(value[0]), height_scale=float(value[1]),
+        covariance=covariance, prior_sigma=prior, determined=not undetermined,
+        cross_labels=cross_labels, cross_covariance=cross,
+        n_adsb_segments=0 if problem.height is None else len(problem.height),
+        n_pressure_pairs=int(sum(len(f) for f in problem.pairs if f.height_key is not None)),
+    )
+    notes = []
+    if undetermined:
+        names = " and ".join(undetermined)
+        why = ("no observation uses the pressure altitudes, so no radar estimate depends on it"
+               if solved.height is None else
+               "the 2-D radars' plots are placed with that uncertainty, which their sigmas include")
+        notes.append(
+            f"height model not determined by the data: {names} come from the weak prior "
+            f"(1-sigma {prior[0]:g} m and {prior[1]:g}); {why}. ADS-B reports with baro_alt_m, "
+            "or 2-D radars paired with 3-D radars, determine it"
+        )
+    return estimate, undetermined, notes
+
+
 def add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: set[str]) -> None:
-    """Add a vectorised factor; radars without free terms enter as constants."""
+    """Add a vectorised factor; radars without free terms enter as constants.
+
+    A pairwise factor's height-model variable (pressure altitudes) is always a variable.
+    """
     radar_ids = (
         [factor.terms.radar_id] if isinstance(factor, AdsbFactor)
         else [factor.terms_a.radar_id, factor.terms_b.radar_id]
     )
     is_variable = [rid in variable for rid in radar_ids]
+    is_variable += [True] * (len(factor.keys) - len(radar_ids))
     if not any(is_variable):
         return
     keys = [k for k, v in zip(factor.keys, is_variable, strict=True) if v]
@@ -578,7 +710,7 @@ def _downweighted(
             out[rid]["adsb_plots"] = int(f.kernel.downweighted(e).sum())
     for f in problem.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
-        e, _ = f.whitened([values[ra], values[rb]])
+        e, _ = f.whitened(_pair_values(f, values))
         n = int(f.kernel.downweighted(e).sum())
         for rid in (ra, rb):
             if rid in out:

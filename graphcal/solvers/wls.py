@@ -87,7 +87,8 @@ def _corrected(dataset: Dataset, biases: dict[str, RadarBias]) -> Dataset:
     """A copy of ``dataset`` with every radar's plots corrected by ``biases``
     (:func:`graphcal.data.correct.correct_plots`: azimuths wrapped to [0, 360) deg)."""
     plots = correct_plots(dataset.plots, dataset.sites, biases)
-    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path)
+    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path,
+                   plot_altitude=dataset.plot_altitude)
 
 
 def _bias_from_vector(layout: ParameterLayout, radar_id: str, x: FloatArray) -> RadarBias:
@@ -159,6 +160,12 @@ def _run_wls(
     )
     _drop_unseen(cal, layout, information)
     cal.warnings.extend(describe_weak_directions(cal.labels, cal.observability))
+    if dataset.pressure_altitudes and any(not dataset.sites[rid].is_3d for rid in radar_ids):
+        cal.warnings.append(
+            f"{method} places the 2-D plots at their pressure altitudes as if they were heights "
+            "above the ellipsoid (it has no height model; graph estimates one): its range "
+            "terms carry the difference"
+        )
     _adsb_residuals(cal, dataset)
     return cal
 

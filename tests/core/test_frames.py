@@ -24,6 +24,7 @@ from graphcal.core.frames import (
     enu_to_ecef,
     enu_to_polar,
     enu_to_polar_jacobian,
+    gaussian_radius_m,
     geodetic_to_ecef,
     polar_to_ecef,
     polar_to_enu,
@@ -717,6 +718,20 @@ def test_elevation_from_height_matches_exact_geometry():
     assert error.max() < 50e-6
     # And it is not trivially satisfied: the error is a real, range-growing effect.
     assert error[slant > 250e3].max() > 10e-6
+
+
+def test_gaussian_radius_is_the_mean_of_the_principal_radii():
+    """sqrt(M N) from the meridional radius M = a (1 - e2) / w^1.5 and the prime-vertical
+    radius N = a / sqrt(w), w = 1 - e2 sin^2(lat): a at the equator's N times sqrt(1 - e2),
+    a^2 / b at the poles (rtol 1e-15, rounding only); vectorised."""
+    lat = np.deg2rad(np.array([-90.0, -45.0, 0.0, 30.0, 48.7, 89.5, 90.0]))
+    w = 1.0 - WGS84_E2 * np.sin(lat) ** 2
+    m_rad = WGS84_A_M * (1.0 - WGS84_E2) / w**1.5
+    n_rad = WGS84_A_M / np.sqrt(w)
+    np.testing.assert_allclose(gaussian_radius_m(lat), np.sqrt(m_rad * n_rad), rtol=1e-15)
+    np.testing.assert_allclose(gaussian_radius_m(0.0), WGS84_B_M, rtol=1e-15)
+    np.testing.assert_allclose(gaussian_radius_m(np.pi / 2), WGS84_A_M**2 / WGS84_B_M,
+                               rtol=1e-15)
 
 
 def test_elevation_from_height_simple_cases():

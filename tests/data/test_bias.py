@@ -338,6 +338,8 @@ def test_contract_units_round_trip_and_keys():
         "azimuth_bias_mrad",
         "elevation_bias_mrad",
         "time_offset_s",
+        "azimuth_sin_mrad",
+        "azimuth_cos_mrad",
     }
     for name, (key, _) in CONTRACT_KEYS.items():
         assert NAME_FROM_KEY[key] == name
@@ -373,3 +375,22 @@ def test_radar_bias_is_frozen():
     bias = RadarBias(range_offset_m=1.0)
     with pytest.raises(dataclasses.FrozenInstanceError):
         bias.range_offset_m = 2.0  # type: ignore[misc]
+
+
+def test_eccentricity_follows_the_contract_and_inverts() -> None:
+    """Contract v2: az_m = az + b + s sin(az) + c cos(az); correcting inverts it (Newton) to
+    1e-12 rad for eccentricities up to 20 mrad, across the 0 / 2 pi seam."""
+    rng = np.random.default_rng(47)
+    az = rng.uniform(0.0, TWO_PI, 500)
+    az[:2] = [1e-9, TWO_PI - 1e-9]
+    r = rng.uniform(1e3, 3e5, 500)
+    el = rng.uniform(0.0, 0.5, 500)
+    for s, c in [(2e-3, -1e-3), (-0.02, 0.015), (0.0, 5e-3)]:
+        bias = RadarBias(10.0, 1e-4, 3e-3, 1e-3, azimuth_sin_rad=s, azimuth_cos_rad=c)
+        _, az_m, _ = apply_bias(r, az, el, bias)
+        expected = np.mod(az + 3e-3 + s * np.sin(az) + c * np.cos(az), TWO_PI)
+        np.testing.assert_allclose(wrap_to_pi(az_m - expected), 0.0, atol=1e-13)
+        _, az_back, _ = correct_bias(*apply_bias(r, az, el, bias), bias)
+        np.testing.assert_allclose(wrap_to_pi(az_back - az), 0.0, atol=1e-12)
+    assert RadarBias(azimuth_sin_rad=1e-3).value("azimuth_sin") == 1e-3
+    assert not RadarBias(1.0, 0.1, 0.1, 0.1, 1.0).has_eccentricity

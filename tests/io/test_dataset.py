@@ -12,6 +12,7 @@ import pytest
 
 from graphcal.core.atomic import atomic_write_text
 from graphcal.core.errors import DatasetError
+from graphcal.core.refraction import Atmosphere
 from graphcal.data.dataset import ADSB_DEFAULT_SIGMA_M, Dataset, Site
 from graphcal.data.sensor_models import load_sensor_model
 from graphcal.io.folder import load_dataset, load_sites, write_dataset, write_sites
@@ -328,6 +329,18 @@ SITE_CASES = [
     ("scan_period_s = 4.0", "scan_period_s = 4.0\nestimate = []", 1, "estimate"),
     ("scan_period_s = 4.0", "scan_period_s = 4.0\nsigma_elevaton_mrad = 2.0", 1,
      "sigma_elevaton_mrad"),
+    # Contract v2, refraction.
+    ("alt_m = 950", 'alt_m = 950\nrefraction = "ray-trace"', 2, "refraction"),
+    ("alt_m = 950", "alt_m = 950\nrefraction = 1", 2, "refraction"),
+    ("alt_m = 950", 'alt_m = 950\nrefraction = "exponential"\nrefractivity_n_s = 501.0', 2,
+     "refractivity_n_s"),
+    ("alt_m = 950", "alt_m = 950\nrefractivity_n_s = -1", 2, "refractivity_n_s"),
+    ("alt_m = 950", 'alt_m = 950\nrefractivity_n_s = "320"', 2, "refractivity_n_s"),
+    ("alt_m = 950", "alt_m = 950\nrefractivity_scale_height_m = 0", 2,
+     "refractivity_scale_height_m"),
+    ("alt_m = 866.0", 'alt_m = 866.0\nrefraction = "exponential"\n'
+     "refractivity_n_s = 400\nrefractivity_scale_height_m = 4000", 1,
+     "refractivity_scale_height_m"),
 ]
 
 
@@ -336,6 +349,58 @@ def test_bad_site(tmp_path: Path, old: str, new: str, row: int, field: str) -> N
     assert old in SITES
     folder = make_dataset(tmp_path / "ds", sites=SITES.replace(old, new, 1))
     assert_error(folder, "sites.toml", row, field)
+
+
+def test_bad_refraction_messages(tmp_path: Path) -> None:
+    text = SITES.replace("alt_m = 950", 'alt_m = 950\nrefraction = "ray-trace"')
+    message = assert_error(make_dataset(tmp_path / "a", sites=text), "sites.toml", 2,
+                           "refraction")
+    assert "radar 'B'" in message and '"none", "exponential"' in message
+    text = SITES.replace("alt_m = 950", "alt_m = 950\nrefractivity_n_s = 600")
+    message = assert_error(make_dataset(tmp_path / "b", sites=text), "sites.toml", 2,
+                           "refractivity_n_s")
+    assert "outside [0, 500]" in message
+    text = SITES.replace("alt_m = 950", 'alt_m = 950\nrefraction = "exponential"\n'
+                         "refractivity_scale_height_m = 3000")
+    message = assert_error(make_dataset(tmp_path / "c", sites=text), "sites.toml", 2,
+                           "refractivity_scale_height_m")
+    assert "104 N-units/km" in message
+
+
+def test_refraction_keys(tmp_path: Path) -> None:
+    """Contract v2: the keys are read per radar; absent, the radar's rays are straight."""
+    text = SITES.replace("alt_m = 950", 'alt_m = 950\nrefraction = "exponential"\n'
+                         "refractivity_n_s = 320\nrefractivity_scale_height_m = 7500")
+    sites = load_dataset(make_dataset(tmp_path / "ds", sites=text)).sites
+    assert sites["A"].refraction == "none" and sites["A"].atmosphere is None
+    assert (sites["A"].refractivity_n_s, sites["A"].refractivity_scale_height_m) == (313.0, 7000.0)
+    b = sites["B"]
+    assert (b.refraction, b.refractivity_n_s, b.refractivity_scale_height_m) == (
+        "exponential", 320.0, 7500.0)
+    assert b.atmosphere == Atmosphere(320.0, 7500.0)
+    # Defaults for the values not given.
+    text = SITES.replace("alt_m = 950", 'alt_m = 950\nrefraction = "exponential"')
+    b = load_dataset(make_dataset(tmp_path / "ds2", sites=text)).sites["B"]
+    assert b.atmosphere == Atmosphere(313.0, 7000.0)
+
+
+def test_site_refraction_model_is_checked() -> None:
+    with pytest.raises(ValueError, match="refraction"):
+        Site("X", 0.0, 0.0, 0.0, 10.0, 1e-3, refraction="standard")
+
+
+def test_refraction_keys_are_written_only_when_on(tmp_path: Path) -> None:
+    straight = Site("A", 0.8, 0.1, 100.0, 30.0, 1e-3)
+    bent = Site("B", 0.8, 0.1, 100.0, 30.0, 1e-3, refraction="exponential",
+                refractivity_n_s=320.0, refractivity_scale_height_m=7000.0)
+    write_sites({"A": straight}, tmp_path / "v1.toml")
+    assert "refract" not in (tmp_path / "v1.toml").read_text()
+    write_sites({"A": straight, "B": bent}, tmp_path / "v2.toml")
+    text = (tmp_path / "v2.toml").read_text()
+    assert text.count("refraction = ") == 1
+    assert 'refraction = "exponential"' in text and "refractivity_n_s = 320.0" in text
+    assert "refractivity_scale_height_m = 7000.0" in text
+    assert load_sites(tmp_path / "v2.toml") == {"A": straight, "B": bent}
 
 
 def test_sites_without_sigmas_load_as_missing(tmp_path: Path) -> None:

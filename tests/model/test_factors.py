@@ -104,6 +104,67 @@ def test_pairwise_factor_vanishes_at_true_biases_without_noise() -> None:
     assert np.max(np.abs(res)) < 1e-3
 
 
+ECCENTRIC = ("range_offset", "range_gain", "azimuth_bias", "azimuth_sin", "azimuth_cos")
+
+
+@pytest.mark.parametrize("radar", ["A", "B"])
+def test_adsb_factor_jacobian_with_eccentricity_matches_numerical(dataset, radar: str) -> None:
+    site = dataset.sites[radar]
+    al = align_adsb(dataset, radar)
+    terms = RadarTerms(site.id, ECCENTRIC)
+    f = adsb_factor(site, terms, 0, al.plots, al.reference_polar, reference_polar_covariance(al),
+                    RobustKernel("none"))
+    x = np.array([50.0, 0.001, 0.002, 0.0015, -0.0007])
+    _, (jac,) = f.whitened([x])
+    numeric = numerical_jacobian(lambda v: f.whitened([v])[0], x,
+                                 np.array([1.0, 1e-5, 1e-5, 1e-5, 1e-5]))
+    np.testing.assert_allclose(jac, numeric, rtol=1e-6, atol=1e-8)
+
+
+def test_pairwise_factor_jacobians_with_eccentricity_match_numerical(dataset) -> None:
+    pairs = pair_plots(dataset, "A", "B")
+    sa, sb = dataset.sites["A"], dataset.sites["B"]
+    ta = RadarTerms("A", ECCENTRIC)
+    tb = RadarTerms("B", (*ECCENTRIC, "elevation_bias"))
+    f = pairwise_factor(sa, sb, ta, tb, 0, 1, pairs.a_plots, pairs.b_plots, pairs.a_index0,
+                        pairs.weight, pairs.b_index, RobustKernel("none"))
+    xa = np.array([100.0, 0.0015, 0.003, 0.002, -0.001])
+    xb = np.array([-60.0, -0.0008, -0.002, -0.0012, 0.0009, 0.0015])
+    _, (ja, jb) = f.whitened([xa, xb])
+    steps = np.array([1.0, 1e-5, 1e-5, 1e-5, 1e-5, 1e-5])
+    na = numerical_jacobian(lambda v: f.whitened([v, xb])[0], xa, steps[:5])
+    nb = numerical_jacobian(lambda v: f.whitened([xa, v])[0], xb, steps)
+    np.testing.assert_allclose(ja, na, rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(jb, nb, rtol=1e-5, atol=1e-7)
+
+
+def test_factors_vanish_at_a_true_eccentricity_without_noise() -> None:
+    """Noise-free plots made with an eccentricity (tests.synthetic, its own implementation):
+    the ADS-B and pairwise residuals vanish at the true terms and not without them."""
+    rng = np.random.default_rng(8)
+    sa = site_at("A", -30e3, 0.0, sigma_elevation_mrad=1.0)
+    sb = site_at("B", 30e3, 0.0, sigma_elevation_mrad=1.0)
+    bias_a = RadarBias(20.0, 1e-4, 1e-3, -1e-3, azimuth_sin_rad=2e-3, azimuth_cos_rad=-1.5e-3)
+    bias_b = RadarBias(40.0, 0.001, 0.002, -0.001)
+    ds = make_dataset(rng, [(sa, bias_a), (sb, bias_b)],
+                      [Track("bb0001", (-40e3, 50e3, 7000.0), (200.0, -60.0, 0.0), 0.0, 300.0)],
+                      noise=False)
+    terms = RadarTerms("A", (*ECCENTRIC, "elevation_bias"))
+    truth = np.array([20.0, 1e-4, 1e-3, 2e-3, -1.5e-3, -1e-3])
+    al = align_adsb(ds, "A")
+    f = adsb_factor(sa, terms, 0, al.plots, al.reference_polar, reference_polar_covariance(al),
+                    RobustKernel("none"))
+    assert np.max(np.abs(f.whitened([truth])[0])) < 1e-4
+    assert np.max(np.abs(f.whitened([truth * [1, 1, 1, 0, 0, 1]])[0])) > 1.0
+    pairs = pair_plots(ds, "A", "B")
+    g = pairwise_factor(sa, sb, terms, _terms(sb), 0, 1, pairs.a_plots, pairs.b_plots,
+                        pairs.a_index0, pairs.weight, pairs.b_index, RobustKernel("none"))
+    res, _, _ = g.residual(bias_a.as_vector(), bias_b.as_vector(), ecc_a=(2e-3, -1.5e-3))
+    assert np.max(np.abs(res)) < 1e-3
+    res, _, _ = g.residual(bias_a.as_vector(), bias_b.as_vector())
+    assert np.max(np.abs(res)) > 10.0
+
+
 def test_fixed_terms_are_left_out_of_the_jacobian(dataset) -> None:
     site = dataset.sites["B"]
     al = align_adsb(dataset, "B")

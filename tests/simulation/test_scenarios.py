@@ -12,6 +12,7 @@ import pytest
 
 from graphcal.core import frames
 from graphcal.core.errors import ScenarioError
+from graphcal.core.refraction import Atmosphere
 from graphcal.simulation.scenario import load_scenario, parse_scenario
 from graphcal.simulation.simulate import simulate
 from graphcal.simulation.trajectories import OpenSkySpec, replay_opensky
@@ -43,6 +44,7 @@ def test_all_expected_scenarios_are_shipped():
         "paper002_three_radars",
         "paper003_adsb_2d",
         "demo_network",
+        "demo_refraction",
         "paris_opensky",
     } <= set(SHIPPED)
     assert (SCENARIOS / "README.md").is_file()
@@ -129,6 +131,21 @@ def test_demo_network_counts():
     sites = result.dataset.sites
     assert sum(s.is_3d for s in sites.values()) == 2
     assert {s.model for s in sites.values()} == {"ssr-mode-s", "air-defence-3d", "psr-approach"}
+    assert seconds < 5.0
+
+
+def test_demo_refraction_is_the_demo_with_refraction():
+    demo = load_scenario(SCENARIOS / "demo_network.toml")
+    refracted = load_scenario(SCENARIOS / "demo_refraction.toml")
+    assert all(r.refraction == "none" for r in demo.radars)
+    assert all(r.atmosphere == Atmosphere(320.0, 7000.0) for r in refracted.radars)
+    straight = refracted.with_radars(refraction="none", refractivity_n_s=313.0)
+    assert straight.radars == demo.radars
+    assert (straight.traffic, straight.adsb, straight.origin, straight.duration_s) == (
+        demo.traffic, demo.adsb, demo.origin, demo.duration_s)
+    result, seconds = _run("demo_refraction")
+    assert all(s.refraction == "exponential" for s in result.dataset.sites.values())
+    assert 20_000 <= sum(result.n_plots().values()) <= 40_000
     assert seconds < 5.0
 
 
@@ -319,6 +336,13 @@ def test_bad_radar_sections(tmp_path):
         ('model = "no-such-radar"', "radar[0].model"),
         ('estimate = ["range_offset", "elevation_bias"]', "radar[0].estimate"),
         ("detection_probability = 1.5", "radar[0].detection_probability"),
+        ('refraction = "standard"', "radar[0].refraction"),
+        ("refraction = true", "radar[0].refraction"),
+        ("refractivity_n_s = 501", "radar[0].refractivity_n_s"),
+        ("refractivity_n_s = -5", "radar[0].refractivity_n_s"),
+        ("refractivity_scale_height_m = 0", "radar[0].refractivity_scale_height_m"),
+        ('refraction = "exponential"\nrefractivity_n_s = 400\n'
+         "refractivity_scale_height_m = 4000", "radar[0].refractivity_scale_height_m"),
     ]
     for extra, field_name in cases:
         path = tmp_path / "radar.toml"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 
@@ -12,9 +13,10 @@ from scipy import stats
 
 from graphcal.core import frames
 from graphcal.core.errors import ScenarioError
+from graphcal.core.refraction import Atmosphere, refracted_polar
 from graphcal.data.bias import CONTRACT_KEYS, RadarBias, correct_bias, correct_time
 from graphcal.io.folder import load_dataset
-from graphcal.simulation.scenario import parse_scenario
+from graphcal.simulation.scenario import load_scenario, parse_scenario
 from graphcal.simulation.simulate import (
     beam_crossings,
     earth_blocks,
@@ -30,6 +32,7 @@ from graphcal.simulation.trajectories import (
     TrafficSpec,
     generate_traffic,
 )
+from tests.paths import SCENARIOS
 
 ORIGIN = {"lat_deg": 48.85, "lon_deg": 2.35, "alt_m": 0.0}
 
@@ -594,3 +597,98 @@ def test_radar_bias_of_result_is_scenario_truth():
     assert sites["A3D"].sigma_elevation_rad == pytest.approx(2e-3)
     assert sites["B2D"].sigma_elevation_rad is None
     assert isinstance(result.dataset.plots, pd.DataFrame)
+
+
+# --------------------------------------------------------------------------- refraction
+
+
+def _plots_digest(plots: pd.DataFrame) -> str:
+    """SHA-256 of the plots' numbers (exact bits) and identities."""
+    digest = hashlib.sha256()
+    for column in ("time_s", "range_m", "azimuth_deg", "elevation_deg", "altitude_m"):
+        digest.update(np.ascontiguousarray(plots[column].to_numpy(dtype=float)).tobytes())
+    digest.update("\n".join(plots["radar_id"] + "/" + plots["target_id"]).encode())
+    return digest.hexdigest()
+
+
+#: The demo network's plots with seed 1, as simulated before refraction existed.
+DEMO_SEED_1_PLOTS_SHA256 = "119d5fdb9b29292e73d66825d49559a6b710d635fd6000d23dd126f69e980065"
+
+
+def test_demo_network_plots_unchanged_without_refraction():
+    """Version-1 scenarios give bit-identical plots; refraction = "none" changes nothing."""
+    scenario = load_scenario(SCENARIOS / "demo_network.toml")
+    result = simulate(scenario, np.random.default_rng(1))
+    assert len(result.dataset.plots) == 33920
+    assert _plots_digest(result.dataset.plots) == DEMO_SEED_1_PLOTS_SHA256
+    explicit = scenario.with_radars(refraction="none", refractivity_n_s=400.0)
+    again = simulate(explicit, np.random.default_rng(1))
+    pd.testing.assert_frame_equal(again.dataset.plots, result.dataset.plots, check_exact=True)
+
+
+def _refracted_document(**changes) -> dict:
+    doc = _document(**changes)
+    for radar in doc["radar"]:
+        radar.update(refraction="exponential", refractivity_n_s=320.0,
+                     refractivity_scale_height_m=7000.0, altitude_sigma_m=0.0,
+                     altitude_quantum_ft=0.0)
+    return doc
+
+
+def test_refracted_plots_measure_the_ray():
+    """Noise-free plots minus the biases are the refracted polar coordinates of the truth."""
+    scenario = _noise_free(parse_scenario(_refracted_document()))
+    result = simulate(scenario, np.random.default_rng(3))
+    plots, truth = result.dataset.plots, result.plot_truth
+    atmosphere = Atmosphere(320.0, 7000.0)
+    for radar in scenario.radars:
+        assert radar.atmosphere == atmosphere
+        sel = (plots["radar_id"] == radar.id).to_numpy()
+        rows, tr = plots[sel], truth[sel]
+        assert len(rows) > 50
+        site = radar.site()
+        enu = site.enu_from_ecef(tr[["x_m", "y_m", "z_m"]].to_numpy())
+        rng_m, az, el = refracted_polar(atmosphere, site.lat_rad, site.alt_m, enu)
+        straight, _, straight_el = frames.enu_to_polar(enu)
+        b = radar.bias
+        np.testing.assert_allclose(rows["range_m"], (1 + b.range_gain) * rng_m + b.range_offset_m,
+                                   rtol=0, atol=1e-6)
+        np.testing.assert_allclose(np.radians(rows["azimuth_deg"]),
+                                   frames.wrap_to_2pi(az + b.azimuth_bias_rad), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(tr["range_true_m"], rng_m, rtol=0, atol=1e-9)
+        # Refraction lengthens the range by metres and raises the elevation.
+        assert np.all(rng_m - straight > 1.0)
+        assert np.all(el > straight_el)
+        if radar.is_3d:
+            np.testing.assert_allclose(np.radians(rows["elevation_deg"]),
+                                       el + b.elevation_bias_rad, rtol=0, atol=1e-12)
+        else:
+            assert rows["elevation_deg"].isna().all()
+        # The reported altitude stays the geometric height (noise and quantum off here).
+        np.testing.assert_array_equal(rows["altitude_m"], tr["height_true_m"])
+
+
+def test_refraction_sees_beyond_the_straight_horizon():
+    """A target 210 km north of radar A3D (100 m) at 2 km is behind its straight horizon
+    (195 km) but not behind the refracted one (about 4/3 farther)."""
+    lat = 48.70 + math.degrees(210e3 / frames.gaussian_radius_m(math.radians(48.70)))
+    doc = _refracted_document(aircraft=[
+        {"id": "00a001", "lat_deg": lat, "lon_deg": 2.10, "alt_m": 2000.0, "speed_mps": 0.0},
+    ])
+    doc["radar"][0]["min_elevation_deg"] = -5.0
+
+    def a3d_plots(document: dict) -> int:
+        plots = simulate(parse_scenario(document), np.random.default_rng(1)).dataset.plots
+        return int((plots["radar_id"] == "A3D").sum())
+
+    assert a3d_plots(doc) > 100
+    doc["radar"][0]["refraction"] = "none"
+    assert a3d_plots(doc) == 0
+
+
+def test_refraction_is_written_to_sites(tmp_path):
+    result = simulate(parse_scenario(_refracted_document()), np.random.default_rng(4))
+    folder = write_simulation(result, tmp_path / "out")
+    loaded = load_dataset(folder)
+    assert loaded.sites == result.dataset.sites
+    assert all(s.atmosphere == Atmosphere(320.0, 7000.0) for s in loaded.sites.values())

@@ -152,6 +152,8 @@ class Cat021Report:
         WGS-84 position [deg]: I021/131 (high resolution) when present, else I021/130.
     geo_height_ft : float or None
         Geometric height above the WGS-84 ellipsoid (I021/140) [ft].
+    flight_level : float or None
+        Barometric (pressure) altitude (I021/145) [FL, 100 ft], resolution 1/4 FL.
     nacp : int or None
         Navigation Accuracy Category for position (I021/090 second extension, v2).
     nucp : int or None
@@ -176,6 +178,7 @@ class Cat021Report:
     nucp: int | None
     mops_version: int | None
     capture_s: float | None
+    flight_level: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -465,6 +468,7 @@ def _cat021(record: Any, edition: tuple[int, int], capture_s: float | None
         geo_height_ft=_quantity(record, "140", "ft"),
         nacp=nacp, nucp=nucp, mops_version=version,
         capture_s=capture_s,
+        flight_level=_quantity(record, "145", "FL"),
     )
 
 

@@ -22,6 +22,7 @@ callsign            I048/240                   exact (up to 8 characters A-Z 0-9
 ADS-B time          I021/071 Time of Appl.     1/128 s
 ADS-B lat, lon      I021/131 High-Res Pos.     180/2^30 deg
 ADS-B height        I021/140 Geometric Height  6.25 ft (1 ft = 0.3048 m)
+ADS-B baro_alt_m    I021/145 Flight Level      1/4 FL (when the column has a value)
 ADS-B NACp          I021/090 NACP              exact (0 .. 11)
 radar lat, lon      I034/120 LAT, LON          180/2^23 deg
 radar height        I034/120 HGT               1 m
@@ -375,6 +376,8 @@ def _adsb_records(
     lat = adsb["lat_deg"].to_numpy(dtype=float)
     lon = adsb["lon_deg"].to_numpy(dtype=float)
     alt = adsb["alt_m"].to_numpy(dtype=float)
+    baro = (adsb["baro_alt_m"].to_numpy(dtype=float) if "baro_alt_m" in adsb
+            else np.full(len(adsb), np.nan))
     nacp = None
     if "nacp" in adsb:
         nacp = pd.to_numeric(adsb["nacp"], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
@@ -397,6 +400,9 @@ def _adsb_records(
                 "080": address,
                 "140": _count(alt[pos] / METRES_PER_FT, ADSB_HEIGHT_LSB_FT, 16, True, "alt_m"),
             }
+            if np.isfinite(baro[pos]):
+                items["145"] = _count(baro[pos] / METRES_PER_FT / 100.0, FL_LSB, 16, True,
+                                      "baro_alt_m")
             if nacp is not None and np.isfinite(nacp[pos]):
                 value = _count(nacp[pos], 1.0, 4, False, "nacp")
                 items["090"] = ((("NUCRNACV", 0), ("NUCPNIC", 0), None),
@@ -568,9 +574,9 @@ def encode_dataset(
     Plots become CAT048 records (I010, I140, I020, I040, I090 when the altitude
     is known, I220 when ``target_id`` is an ICAO address, I240 when a
     ``callsign`` column has a value), ADS-B reports CAT021 records (I010, I040,
-    I161, I071, I131, I080, I140, I090 with NACp when known) and each radar
-    one CAT034 North marker (I010, I000, I030, I120).  Resolutions are listed
-    in the module docstring.
+    I161, I071, I131, I080, I140, I145 when ``baro_alt_m`` has a value, I090
+    with NACp when known) and each radar one CAT034 North marker (I010, I000,
+    I030, I120).  Resolutions are listed in the module docstring.
 
     Parameters
     ----------

@@ -36,8 +36,10 @@ Plots (CAT048)
     ``target_id`` = I048/220 as six lower-case hex digits ("" when absent);
     ``altitude_m`` = I048/090 flight level * 100 ft * 0.3048 m/ft (barometric
     pressure altitude, not a height above the ellipsoid; NaN when absent, not
-    validated or garbled); extra column ``callsign`` from I048/240 ("" when
-    absent).  Reports without I048/040 or I048/140 are skipped and counted.
+    validated or garbled: declare it with ``[dataset] plot_altitude = "pressure"``
+    in the user ``sites.toml``, which the dataset then carries); extra column
+    ``callsign`` from I048/240 ("" when absent).  Reports without I048/040 or
+    I048/140 are skipped and counted.
 
 ADS-B (CAT021)
     ``time_s`` from I021/071 (time of applicability for position), else
@@ -47,8 +49,10 @@ ADS-B (CAT021)
     resolution), else I021/130; ``alt_m`` = I021/140 geometric height [ft] *
     0.3048 (height above the WGS-84 ellipsoid); ``nacp`` from I021/090 NACp,
     else the NUCp of a DO-260 (version 0) transponder mapped to the NACp whose
-    95 % bound is not tighter (:data:`NUCP_TO_NACP`), else empty.  Reports
-    without a position, address or geometric height are skipped and counted.
+    95 % bound is not tighter (:data:`NUCP_TO_NACP`), else empty;
+    ``baro_alt_m`` = I021/145 flight level * 100 ft * 0.3048 (the reported
+    pressure altitude, contract v2; NaN when absent).  Reports without a
+    position, address or geometric height are skipped and counted.
 """
 
 from __future__ import annotations
@@ -73,7 +77,7 @@ from graphcal.io.asterix.decode import (
     Decoded,
     Report,
 )
-from graphcal.io.folder import load_sites
+from graphcal.io.folder import load_plot_altitude, load_sites
 
 #: Metres per nautical mile.
 NM_M = 1852.0
@@ -87,7 +91,8 @@ PLOT_COLUMNS: tuple[str, ...] = (
     "altitude_m", "callsign",
 )
 #: ADS-B table columns written.
-ADSB_COLUMNS: tuple[str, ...] = ("time_s", "target_id", "lat_deg", "lon_deg", "alt_m", "nacp")
+ADSB_COLUMNS: tuple[str, ...] = ("time_s", "target_id", "lat_deg", "lon_deg", "alt_m", "nacp",
+                                 "baro_alt_m")
 #: NUCp (DO-260, 95 % horizontal error bound) -> NACp with a bound at least as large.
 #: NUCp 0 means "unknown" and maps to no NACp.
 NUCP_TO_NACP: dict[int, int] = {9: 11, 8: 10, 7: 8, 6: 7, 5: 6, 4: 5, 3: 4, 2: 1, 1: 1}
@@ -192,6 +197,8 @@ class UserSites:
     #: Radar id by (SAC, SIC), for tables that give them.
     by_source: dict[tuple[int, int], str]
     path: Path
+    #: The file's ``[dataset] plot_altitude``: what the plots' altitudes (I048/090) are.
+    plot_altitude: str = "geometric"
 
 
 def load_user_sites(path: str | Path) -> UserSites:
@@ -225,7 +232,7 @@ def load_user_sites(path: str | Path) -> UserSites:
             raise DatasetError(f"SAC {site.sac} / SIC {site.sic} already belongs to radar "
                                f"{by_source[source]!r}", path=path, row=row, field="sic")
         by_source[source] = site.id
-    return UserSites(sites, by_source, path)
+    return UserSites(sites, by_source, path, load_plot_altitude(path))
 
 
 def _cat034_site(radar_id: str, message: Cat034Message) -> Site:
@@ -376,8 +383,10 @@ def adsb_frame(reports: Sequence[Cat021Report], times: Sequence[float | None],
         rows["lon_deg"].append(report.lon_deg)
         rows["alt_m"].append(report.geo_height_ft * FOOT_M)
         rows["nacp"].append(_nacp(report))
+        level = report.flight_level
+        rows["baro_alt_m"].append(math.nan if level is None else level * 100.0 * FOOT_M)
     frame = pd.DataFrame(rows, columns=list(ADSB_COLUMNS))
-    for column in ("time_s", "lat_deg", "lon_deg", "alt_m"):
+    for column in ("time_s", "lat_deg", "lon_deg", "alt_m", "baro_alt_m"):
         frame[column] = frame[column].astype(float)
     frame["nacp"] = pd.array(frame["nacp"].tolist(), dtype="Int64")
     return frame
@@ -471,7 +480,8 @@ def build_tables(
     if adsb is not None:
         stats.adsb_reports = len(adsb)
         stats.aircraft = int(adsb["target_id"].nunique())
-    dataset = Dataset(sites=sites, plots=plots, adsb=_with_sigma(adsb))
+    dataset = Dataset(sites=sites, plots=plots, adsb=_with_sigma(adsb),
+                      plot_altitude="geometric" if user_sites is None else user_sites.plot_altitude)
     return AsterixTables(dataset=dataset, time_base=time_base, stats=stats, decode=decoded)
 
 
