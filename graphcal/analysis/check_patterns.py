@@ -15,7 +15,8 @@ of :class:`graphcal.analysis.binned_test.BinnedMeans`) and names:
   sinusoid's amplitude and peak, the step's size);
 * the likely **cause**: elevation or range against elevation, range or height
   -> refraction (2-D radar against height without ADS-B -> pressure altitudes);
-  reported altitude -> pressure altitudes; azimuth sinusoidal in azimuth ->
+  reported altitude -> pressure altitudes (when the dataset declares them: ones the
+  height model does not describe); azimuth sinusoidal in azimuth ->
   antenna eccentricity; elevation sinusoidal in azimuth -> the antenna not
   level; range against azimuth or azimuth against range -> the site position;
   anything against time -> a bias drifting or stepping in time.
@@ -39,6 +40,8 @@ PATTERN_SHARE = 0.6
 
 REFRACTION = "refraction not modelled"
 PRESSURE = "pressure altitudes (Mode C heights taken as geometric)"
+PRESSURE_MODEL = ("pressure altitudes that one height offset and scale do not describe "
+                  "(a non-standard temperature profile, or altitudes of several sources)")
 DRIFT = "a bias drifting or stepping in time"
 SITE = "an error in the radar's surveyed position"
 
@@ -116,12 +119,16 @@ def _in_time(b: BinnedMeans, u: str) -> tuple[str, str]:
 
 
 def cause(coordinate: str, variable: str, *, is_3d: bool, reference: str,
-          sinusoidal: bool = False, gain_modelled: bool = True) -> str:
-    """The likely cause of structure in ``coordinate`` against ``variable`` (module doc)."""
+          sinusoidal: bool = False, gain_modelled: bool = True, pressure: bool = False) -> str:
+    """The likely cause of structure in ``coordinate`` against ``variable`` (module doc).
+
+    ``pressure``: the dataset declares its plots' altitudes pressure altitudes
+    (the height model is then part of the model).
+    """
     if variable == "time":
         return DRIFT
     if coordinate == "altitude" or (not is_3d and variable == "height" and reference == "cross"):
-        return PRESSURE
+        return PRESSURE_MODEL if pressure else PRESSURE
     if coordinate in ("range", "elevation") and variable in ("range", "elevation", "height"):
         if (coordinate, variable) == ("range", "range") and not gain_modelled:
             return REFRACTION + " (or a range gain, which this radar's model leaves out)"
@@ -147,6 +154,7 @@ def describe(
     is_3d: bool,
     reference: str,
     gain_modelled: bool = True,
+    pressure: bool = False,
 ) -> Description:
     """Pattern, magnitude and likely cause of one test's structure (module doc).
 
@@ -163,6 +171,8 @@ def describe(
     reference : {"adsb", "cross"}
     gain_modelled : bool
         The radar's model has a range gain.
+    pressure : bool
+        The plots' altitudes are declared pressure altitudes.
     """
     sinusoidal = False
     if variable in _ENDS:
@@ -188,7 +198,7 @@ def describe(
         magnitude = f"mean {mean:+.3g} {unit}; {magnitude}"
     return Description(pattern, magnitude, cause(coordinate, variable, is_3d=is_3d,
                                                  reference=reference, sinusoidal=sinusoidal,
-                                                 gain_modelled=gain_modelled))
+                                                 gain_modelled=gain_modelled, pressure=pressure))
 
 
 __all__ = ["PATTERN_SHARE", "Description", "cause", "describe", "fraction_explained"]

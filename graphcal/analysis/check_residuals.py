@@ -52,8 +52,9 @@ from graphcal.data.align import (
     pair_plots,
     plot_arrays,
 )
-from graphcal.data.bias import RadarBias
+from graphcal.data.bias import ECCENTRICITY, RadarBias
 from graphcal.data.dataset import Dataset, Site
+from graphcal.data.height import HeightModel
 from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, convert_plots, corrected_ecef
 from graphcal.model.measurement import (
     measured_polar,
@@ -154,12 +155,25 @@ def binning_geometry(
     return out
 
 
+def has_eccentricity(site: Site, bias: RadarBias) -> bool:
+    """Whether the radar's model has the azimuth eccentricity terms (estimated or fixed)."""
+    return ECCENTRICITY in site.estimate or bias.has_eccentricity
+
+
 def adsb_radar_residuals(
-    dataset: Dataset, radar_id: str, bias: RadarBias, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S
+    dataset: Dataset,
+    radar_id: str,
+    bias: RadarBias,
+    max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
+    height_model: HeightModel | None = None,
 ) -> RadarResiduals | None:
     """One radar's corrected plots against ADS-B (module doc); None when none aligns.
 
-    ADS-B is interpolated at the plots' true times (``time_s - bias.time_offset_s``).
+    ADS-B is interpolated at the plots' true times (``time_s - bias.time_offset_s``),
+    along refracted rays when the radar declares refraction.  With pressure
+    altitudes (``dataset.plot_altitude``), a 2-D plot's altitude residual is its
+    height by ``height_model`` (the calibration's estimate; identity if none) less
+    the ADS-B height, and the height model's two terms are its regressors.
     """
     site = dataset.sites[radar_id]
     al = align_adsb(dataset, radar_id, max_gap_s, time_offset_s=bias.time_offset_s)
@@ -168,12 +182,15 @@ def adsb_radar_residuals(
     model = measurement_model(site)
     corrected = model.inverse_function(measured_polar(al), bias)
     ref = al.reference_polar
-    noise = model.covar(len(al)) + reference_polar_covariance(al)
+    noise = model.covar(len(al)) + reference_polar_covariance(al, site)
     rate = polar_rate(site, al)
     ones = np.ones(len(al))
     range_terms = [ones, rate[:, 0]]
     if "range_gain" in site.estimate or bias.range_gain != 0.0:
         range_terms.insert(1, ref[:, 0])
+    azimuth_terms = [ones, rate[:, 1]]
+    if has_eccentricity(site, bias):
+        azimuth_terms += [np.sin(ref[:, 1]), np.cos(ref[:, 1])]
     residuals = {
         "range": corrected[:, 0] - ref[:, 0],
         "azimuth": frames.wrap_to_pi(corrected[:, 1] - ref[:, 1]),
@@ -181,7 +198,7 @@ def adsb_radar_residuals(
     variances = {"range": noise[:, 0, 0], "azimuth": noise[:, 1, 1]}
     regressors = {
         "range": np.stack(range_terms, axis=1),
-        "azimuth": np.stack([ones, rate[:, 1]], axis=1),
+        "azimuth": np.stack(azimuth_terms, axis=1),
     }
     height = frames.ecef_to_geodetic(al.reference_ecef_m)[2]
     variables = binning_geometry(site, neighbour_plots(al.plots, skip=1), height)
@@ -191,16 +208,21 @@ def adsb_radar_residuals(
         variances["elevation"] = noise[:, 2, 2]
         regressors["elevation"] = np.stack([ones, rate[:, 2]], axis=1)
     elif np.any(np.isfinite(al.plots.altitude_m)):
-        residuals["altitude"] = al.plots.altitude_m - height
+        reported = al.plots.altitude_m
+        if dataset.pressure_altitudes:
+            residuals["altitude"] = (height_model or HeightModel()).geometric(reported) - height
+            regressors["altitude"] = np.column_stack([ones, np.nan_to_num(reported)])
+        else:
+            residuals["altitude"] = reported - height
+            regressors["altitude"] = np.zeros((len(al), 0))
         variances["altitude"] = ALTITUDE_SIGMA_M**2 + al.reference_enu_cov_m2[:, 2, 2]
-        regressors["altitude"] = np.zeros((len(al), 0))
     segment = segment_codes(al.plots.target_id, al.plots.time_s, SEGMENT_S)
     return without_outliers(RadarResiduals(radar_id, "adsb", variables, residuals, variances,
                                            regressors, segment))
 
 
 def cross_radar_residuals(
-    dataset: Dataset, biases: Mapping[str, RadarBias]
+    dataset: Dataset, biases: Mapping[str, RadarBias], height_model: HeightModel | None = None
 ) -> dict[str, RadarResiduals]:
     """Every radar's corrected plots against its partners' (module doc).
 
@@ -208,10 +230,15 @@ def cross_radar_residuals(
     ``a``'s track interpolated to its time (2.5 scans at most,
     :func:`graphcal.data.align.pair_max_gap_s`), both corrected; the difference
     is expressed in ``b``'s polar frame (``b`` minus ``a``) and in ``a``'s (``a``
-    minus ``b``), with the noise of both plots mapped into that frame.
+    minus ``b``), with the noise of both plots mapped into that frame.  With
+    pressure altitudes, 2-D plots are placed at their heights by ``height_model``
+    (the calibration's estimate; identity if none), whose two terms are then
+    regressors too.
     """
     radar_ids = [rid for rid in dataset.radar_ids if rid in biases]
-    geometry = {rid: _corrected_plots(dataset.sites[rid], plot_arrays(dataset, rid), biases[rid])
+    heights = (height_model or HeightModel()) if dataset.pressure_altitudes else None
+    geometry = {rid: _corrected_plots(dataset.sites[rid], plot_arrays(dataset, rid), biases[rid],
+                                      heights)
                 for rid in radar_ids}
     parts: dict[str, list[dict[str, Any]]] = {rid: [] for rid in radar_ids}
     for i, ra in enumerate(radar_ids):
@@ -237,19 +264,21 @@ def cross_radar_residuals(
                      w0 * ga.near_ecef_m[i0] + w1 * ga.near_ecef_m[i1])
             own_b = (gb.ecef_m[ib], gb.cov_m2[ib], gb.jacobian[ib], gb.near_ecef_m[ib])
             altitude_a = (1.0 - w) * ga.altitude_m[i0] + w * ga.altitude_m[i1]
+            reported_a = (1.0 - w) * ga.reported_m[i0] + w * ga.reported_m[i1]
             shared = {"time": gb.time_s[ib], "target": gb.target_id[ib]}
-            for rid, site, other_site, own, other, where, altitude in (
-                (rb, gb.site, ga.site, own_b, own_a, gb.where(ib), gb.altitude_m[ib]),
-                (ra, ga.site, gb.site, own_a, own_b, ga.where(i0), altitude_a),
+            for rid, site, other_site, own, other, where, altitude, reported in (
+                (rb, gb.site, ga.site, own_b, own_a, gb.where(ib), gb.altitude_m[ib],
+                 gb.reported_m[ib]),
+                (ra, ga.site, gb.site, own_a, own_b, ga.where(i0), altitude_a, reported_a),
             ):
                 part = _pair_differences(site, own, other, altitude, other_site)
-                part.update(where, **shared, partner=other_site.id)
+                part.update(where, **shared, partner=other_site.id, reported=reported)
                 parts[rid].append(part)
     out: dict[str, RadarResiduals] = {}
     for rid in radar_ids:
         if parts[rid]:
-            out[rid] = without_outliers(_joined(dataset.sites[rid], biases[rid], parts[rid],
-                                                dataset.sites))
+            out[rid] = without_outliers(_joined(
+                dataset.sites[rid], biases[rid], parts[rid], dataset.pressure_altitudes))
     return out
 
 
@@ -257,7 +286,10 @@ def cross_radar_residuals(
 class _CorrectedPlots:
     """One radar's plots corrected, in ECEF, with what the pair differences need.
 
-    ``jacobian`` (d ECEF / d bias) and ``cov_m2`` are evaluated at each plot's
+    ``altitude_m`` is the height of a 2-D plot (its reported altitude, or that
+    altitude through the height model when it is a pressure altitude; the
+    reported one is ``reported_m``).  ``jacobian`` (d ECEF / d the radar's model
+    terms, :func:`_terms_of`) and ``cov_m2`` are evaluated at each plot's
     track neighbours (:func:`graphcal.data.align.neighbour_plots`), whose
     corrected position is ``near_ecef_m``: their noise is independent of the
     plot's, where at the plot itself they would be correlated with the residual
@@ -275,21 +307,32 @@ class _CorrectedPlots:
     time_s: FloatArray
     target_id: NDArray[np.object_]
     geometry: dict[str, FloatArray]
+    reported_m: FloatArray
 
     def where(self, rows: NDArray[np.int64]) -> dict[str, FloatArray]:
         """The binning variables of ``rows``."""
         return {key: value[rows] for key, value in self.geometry.items()}
 
 
-def _corrected_plots(site: Site, plots: PlotArrays, bias: RadarBias) -> _CorrectedPlots:
+def _corrected_plots(site: Site, plots: PlotArrays, bias: RadarBias,
+                     heights: HeightModel | None) -> _CorrectedPlots:
+    """``jacobian`` columns: the radar's model terms (:func:`_terms_of`)."""
     near = neighbour_plots(plots, skip=1)
-    ecef, _, usable = corrected_ecef(site, plots, bias.as_vector())
-    near_ecef, jacobian, near_usable = corrected_ecef(site, near, bias.as_vector())
+    options: dict[str, Any] = {}
+    if has_eccentricity(site, bias):
+        options["eccentricity"] = (bias.azimuth_sin_rad, bias.azimuth_cos_rad)
+    if heights is not None and not site.is_3d:
+        options["height_model"] = (heights.height_offset_m, heights.height_scale)
+    ecef, _, usable = corrected_ecef(site, plots, bias.as_vector(), **options)
+    near_ecef, jacobian, near_usable = corrected_ecef(site, near, bias.as_vector(), **options)
     near_ecef = np.where(near_usable[:, None], near_ecef, ecef)
+    altitude = plots.altitude_m
+    if "height_model" in options:
+        altitude = heights.geometric(altitude)
     return _CorrectedPlots(
-        site, pd.Index(plots.index), ecef, near_ecef, jacobian,
-        convert_plots(site, plots, near).cov_m2, usable, plots.altitude_m, plots.time_s,
-        plots.target_id, binning_geometry(site, near),
+        site, pd.Index(plots.index), ecef, near_ecef, jacobian[:, :, _terms_of(site, options)],
+        convert_plots(site, plots, near).cov_m2, usable, altitude, plots.time_s,
+        plots.target_id, binning_geometry(site, near), plots.altitude_m,
     )
 
 
@@ -333,24 +376,36 @@ def _pair_differences(
         out["v_altitude"] = ALTITUDE_SIGMA_M**2 + np.einsum("ni,nij,nj->n", up, other_cov, up)
         out["altitude_terms"] = -np.einsum("ni,nij->nj", up, other_jac)
     else:
-        out["altitude_terms"] = np.zeros((len(r_own), 4))
+        out["altitude_terms"] = np.zeros((len(r_own), other_jac.shape[2]))
     return out
 
 
-def _terms_of(site: Site) -> list[int]:
-    """Positions (in offset, gain, azimuth, elevation) of the bias terms of a radar's model."""
+def _terms_of(site: Site, options: Mapping[str, Any]) -> list[int]:
+    """Columns of :func:`graphcal.model.cross_radar.corrected_ecef`'s Jacobian that are terms
+    of the radar's model: offset, gain, azimuth and (3-D) elevation bias when in its
+    ``estimate`` list, the eccentricity ``(s, c)`` and the height model ``(d, k)``
+    when ``options`` asks for them."""
     names = ("range_offset", "range_gain", "azimuth_bias", "elevation_bias")
-    return [k for k, name in enumerate(names) if name in site.estimate
-            and (site.is_3d or name != "elevation_bias")]
+    columns = [k for k, name in enumerate(names) if name in site.estimate
+               and (site.is_3d or name != "elevation_bias")]
+    extra = 4
+    if "eccentricity" in options:
+        columns += [4, 5]
+        extra = 6
+    if "height_model" in options:
+        columns += [extra, extra + 1]
+    return columns
 
 
-def _joined(site: Site, bias: RadarBias, parts: list[dict[str, Any]],
-            sites: Mapping[str, Site]) -> RadarResiduals:
+def _joined(site: Site, bias: RadarBias, parts: list[dict[str, Any]], pressure: bool
+            ) -> RadarResiduals:
     """One radar's pair differences from every partner, as :class:`RadarResiduals`.
 
     Regressors of each coordinate: a constant (the radar's own offset or bias),
-    the range ``r`` for the range when the radar's model has a range gain, and
-    each partner's bias terms' effect on the rows against that partner (zero on
+    the range ``r`` for the range when the radar's model has a range gain,
+    ``sin az, cos az`` for the azimuth when it has an eccentricity, ``1, p`` for
+    a pressure altitude ``p`` (the height model; none for a geometric one), and
+    each partner's model terms' effect on the rows against that partner (zero on
     the others), so that the partners' estimates' errors are not taken for
     structure of this radar.
     """
@@ -367,11 +422,11 @@ def _joined(site: Site, bias: RadarBias, parts: list[dict[str, Any]],
     # The partners' terms: one block of columns per partner, filled on its rows.
     blocks: dict[str, list[FloatArray]] = {c: [] for c in coordinates}
     for name in partners:
-        columns = _terms_of(sites[name])
+        width = next(p["other_terms"].shape[2] for p in parts if p["partner"] == name)
         for c in coordinates:
             effect = [(p["altitude_terms"] if c == "altitude"
-                       else p["other_terms"][:, coordinates.index(c), :])[:, columns]
-                      if p["partner"] == name else np.zeros((count, len(columns)))
+                       else p["other_terms"][:, coordinates.index(c), :])
+                      if p["partner"] == name else np.zeros((count, width))
                       for p, count in zip(parts, n_rows, strict=True)]
             block = np.concatenate(effect)
             blocks[c].append(block[:, np.any(block != 0.0, axis=0)])
@@ -379,8 +434,12 @@ def _joined(site: Site, bias: RadarBias, parts: list[dict[str, Any]],
     own = {c: ones for c in coordinates}
     if "range_gain" in site.estimate or bias.range_gain != 0.0:
         own["range"] = np.column_stack([ones, joined["range"]])
+    if has_eccentricity(site, bias):
+        own["azimuth"] = np.column_stack([ones, np.sin(joined["azimuth"]),
+                                          np.cos(joined["azimuth"])])
     if "altitude" in own:
-        own["altitude"] = np.zeros((n, 0))
+        own["altitude"] = (np.column_stack([ones, np.nan_to_num(joined["reported"])])
+                           if pressure else np.zeros((n, 0)))
     regressors = {c: np.column_stack([own[c], *blocks[c]]) for c in coordinates}
     variables = {k: joined[k] for k in ("range", "azimuth", "elevation", "height", "time")
                  if k in joined}

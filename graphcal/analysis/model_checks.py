@@ -304,8 +304,12 @@ def _test(res: RadarResiduals, coordinate: str, variable: str, terms=None
 
 
 def radar_checks(res: RadarResiduals, site: Site,
-                 family_false_alarm: float = FAMILY_FALSE_ALARM) -> RadarChecks:
-    """Every binned test of one radar's residuals, with the Bonferroni verdict."""
+                 family_false_alarm: float = FAMILY_FALSE_ALARM,
+                 pressure: bool = False) -> RadarChecks:
+    """Every binned test of one radar's residuals, with the Bonferroni verdict.
+
+    ``pressure``: the plots' altitudes are declared pressure altitudes (for the words).
+    """
     tests: list[CheckTest] = []
     chi2_per_dof: dict[str, float] = {}
     for coordinate, e in res.residuals.items():
@@ -326,7 +330,7 @@ def radar_checks(res: RadarResiduals, site: Site,
         t.fired = bool(t.bins.p_value < threshold)
         words = describe(t.coordinate, t.variable, t.bins, t.unit, t.variable_unit,
                          is_3d=site.is_3d, reference=res.reference,
-                         gain_modelled="range_gain" in site.estimate)
+                         gain_modelled="range_gain" in site.estimate, pressure=pressure)
         t.pattern, t.magnitude, t.cause = words.pattern, words.magnitude, words.cause
     return RadarChecks(res.radar_id, res.reference, len(res), res.n_outliers, threshold,
                        chi2_per_dof, tests, res.partners)
@@ -384,9 +388,12 @@ def model_checks(
         ``reference`` "none" and no radars when there is nothing to compare with.
     """
     start = time.perf_counter()
+    height_model = None
     if isinstance(calibration, Calibration):
         biases = {rid: calibration.bias(rid) for rid in calibration.radar_ids
                   if rid in dataset.sites}
+        if calibration.atmosphere is not None:
+            height_model = calibration.atmosphere.model
     else:
         biases = {rid: b for rid, b in calibration.items() if rid in dataset.sites}
     notes: list[str] = []
@@ -395,19 +402,20 @@ def model_checks(
         reference = "adsb"
         gap = DEFAULT_ADSB_MAX_GAP_S if adsb_max_gap_s is None else adsb_max_gap_s
         for rid, bias in biases.items():
-            res = adsb_radar_residuals(dataset, rid, bias, gap)
+            res = adsb_radar_residuals(dataset, rid, bias, gap, height_model)
             if res is None:
                 notes.append(f"{rid}: no plot aligned with ADS-B; not checked")
             else:
                 residuals[rid] = res
     else:
         reference = "cross"
-        residuals = cross_radar_residuals(dataset, biases)
+        residuals = cross_radar_residuals(dataset, biases, height_model)
         notes += [f"{rid}: no cross-radar pair; not checked" for rid in biases
                   if rid not in residuals]
     if not residuals:
         reference = "none"
-    radars = {rid: radar_checks(res, dataset.sites[rid], family_false_alarm)
+    radars = {rid: radar_checks(res, dataset.sites[rid], family_false_alarm,
+                                dataset.pressure_altitudes)
               for rid, res in residuals.items()}
     if reference == "cross":
         for rid, res in residuals.items():

@@ -208,6 +208,8 @@ def test_ends_of_range_and_elevation() -> None:
 
 def test_causes() -> None:
     assert cause("altitude", "height", is_3d=False, reference="adsb").startswith("pressure")
+    declared = cause("altitude", "height", is_3d=False, reference="adsb", pressure=True)
+    assert "height offset and scale do not describe" in declared
     assert cause("range", "height", is_3d=False, reference="cross").startswith("pressure")
     assert cause("range", "height", is_3d=False, reference="adsb").startswith("refraction")
     assert "range gain" in cause("range", "range", is_3d=False, reference="adsb",
@@ -389,3 +391,28 @@ def test_nothing_to_compare_with(demo) -> None:
     checks = model_checks(one, {"NORD": demo.biases["NORD"]})
     assert checks.reference == "none" and checks.radars == {} and checks.warnings() == []
     assert checks.notes == ["NORD: no cross-radar pair; not checked"]
+
+
+def test_version_2_effects_declared_are_quiet_and_undeclared_are_named() -> None:
+    """demo_v2 (refraction everywhere, pressure altitudes, NORD's eccentricity): declared as
+    the scenario does, the model has them and the checks are quiet; the same plots read as
+    version 1 (straight rays, geometric altitudes, no eccentricity term) fire, naming
+    refraction for the 3-D radars and pressure altitudes for the 2-D ones."""
+    import dataclasses
+
+    res = simulate(load_scenario(SCENARIOS / "demo_v2.toml"), np.random.default_rng(1))
+    declared = res.dataset
+    cal = METHODS["graph"](declared)
+    assert _warnings(model_checks(declared, cal)) == []
+    sites = {rid: dataclasses.replace(
+        site, refraction="none",
+        estimate=tuple(e for e in site.estimate if e != "azimuth_eccentricity"))
+        for rid, site in declared.sites.items()}
+    plain = Dataset(sites, declared.plots, declared.adsb, None, plot_altitude="geometric")
+    found = {w.split(":")[0]: w for w in _warnings(model_checks(plain, METHODS["graph"](plain)))}
+    assert set(found) == set(sites)
+    for rid in ("EST3D", "OUEST3D"):
+        assert "elevation residual" in found[rid] and "refraction not modelled" in found[rid]
+    for rid in ("NORD", "SUD", "APP"):
+        assert "altitude residual" in found[rid] and "pressure altitudes" in found[rid]
+    assert "azimuth vs azimuth" in found["NORD"]  # its eccentricity, behind the altitudes
