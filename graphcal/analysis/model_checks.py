@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from graphcal.analysis.binned_test import BinnedMeans, binned_test, fit_terms
+from graphcal.analysis.binned_test import BinnedMeans, TermsFit, binned_test, fit_terms
 from graphcal.analysis.check_patterns import describe
 from graphcal.analysis.check_residuals import (
     SEGMENT_S,
@@ -291,7 +291,7 @@ class ModelChecks:
 
 
 # --------------------------------------------------------------------------- the checks
-def _test(res: RadarResiduals, coordinate: str, variable: str, terms=None
+def _test(res: RadarResiduals, coordinate: str, variable: str, terms: TermsFit | None = None
           ) -> BinnedMeans | None:
     """One binned test of ``res`` in display units (the terms fitted when not given)."""
     scale = COORDINATES[coordinate][1]
