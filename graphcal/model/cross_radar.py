@@ -199,7 +199,7 @@ def _plot_geometry(
             usable = np.isfinite(el) & np.isfinite(plots.altitude_m) & (
                 np.abs(el) < MAX_2D_ELEVATION_RAD
             )
-        radius = _gaussian_radius_m(site.lat_rad)
+        radius = float(frames.gaussian_radius_m(site.lat_rad))
         rt = radius + np.nan_to_num(plots.altitude_m)
         rr = radius + site.alt_m
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -261,11 +261,6 @@ def _refracted_plot_geometry(
     # A reported height moves the plot in elevation, at fixed range and azimuth.
     d_ecef_d_h = ecef_jac[:, :, 2] * np.nan_to_num(d_el_d_h)[:, None]
     return _Geometry(ecef, ecef_jac, cov, usable, np.where(usable[:, None], d_ecef_d_h, 0.0))
-
-
-def _gaussian_radius_m(lat_rad: float) -> float:
-    sin2 = np.sin(lat_rad) ** 2
-    return frames.WGS84_A_M * np.sqrt(1.0 - frames.WGS84_E2) / (1.0 - frames.WGS84_E2 * sin2)
 
 
 @dataclass
