@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core import frames
-from graphcal.data.bias import CONTRACT_KEYS, PARAMETER_NAMES, RadarBias
+from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY_NAMES, PARAMETER_NAMES, RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 
@@ -72,7 +72,9 @@ DPI = 80
 #: Seed of the subsampling (the report is reproducible).
 SEED = 0
 
-_KEYS: tuple[str, ...] = tuple(CONTRACT_KEYS[n][0] for n in (*PARAMETER_NAMES, "time_offset"))
+_KEYS: tuple[str, ...] = tuple(
+    CONTRACT_KEYS[n][0] for n in (*PARAMETER_NAMES, *ECCENTRICITY_NAMES, "time_offset")
+)
 
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em;
