@@ -92,6 +92,7 @@ def corrected_ecef(
     bias: FloatArray,
     eccentricity: tuple[float, float] | None = None,
     height_model: tuple[float, float] | None = None,
+    refraction: RayExcess | None = None,
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Plots corrected by ``bias`` -> ECEF, with the Jacobian w.r.t. the bias.
 
@@ -120,6 +121,9 @@ def corrected_ecef(
     height_model : (float, float), optional
         ``(height_offset_m, height_scale)`` when ``plots.altitude_m`` is a pressure
         altitude; the Jacobian then gains two last columns (zero for a 3-D radar).
+    refraction : RayExcess, optional
+        :func:`ray_excess` of ``plots``, for a radar with refraction: the rays are
+        then not traced again (iterative solvers call this at every step).
 
     Returns
     -------
@@ -138,7 +142,7 @@ def corrected_ecef(
     if height_model is not None and not site.is_3d:
         offset_m, scale = (float(v) for v in height_model)
         plots = replace(plots, altitude_m=(1.0 + scale) * pressure_m + offset_m)
-    geometry = _plot_geometry(site, r, az, plots, el_bias)
+    geometry = _plot_geometry(site, r, az, plots, el_bias, refraction)
     d_polar = np.zeros((len(r), 3, 4 if eccentricity is None else 6))
     d_polar[:, 0, 0] = -1.0 / (1.0 + gain)
     d_polar[:, 0, 1] = -r / (1.0 + gain)
@@ -169,7 +173,8 @@ class _Geometry:
 
 
 def _plot_geometry(
-    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float = 0.0
+    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float = 0.0,
+    refraction: RayExcess | None = None,
 ) -> _Geometry:
     """ECEF position, d ecef / d polar and converted noise of plots at ``(r, az)``.
 
@@ -178,8 +183,11 @@ def _plot_geometry(
     (:func:`graphcal.core.refraction.target_from_refracted_jacobian`) and a 2-D
     plot's elevation comes from its height along it
     (:func:`graphcal.core.refraction.apparent_elevation_from_height_jacobian`).
+    Given ``refraction`` (:func:`ray_excess` of these plots), the rays are not traced
+    again: the straight-line placement plus the refracted ray's excess over it,
+    linearised about the measured plots.
     """
-    if site.atmosphere is not None:
+    if site.atmosphere is not None and refraction is None:
         return _refracted_plot_geometry(site, r, az, plots, elevation_bias)
     n = len(r)
     cov_polar = np.zeros((n, 3, 3))
@@ -192,34 +200,207 @@ def _plot_geometry(
         d_el_d_r = np.zeros(n)
         d_el_d_h = np.zeros(n)
     else:
-        el = frames.elevation_from_height(r, plots.altitude_m, site.lat_rad, site.alt_m)
+        el, d_el_d_r, d_el_d_h = _straight_elevation(site, r, plots.altitude_m)
+        if refraction is not None:  # the refracted ray's excess, linearised
+            step = np.stack([r - refraction.range_m,
+                             np.nan_to_num(plots.altitude_m) - refraction.height_m], axis=1)
+            el = el + refraction.elevation_excess_rad + np.einsum(
+                "nj,nj->n", refraction.elevation_excess_jacobian, step)
+            d_el_d_r = d_el_d_r + refraction.elevation_excess_jacobian[:, 0]
+            d_el_d_h = d_el_d_h + refraction.elevation_excess_jacobian[:, 1]
         # Near the zenith (or where noise puts the reported height out of reach of
         # the slant range) the height says nothing usable about the elevation.
         with np.errstate(invalid="ignore"):
             usable = np.isfinite(el) & np.isfinite(plots.altitude_m) & (
                 np.abs(el) < MAX_2D_ELEVATION_RAD
             )
-        radius = float(frames.gaussian_radius_m(site.lat_rad))
-        rt = radius + np.nan_to_num(plots.altitude_m)
-        rr = radius + site.alt_m
-        with np.errstate(invalid="ignore", divide="ignore"):
-            d_el_d_r = -(rt**2 - rr**2 + r**2) / (2.0 * r**2 * rr * np.cos(el))
-            d_el_d_h = rt / (r * rr * np.cos(el))
         # The reported height's error enters through the elevation.
         cov_polar[:, 2, 2] = np.nan_to_num(d_el_d_h) ** 2 * ALTITUDE_SIGMA_M**2
     el = np.where(usable, el, 0.0)
     enu_jac = frames.polar_to_enu_jacobian(r, az, el)  # (n, 3, 3)
+    if refraction is not None:
+        enu, enu_jac = _add_ray_excess(refraction, r, az, el, enu_jac)
+        usable = usable & refraction.usable
     if not site.is_3d:
         # Range moves the point along the slant direction and, at fixed height, in elevation.
         enu_jac = enu_jac.copy()
         enu_jac[:, :, 0] += enu_jac[:, :, 2] * np.nan_to_num(d_el_d_r)[:, None]
     rot = site.ecef_to_enu.T  # d ecef / d enu
     ecef_jac = rot @ enu_jac
-    ecef = site.ecef_from_polar(r, az, el)
+    ecef = (site.ecef_from_polar(r, az, el) if refraction is None
+            else site.ecef_from_enu(np.where(usable[:, None], enu, 0.0)))
     cov = convert_covariance(cov_polar, ecef_jac)
     # A reported height moves the plot in elevation, at fixed range and azimuth.
     d_ecef_d_h = ecef_jac[:, :, 2] * np.nan_to_num(d_el_d_h)[:, None]
     return _Geometry(ecef, ecef_jac, cov, usable, np.where(usable[:, None], d_ecef_d_h, 0.0))
+
+
+def _straight_elevation(site: Site, r: FloatArray, height_m: FloatArray
+                        ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Straight-line elevation of a reported height at slant range ``r`` and
+    ``d el / d r = -(R_t^2 - R_r^2 + r^2) / (2 r^2 R_r cos el)``,
+    ``d el / d h = R_t / (r R_r cos el)`` (:func:`graphcal.core.frames.elevation_from_height`)."""
+    el = frames.elevation_from_height(r, height_m, site.lat_rad, site.alt_m)
+    radius = float(frames.gaussian_radius_m(site.lat_rad))
+    rt = radius + np.nan_to_num(height_m)
+    rr = radius + site.alt_m
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d_el_d_r = -(rt**2 - rr**2 + r**2) / (2.0 * r**2 * rr * np.cos(el))
+        d_el_d_h = rt / (r * rr * np.cos(el))
+    return el, d_el_d_r, d_el_d_h
+
+
+@dataclass
+class RayExcess:
+    """The refracted rays' excess over straight lines at a set of plots, linearised.
+
+    Refraction bends a ray in the vertical plane of its azimuth, so the refracted
+    placement of a plot at electrical range ``L``, azimuth ``az`` and apparent
+    elevation ``e`` is the straight-line one plus ``(g sin az, g cos az, u)`` with
+    ``(g, u)`` the excess in ground distance and height of the ray, a smooth
+    function of ``(L, e)`` only.  Bias corrections move ``(L, e)`` by at most a
+    few hundred metres and milliradians, so ``(g, u)`` is taken to first order
+    about the measured plots: ``(g, u) = (g0, u0) + G (dL, de)``.  Its neglected
+    second-order term is measured (``tests/model/test_cross_radar.py``) at well
+    under a centimetre for such corrections; the azimuth stays exact.  A 2-D
+    plot's apparent elevation is likewise the straight-line elevation of its
+    height plus an excess linear in ``(dL, dh)``.
+
+    Attributes
+    ----------
+    range_m, height_m : ndarray (n,)
+        The plots' measured range and reported height (0 for 3-D radars).
+    elevation_rad : ndarray (n,)
+        Their apparent elevation (3-D: measured; 2-D: of the reported height).
+    plane_m : ndarray (n, 2)
+        ``(g0, u0)`` [m].
+    plane_jacobian : ndarray (n, 2, 2)
+        ``d (g, u) / d (L, e)`` [m/m, m/rad].
+    elevation_excess_rad : ndarray (n,)
+        2-D: refracted minus straight-line elevation of the reported height (0 for 3-D).
+    elevation_excess_jacobian : ndarray (n, 2)
+        Its derivatives ``d / d (L, h)`` [rad/m].
+    usable : ndarray (n,) of bool
+        False where no ray reaches the plot.
+    """
+
+    range_m: FloatArray
+    height_m: FloatArray
+    elevation_rad: FloatArray
+    plane_m: FloatArray
+    plane_jacobian: FloatArray
+    elevation_excess_rad: FloatArray
+    elevation_excess_jacobian: FloatArray
+    usable: NDArray[np.bool_]
+
+    def subset(self, keep: NDArray) -> RayExcess:
+        """The rows ``keep`` (a boolean mask or indices)."""
+        return RayExcess(*(getattr(self, f)[keep] for f in (
+            "range_m", "height_m", "elevation_rad", "plane_m", "plane_jacobian",
+            "elevation_excess_rad", "elevation_excess_jacobian", "usable")))
+
+
+def ray_excess(site: Site, plots: PlotArrays) -> RayExcess | None:
+    """:class:`RayExcess` of ``plots`` as measured; ``None`` for a radar without refraction."""
+    atmosphere = site.atmosphere
+    if atmosphere is None:
+        return None
+    n = len(plots.range_m)
+    r = np.where(np.isfinite(plots.range_m), plots.range_m, 0.0)
+    excess = np.zeros(n)
+    excess_jac = np.zeros((n, 2))
+    height = np.zeros(n)
+    if site.is_3d:
+        el = np.nan_to_num(plots.elevation_rad)
+    else:
+        height = np.nan_to_num(plots.altitude_m)
+        el, d_r, d_h = apparent_elevation_from_height_jacobian(
+            atmosphere, site.lat_rad, site.alt_m, r, height)
+        straight, s_r, s_h = _straight_elevation(site, r, height)
+        excess = el - straight
+        excess_jac = np.stack([d_r - s_r, d_h - s_h], axis=1)
+        el = np.nan_to_num(el)
+    zero = np.zeros(n)
+    enu, jac = target_from_refracted_jacobian(atmosphere, site.lat_rad, site.alt_m, r, zero, el)
+    straight_enu = frames.polar_to_enu(r, zero, el)
+    straight_jac = frames.polar_to_enu_jacobian(r, zero, el)
+    # At azimuth 0 the vertical plane is (north, up); columns (L, e) of d enu / d (L, az, e).
+    plane = (enu - straight_enu)[:, 1:]
+    plane_jac = (jac - straight_jac)[:, 1:, :][:, :, [0, 2]]
+    usable = (np.all(np.isfinite(plane), axis=1) & np.all(np.isfinite(plane_jac), axis=(1, 2))
+              & np.isfinite(excess) & np.all(np.isfinite(excess_jac), axis=1))
+    return RayExcess(r, height, el, np.where(usable[:, None], plane, 0.0),
+                     np.where(usable[:, None, None], plane_jac, 0.0),
+                     np.where(usable, excess, 0.0), np.where(usable[:, None], excess_jac, 0.0),
+                     usable)
+
+
+#: How far [m] the corrected ranges (or a 2-D radar's heights) may move from where a
+#: :class:`RayExcess` was traced before :func:`ray_excess_near` traces it again.
+RAY_EXCESS_RANGE_TOLERANCE_M = 25.0
+#: How far [rad] the corrected elevations may move (0.1 mrad: the linearisation's
+#: error, which grows as the square of the step, stays under 3 mm up to 300 km).
+RAY_EXCESS_ELEVATION_TOLERANCE_RAD = 1e-4
+
+
+def ray_excess_near(
+    excess: RayExcess | None, site: Site, plots: PlotArrays, bias: FloatArray,
+    height_model: tuple[float, float] | None = None,
+) -> RayExcess | None:
+    """``excess`` when it was traced near the plots corrected by ``bias``, else traced again there.
+
+    The linearised excess is exact at its centre and its error grows as the square of
+    the distance from it (measured: 1 cm at 0.2 mrad and 7 cm at 0.5 mrad of elevation,
+    300 km, N_s = 320), so an iterative solver keeps it centred on its current
+    estimate within :data:`RAY_EXCESS_RANGE_TOLERANCE_M` and
+    :data:`RAY_EXCESS_ELEVATION_TOLERANCE_RAD`; near convergence no ray is traced again.
+    """
+    if site.atmosphere is None:
+        return None
+    offset, gain, _, el_bias = (float(v) for v in bias)
+    r = (plots.range_m - offset) / (1.0 + gain)
+    if site.is_3d:
+        corrected = replace(plots, range_m=r, elevation_rad=plots.elevation_rad - el_bias)
+    elif height_model is not None:
+        height_offset, scale = (float(v) for v in height_model)
+        corrected = replace(plots, range_m=r,
+                            altitude_m=(1.0 + scale) * plots.altitude_m + height_offset)
+    else:
+        corrected = replace(plots, range_m=r)
+    if excess is not None:
+        near = np.abs(np.nan_to_num(corrected.range_m) - excess.range_m
+                      ) <= RAY_EXCESS_RANGE_TOLERANCE_M
+        if site.is_3d:
+            near &= np.abs(np.nan_to_num(corrected.elevation_rad) - excess.elevation_rad
+                           ) <= RAY_EXCESS_ELEVATION_TOLERANCE_RAD
+        else:
+            near &= np.abs(np.nan_to_num(corrected.altitude_m) - excess.height_m
+                           ) <= RAY_EXCESS_RANGE_TOLERANCE_M
+        if near.all():
+            return excess
+    return ray_excess(site, corrected)
+
+
+def _add_ray_excess(refraction: RayExcess, r: FloatArray, az: FloatArray, el: FloatArray,
+                    straight_jac: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Straight-line ENU of ``(r, az, el)`` plus the linearised ray excess, and
+    ``d enu / d (r, az, el)``."""
+    step = np.stack([r - refraction.range_m, el - refraction.elevation_rad], axis=1)
+    plane = refraction.plane_m + np.einsum("nij,nj->ni", refraction.plane_jacobian, step)
+    sin_az, cos_az = np.sin(az), np.cos(az)
+    enu = frames.polar_to_enu(r, az, el)
+    enu[:, 0] += plane[:, 0] * sin_az
+    enu[:, 1] += plane[:, 0] * cos_az
+    enu[:, 2] += plane[:, 1]
+    jac = straight_jac.copy()
+    g_jac, u_jac = refraction.plane_jacobian[:, 0, :], refraction.plane_jacobian[:, 1, :]
+    for column, k in ((0, 0), (2, 1)):
+        jac[:, 0, column] += g_jac[:, k] * sin_az
+        jac[:, 1, column] += g_jac[:, k] * cos_az
+        jac[:, 2, column] += u_jac[:, k]
+    jac[:, 0, 1] += plane[:, 0] * cos_az
+    jac[:, 1, 1] -= plane[:, 0] * sin_az
+    return enu, jac
 
 
 def _refracted_plot_geometry(

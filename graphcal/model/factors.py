@@ -32,7 +32,13 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.data.align import PlotArrays
 from graphcal.data.dataset import Site
-from graphcal.model.cross_radar import convert_plots, corrected_ecef
+from graphcal.model.cross_radar import (
+    RayExcess,
+    convert_plots,
+    corrected_ecef,
+    ray_excess,
+    ray_excess_near,
+)
 from graphcal.model.height import placeable_over_prior
 from graphcal.model.measurement import RadarMeasurementModel
 from graphcal.model.parameters import TERM_NAMES, RadarTerms
@@ -219,6 +225,11 @@ class PairwiseFactor:
     height ``(1 + k) p + d`` of their pressure altitude ``p``, and the factor has a
     third variable, the height model ``(d, k)``
     (:func:`graphcal.model.cross_radar.corrected_ecef`).
+
+    Refraction: the plots of a radar with an atmosphere are placed along their
+    refracted rays through :class:`graphcal.model.cross_radar.RayExcess`, traced
+    again only when the biases move the corrected plots beyond its tolerance
+    (:func:`graphcal.model.cross_radar.ray_excess_near`), not at every iteration.
     """
 
     terms_a: RadarTerms
@@ -239,6 +250,8 @@ class PairwiseFactor:
     tau0_a: float = 0.0
     tau0_b: float = 0.0
     height_key: int | None = None
+    a_refraction: RayExcess | None = None
+    b_refraction: RayExcess | None = None
 
     @property
     def keys(self) -> list[int]:
@@ -265,8 +278,14 @@ class PairwiseFactor:
         then has two more columns, the residual's dependence on ``(d, k)`` through
         that radar's plots (their sum is ``d e / d (d, k)``).
         """
-        ecef_a, jac_a, _ = corrected_ecef(self.site_a, self.a_plots, bias_a, ecc_a, height)
-        ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b, ecc_b, height)
+        self.a_refraction = ray_excess_near(self.a_refraction, self.site_a, self.a_plots,
+                                            bias_a, height)
+        self.b_refraction = ray_excess_near(self.b_refraction, self.site_b, self.b_plots,
+                                            bias_b, height)
+        ecef_a, jac_a, _ = corrected_ecef(self.site_a, self.a_plots, bias_a, ecc_a, height,
+                                          self.a_refraction)
+        ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b, ecc_b, height,
+                                          self.b_refraction)
         w1 = self.weight[:, None]
         w0 = 1.0 - w1
         i0, i1 = self.i0, self.i0 + 1
@@ -372,5 +391,5 @@ def pairwise_factor(
     return PairwiseFactor(
         terms_a, terms_b, key_a, key_b, site_a, site_b, a_sub, b_sub, i0, weight, ib,
         whitening_matrices(cov), conv_a.cov_m2, conv_b.cov_m2, kernel, float(tau0_a),
-        float(tau0_b), height_key,
+        float(tau0_b), height_key, ray_excess(site_a, a_sub), ray_excess(site_b, b_sub),
     )

@@ -1,0 +1,83 @@
+"""Plots placed along refracted rays by the linearised ray excess
+(:class:`graphcal.model.cross_radar.RayExcess`) against the rays traced exactly."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from graphcal.data.align import plot_arrays
+from graphcal.model.cross_radar import (
+    RAY_EXCESS_ELEVATION_TOLERANCE_RAD,
+    RAY_EXCESS_RANGE_TOLERANCE_M,
+    corrected_ecef,
+    ray_excess,
+    ray_excess_near,
+)
+from graphcal.simulation.scenario import load_scenario
+from graphcal.simulation.simulate import simulate
+from tests.paths import SCENARIOS
+
+
+@pytest.fixture(scope="module")
+def dataset():
+    scenario = load_scenario(SCENARIOS / "demo_refraction.toml")
+    return simulate(scenario, np.random.default_rng(3)).dataset
+
+
+# OUEST3D: a 3-D radar; APP: a 2-D radar placing its plots at their reported heights.
+@pytest.mark.parametrize("radar", ["OUEST3D", "APP"])
+def test_placement_at_the_centre_is_the_traced_ray(dataset, radar: str) -> None:
+    """Where the excess was traced, positions and Jacobians equal the exact ray tracing."""
+    site, plots = dataset.sites[radar], plot_arrays(dataset, radar)
+    bias = np.array([30.0, 1e-4, 1e-3, 1e-3 if site.is_3d else 0.0])
+    excess = ray_excess_near(None, site, plots, bias)
+    exact, exact_jac, exact_ok = corrected_ecef(site, plots, bias)
+    fast, fast_jac, fast_ok = corrected_ecef(site, plots, bias, refraction=excess)
+    np.testing.assert_array_equal(fast_ok, exact_ok)
+    assert np.abs(fast[exact_ok] - exact[exact_ok]).max() < 1e-6
+    scale = np.abs(exact_jac[exact_ok]).max(axis=(0, 1))
+    assert np.all(np.abs(fast_jac[exact_ok] - exact_jac[exact_ok]).max(axis=(0, 1))
+                  <= 1e-9 * np.maximum(scale, 1.0))
+
+
+@pytest.mark.parametrize("radar", ["OUEST3D", "APP"])
+def test_placement_within_the_tolerance_stays_within_millimetres(dataset, radar: str) -> None:
+    """Corrections up to the re-tracing tolerance from the centre: under 5 mm from the exact
+    ray (the error grows as the square of the step; 0.1 mrad, 25 m here)."""
+    site, plots = dataset.sites[radar], plot_arrays(dataset, radar)
+    excess = ray_excess(site, plots)
+    bias = np.array([RAY_EXCESS_RANGE_TOLERANCE_M, 0.0, 2e-3,
+                     RAY_EXCESS_ELEVATION_TOLERANCE_RAD if site.is_3d else 0.0])
+    exact, _, ok = corrected_ecef(site, plots, bias)
+    fast, _, _ = corrected_ecef(site, plots, bias, refraction=excess)
+    error = np.linalg.norm(fast[ok] - exact[ok], axis=1)
+    assert error.max() < 5e-3
+    # Five times further in elevation: the linearisation alone is no longer enough.
+    if site.is_3d:
+        far = bias + np.array([0.0, 0.0, 0.0, 4 * RAY_EXCESS_ELEVATION_TOLERANCE_RAD])
+        exact, _, ok = corrected_ecef(site, plots, far)
+        fast, _, _ = corrected_ecef(site, plots, far, refraction=excess)
+        assert np.linalg.norm(fast[ok] - exact[ok], axis=1).max() > 1e-2
+
+
+def test_the_excess_is_traced_again_only_beyond_its_tolerance(dataset) -> None:
+    site, plots = dataset.sites["OUEST3D"], plot_arrays(dataset, "OUEST3D")
+    excess = ray_excess(site, plots)
+    near = np.array([0.5 * RAY_EXCESS_RANGE_TOLERANCE_M, 0.0, 5e-3,
+                     0.5 * RAY_EXCESS_ELEVATION_TOLERANCE_RAD])
+    assert ray_excess_near(excess, site, plots, near) is excess
+    for far in ([2 * RAY_EXCESS_RANGE_TOLERANCE_M, 0, 0, 0],
+                [0, 0, 0, 2 * RAY_EXCESS_ELEVATION_TOLERANCE_RAD]):
+        again = ray_excess_near(excess, site, plots, np.array(far, dtype=float))
+        assert again is not excess
+        np.testing.assert_allclose(again.range_m, np.nan_to_num(plots.range_m) - far[0])
+
+
+def test_no_atmosphere_no_excess(dataset) -> None:
+    site = replace(dataset.sites["NORD"], refraction="none")
+    plots = plot_arrays(dataset, "NORD")
+    assert ray_excess(site, plots) is None
+    assert ray_excess_near(None, site, plots, np.zeros(4)) is None
