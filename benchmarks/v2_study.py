@@ -1,17 +1,24 @@
 """Monte-Carlo study of contract version 2 all at once: refraction, pressure altitudes and
 an eccentric antenna (``scenarios/demo_v2.toml``), with and without ADS-B.
 
-Usage: ``.venv/bin/python -m benchmarks.v2_study [--seeds 10]``.  Prints, per case, the
-largest |z| over seeds and parameters (z = error / reported sigma), the share of parameters
-within 3 sigma, the normalised error variance (mean z^2) and, per parameter, RMSE over the
-square root of the mean Cramér-Rao variance; writes benchmarks/results/v2_study.json.
+Usage: ``.venv/bin/python -m benchmarks.v2_study [--seeds 10] [--jobs 2]``.  Prints, per
+case, the largest |z| over seeds and parameters (z = error / reported sigma), the share of
+parameters within 3 sigma, the normalised error variance (mean z^2) and, per parameter, RMSE
+over the square root of the mean Cramér-Rao variance; writes benchmarks/results/v2_study.json.
+
+Reading the RMSE ratio: from ``n`` seeds an efficient estimator's ratio scatters as
+``sqrt(chi2_n / n)``, so the largest over ~40 parameters lands near its 99th percentile by
+chance alone (1.52 for 10 seeds, 1.17 for 100).  The study reports that bound beside the
+largest ratio, and the parameters above it.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -46,20 +53,29 @@ def _errors(cal, sim) -> dict[str, tuple[float, float, float]]:
     return out
 
 
+def _run(seed: int, use_adsb: bool) -> dict[str, tuple[float, float, float]]:
+    sim = simulate(load_scenario(ROOT / "scenarios" / "demo_v2.toml"),
+                   np.random.default_rng(1000 + seed))
+    return _errors(calibrate(sim.dataset, use_adsb=use_adsb, model_checks=False), sim)
+
+
 def main() -> None:
+    from scipy import stats
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     args = parser.parse_args()
-    scenario = load_scenario(ROOT / "scenarios" / "demo_v2.toml")
     report = {}
+    bound = float(np.sqrt(stats.chi2.ppf(0.99, args.seeds) / args.seeds))
     for use_adsb in (True, False):
         case = "with ADS-B" if use_adsb else "without ADS-B"
         rows: dict[str, list[tuple[float, float, float]]] = {}
         start = time.perf_counter()
-        for seed in range(args.seeds):
-            sim = simulate(scenario, np.random.default_rng(1000 + seed))
-            cal = calibrate(sim.dataset, use_adsb=use_adsb)
-            for label, row in _errors(cal, sim).items():
+        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+            runs = list(pool.map(_run, range(args.seeds), [use_adsb] * args.seeds))
+        for errors in runs:
+            for label, row in errors.items():
                 rows.setdefault(label, []).append(row)
         seconds = time.perf_counter() - start
         z = np.array([e / s for r in rows.values() for e, s, _ in r])
@@ -71,14 +87,17 @@ def main() -> None:
             "within_3_sigma": float(np.mean(np.abs(z) < 3.0)),
             "normalised_error_variance": float(np.mean(z**2)),
             "rmse_over_crlb": eff, "max_rmse_over_crlb": float(max(eff.values())),
+            "chance_bound_99": bound,
+            "above_chance_bound": sorted(k for k, v in eff.items() if v > bound),
             "seconds": seconds,
         }
         r = report[case]
         print(f"{case}: {args.seeds} seeds x {r['parameters']} parameters, max |z| "
               f"{r['max_abs_z']:.2f}, within 3 sigma {100 * r['within_3_sigma']:.1f} %, "
               f"NEV {r['normalised_error_variance']:.2f}, RMSE/sqrt(CRLB) max "
-              f"{r['max_rmse_over_crlb']:.2f} (median {np.median(list(eff.values())):.2f}), "
-              f"{seconds:.0f} s")
+              f"{r['max_rmse_over_crlb']:.2f} (median {np.median(list(eff.values())):.2f}; "
+              f"99 % chance bound {bound:.2f}, above it: "
+              f"{', '.join(r['above_chance_bound']) or 'none'}), {seconds:.0f} s")
     atomic_write_text(RESULTS, json.dumps(report, indent=2) + "\n")
     print(f"wrote {RESULTS.relative_to(ROOT)}")
 

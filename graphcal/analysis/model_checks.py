@@ -22,8 +22,8 @@ elevation, azimuth or time.  :func:`model_checks` looks for it, per radar:
    counting as the independent unit.
 3. **Beyond chance**: a test fires when its p-value is below
    ``family_false_alarm / n_tests`` (Bonferroni over the radar's tests, default
-   :data:`FAMILY_FALSE_ALARM`), so that on data the model fits about 1 % of
-   radars at most show a warning (``benchmarks/model_checks_study.py`` measures it).
+   :data:`FAMILY_FALSE_ALARM`), so that on data the model fits under 1 % of
+   radars show a warning (``benchmarks/model_checks_study.py`` measures it).
 4. **Words** (:mod:`graphcal.analysis.check_patterns`): a radar with a test that
    fired gets one warning line containing "unmodelled", naming the pattern
    (e.g. "growing towards the horizon", "sinusoidal in azimuth", "stepping near
@@ -59,8 +59,10 @@ from graphcal.data.bias import RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
 
-#: Family-wise false-alarm rate per radar (Bonferroni over its tests).
-FAMILY_FALSE_ALARM = 0.01
+#: Family-wise false-alarm rate per radar (Bonferroni over its tests).  Nominally 0.2 %:
+#: the tests are somewhat liberal without ADS-B (``benchmarks/model_checks_study.py``),
+#: and at this rate under 1 % of radars are warned about on data the model fits.
+FAMILY_FALSE_ALARM = 0.002
 
 #: Residual coordinates: unit and factor from SI.
 COORDINATES: dict[str, tuple[str, float]] = {

@@ -556,7 +556,7 @@ def _crlb_sigma(crlb: Any, rid: str, key: str) -> float | None:
 
 # ----------------------------------------------------------------- sections
 def _estimates_section(cal: Calibration, truth: Mapping[str, RadarBias] | None,
-                       crlb: Any) -> str:
+                       crlb: Any, truth_atmosphere: Mapping[str, Any] | None = None) -> str:
     header = ["radar", "parameter", "estimate", "± 1σ"]
     if truth is not None:
         header += ["truth", "error / σ"]
@@ -584,9 +584,40 @@ def _estimates_section(cal: Calibration, truth: Mapping[str, RadarBias] | None,
                 eff = sigma / cs if cs and sigma is not None else None
                 row += [_fmt(cs, 3), _fmt(eff, 3)]
             rows.append(row)
+    rows += _atmosphere_rows(cal, truth_atmosphere, truth is not None, crlb is not None)
     units = ('<p class="note">Units: range_offset_m m, range_gain fraction, *_mrad mrad, '
              f"time_offset_s s. Method: {_esc(cal.method or '?')}.</p>")
+    if cal.atmosphere is not None:
+        units += ('<p class="note">atmosphere: the height model of pressure altitudes, '
+                  "height above the ellipsoid = (1 + height_scale) × pressure altitude + "
+                  "height_offset_m (contract v2).</p>")
     return _table(header, rows, left=2) + units
+
+
+def _atmosphere_rows(cal: Calibration, truth: Mapping[str, Any] | None, truth_columns: bool,
+                     crlb_columns: bool) -> list[list[str]]:
+    """Rows of the estimates table for the height model (``atmosphere`` block), if any."""
+    atmosphere = cal.atmosphere
+    if atmosphere is None:
+        return []
+    rows = []
+    recorded = cal.info.get("crlb_sigma") or {}
+    for i, key in enumerate(("height_offset_m", "height_scale")):
+        value, sigma = getattr(atmosphere, key), atmosphere.sigma.get(key)
+        shown = _fmt(value)
+        if not atmosphere.determined or f"atmosphere.{key}" in cal.info.get("undetermined", []):
+            shown = "not determined"
+        row = ["atmosphere" if i == 0 else "", _esc(key), shown,
+               "–" if sigma is None else _fmt(sigma, 3)]
+        if truth_columns:
+            true = (truth or {}).get(key)
+            row += (["–", "–"] if true is None else
+                    [_fmt(true), _fmt((value - true) / sigma if sigma else math.nan, 2)])
+        if crlb_columns:
+            cs = recorded.get(f"atmosphere.{key}")
+            row += [_fmt(cs, 3), _fmt(sigma / cs if cs and sigma else None, 3)]
+        rows.append(row)
+    return rows
 
 
 def key_name(key: str) -> str:
@@ -668,6 +699,19 @@ def _as_truth(truth: Any) -> dict[str, RadarBias] | None:
     return {str(k): v for k, v in truth.items()}
 
 
+def _truth_atmosphere(truth: Any) -> dict[str, Any] | None:
+    """The true height model of a truth file or Calibration, when it has one."""
+    if isinstance(truth, str | Path):
+        import json
+
+        block = json.loads(Path(truth).read_text()).get("atmosphere")
+        return block if isinstance(block, dict) else None
+    if isinstance(truth, Calibration) and truth.atmosphere is not None:
+        return {"height_offset_m": truth.atmosphere.height_offset_m,
+                "height_scale": truth.atmosphere.height_scale}
+    return None
+
+
 def build_report(
     calibration: Calibration,
     dataset: Dataset,
@@ -727,7 +771,7 @@ def build_report(
         return _img(_figure_png(fig), alt)
 
     body: dict[str, str] = {}
-    est = _estimates_section(calibration, truth_biases, crlb)
+    est = _estimates_section(calibration, truth_biases, crlb, _truth_atmosphere(truth))
     if crlb_note:
         est += f'<p class="note">CRLB column omitted: {_esc(crlb_note)}.</p>'
     body["estimates"] = est

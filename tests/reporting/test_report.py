@@ -174,3 +174,33 @@ def test_model_checks_section(scenario) -> None:
     bare = build_report(cal, dataset, crlb=False)
     note = bare.split('<h2 id="model-checks">')[1].split("<h2 id=")[0]
     assert "No model checks recorded" in note and not _images(note)
+
+
+@pytest.mark.parametrize("determined", [True, False])
+def test_report_estimates_show_the_height_model(tmp_path, scenario, determined) -> None:
+    """A result with an ``atmosphere`` block (contract v2): its two parameters are rows of
+    the estimates table, with the truth of a truth.json and their z-scores."""
+    import dataclasses
+    import json
+
+    from graphcal.data.height import HeightModelEstimate
+
+    dataset, cal = scenario
+    estimate = HeightModelEstimate(190.0, 0.021, np.diag([4.0**2, 1e-3**2]),
+                                   np.array([500.0, 0.05]), determined=determined)
+    with_height = dataclasses.replace(cal, atmosphere=estimate)
+    truth = tmp_path / "truth.json"
+    truth.write_text(json.dumps({"radars": {}, "atmosphere": {
+        "height_offset_m": 184.0, "height_scale": 0.02, "sigma": {}}}))
+    page = build_report(with_height, dataset, truth=truth, crlb=False)
+    estimates = page.split('<h2 id="estimates">')[1].split("<h2 ")[0]
+    rows = re.findall(r"<tr>(.*?)</tr>", estimates, flags=re.S)
+    offset = next(r for r in rows if ">height_offset_m<" in r)
+    scale = next(r for r in rows if ">height_scale<" in r)
+    assert "atmosphere" in offset
+    if determined:
+        assert ">190<" in offset and ">4<" in offset and ">184<" in offset
+        assert ">1.5<" in offset  # (190 - 184) / 4
+        assert ">1<" in scale  # (0.021 - 0.02) / 0.001
+    else:
+        assert "not determined" in offset and "not determined" in scale
