@@ -121,8 +121,8 @@ def calibrate_command(
             help="After the estimate, bin each radar's residuals against range \\[km], "
             "elevation \\[deg] or height \\[km], azimuth \\[deg] and time \\[s] and warn "
             "('unmodelled ...') when their structure is beyond chance (false alarms on "
-            "under 1 % of radars): refraction, pressure altitudes, antenna eccentricity, a drifting "
-            "bias. --no-model-checks skips them.",
+            "under 1 % of radars): refraction, pressure altitudes, antenna eccentricity, a "
+            "drifting bias. --no-model-checks skips them.",
         ),
     ] = True,
     cat063: Annotated[

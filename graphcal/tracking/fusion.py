@@ -162,6 +162,25 @@ def fuse_equal_weights(
 CalibrationLike = Calibration | Mapping[str, RadarBias] | str | Path
 
 
+def height_model_of(calibration: CalibrationLike | None, dataset: Dataset
+                  ) -> tuple[float, float] | None:
+    """``(height_offset_m, height_scale)`` to place 2-D plots whose altitudes are pressure
+    altitudes (contract v2), from the calibration's ``atmosphere`` block; ``None`` when
+    the dataset's altitudes are geometric or the calibration has no height model."""
+    if not dataset.pressure_altitudes or calibration is None:
+        return None
+    if isinstance(calibration, str | Path):
+        import json
+
+        block = json.loads(Path(calibration).read_text()).get("atmosphere")
+        if not isinstance(block, dict):
+            return None
+        return float(block["height_offset_m"]), float(block["height_scale"])
+    if isinstance(calibration, Calibration) and calibration.atmosphere is not None:
+        return calibration.atmosphere.height_offset_m, calibration.atmosphere.height_scale
+    return None
+
+
 def _biases(calibration: CalibrationLike | None, radar_ids: list[str]) -> dict[str, RadarBias]:
     """Biases per radar of the dataset (radars the calibration lacks are not corrected)."""
     if calibration is None:
@@ -305,6 +324,7 @@ def _radar_tracks(
     q_m2_s3: float,
     grid_s: float,
     max_gap_s: float | None,
+    height_model: tuple[float, float] | None = None,
 ) -> tuple[_RadarTracks | None, dict[str, int]]:
     site = dataset.sites[radar_id]
     plots = plot_arrays(dataset, radar_id)
@@ -312,7 +332,11 @@ def _radar_tracks(
     if bias is None:
         ecef, usable, time_s = converted.ecef_m, converted.usable, plots.time_s
     else:
-        ecef, _, usable = corrected_ecef(site, plots, bias.as_vector())
+        eccentricity = None
+        if bias.azimuth_sin_rad or bias.azimuth_cos_rad:
+            eccentricity = (bias.azimuth_sin_rad, bias.azimuth_cos_rad)
+        ecef, _, usable = corrected_ecef(site, plots, bias.as_vector(), eccentricity,
+                                         None if site.is_3d else height_model)
         time_s = plots.time_s - bias.time_offset_s
     has_target = np.array([bool(t) for t in plots.target_id], dtype=bool)
     keep = usable & has_target & np.all(np.isfinite(ecef), axis=1)
@@ -380,8 +404,10 @@ def fuse_dataset(
     Per radar: plots with a ``target_id`` are converted to ECEF (raw, or
     corrected by the calibration's biases with
     :func:`graphcal.model.cross_radar.corrected_ecef` and the time offset
-    removed), each with its converted noise covariance ``J R_polar J^T`` from the
-    site's sigmas (paper 002 eq. 19; calibration does not change the sigmas).
+    removed; an azimuth eccentricity is removed too, and with pressure altitudes
+    a 2-D plot is placed at the height the calibration's height model gives),
+    each with its converted noise covariance ``J R_polar J^T`` from the site's
+    sigmas (paper 002 eq. 19; calibration does not change the sigmas).
     Each aircraft's plots are split into tracks at gaps over ``max_gap_s`` and
     run through the CV Kalman filter (two-point start, per-plot converted ``R``).
     Each track is predicted to the grid times ``k * grid_s`` within its span
@@ -444,6 +470,7 @@ def fuse_dataset(
         raise ValueError("reference must be 'adsb', a DataFrame or a callable")
     radar_ids = dataset.radar_ids
     biases = _biases(calibration, radar_ids)
+    height_model = height_model_of(calibration, dataset)
     total = len(radar_ids) + 1
     timing: dict[str, float] = {}
     counts = {"segments": 0, "plots_used": 0, "plots_unusable": 0}
@@ -451,7 +478,8 @@ def fuse_dataset(
     t0 = time.perf_counter()
     for i, rid in enumerate(radar_ids):
         tracks, c = _radar_tracks(
-            dataset, rid, biases.get(rid), q_m2_s3=q_m2_s3, grid_s=grid_s, max_gap_s=max_gap_s
+            dataset, rid, biases.get(rid), q_m2_s3=q_m2_s3, grid_s=grid_s, max_gap_s=max_gap_s,
+            height_model=height_model,
         )
         for key in counts:
             counts[key] += c[key]
