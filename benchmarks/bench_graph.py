@@ -28,6 +28,13 @@ aircraft, ADS-B on 70 % of them): simulation time, then the end-to-end
 factors, Huber kernel), its timing breakdown and its accuracy against the
 simulated truth, ``z = (estimate - truth) / sigma`` per parameter.
 
+Part 3 - refraction.  The same network with every radar looking through the
+exponential atmosphere of contract v2 (``N_s = 320``, ``H = 7 km``): the same
+seed simulates the same traffic along refracted rays, and ``graph(dataset)``
+runs end to end with the refraction declared.  Its time over part 2's (same
+run) is the cost of refraction; the target is under
+``TARGET_REFRACTION_RATIO``.  ``--network-only`` runs parts 2 and 3 alone.
+
 The figures are printed as tables and written to
 ``benchmarks/results/bench_graph.json`` (``--quick`` overwrites it too, with
 ``"quick": true``).  Every simulation is seeded with an
@@ -96,6 +103,8 @@ AGREEMENT_TOLERANCE_SIGMA = 0.01
 TARGET_RATIO = 1.5
 #: ... and the end-to-end network calibration under this many seconds.
 TARGET_NETWORK_S = 60.0
+#: Part 3 target: the network's graph(dataset) time with refraction over without.
+TARGET_REFRACTION_RATIO = 1.3
 
 
 # --------------------------------------------------------------------------- helpers
@@ -600,6 +609,57 @@ def bench_network(base: Scenario, profile: bool) -> dict[str, Any]:
     return out
 
 
+def refracted(base: Scenario) -> Scenario:
+    """The scenario with every radar's rays refracted (contract v2, ``N_s = 320``, 7 km)."""
+    radars = tuple(replace(r, refraction="exponential", refractivity_n_s=320.0,
+                           refractivity_scale_height_m=7000.0) for r in base.radars)
+    return replace(base, radars=radars)
+
+
+def bench_refraction(base: Scenario, straight_s: float) -> dict[str, Any]:
+    """Part 3: part 2's network with refraction on, simulated then calibrated the same way.
+
+    Parameters
+    ----------
+    base : Scenario
+        The benchmark scenario, unchanged (refraction is switched on here).
+    straight_s : float
+        Part 2's ``graph(dataset)`` time, same run [s].
+    """
+    print(f"\n[part 3] simulating {base.name} with refraction (seed {NETWORK_SEED}) ...",
+          flush=True)
+    sim, t_sim = timed(simulate, refracted(base), np.random.default_rng(NETWORK_SEED))
+    print(f"  {len(sim.dataset.plots)} plots in {t_sim:.1f} s; calibrating ...", flush=True)
+    cal, t_graph = timed(graph, sim.dataset)
+    z = np.array([r["z"] for r in accuracy(cal, sim)])
+    ratio = t_graph / straight_s
+    return {
+        "n_plots": len(sim.dataset.plots), "simulation_s": t_sim, "graph_s": t_graph,
+        "straight_graph_s": straight_s, "ratio": ratio,
+        "timing_s": dict(cal.info["timing_s"]), "iterations": int(cal.info["iterations"]),
+        "max_abs_z": float(np.max(np.abs(z))), "mean_z2": float(np.mean(z**2)),
+        "target_ratio": TARGET_REFRACTION_RATIO,
+        "target_pass": bool(ratio < TARGET_REFRACTION_RATIO),
+    }
+
+
+def print_part3(r: dict[str, Any]) -> None:
+    """Print the part 3 table."""
+    t = r["timing_s"]
+    rows = [
+        ["plots", f"{r['n_plots']:,}"],
+        ["graph(dataset) straight (part 2) [s]", f"{r['straight_graph_s']:.2f}"],
+        ["graph(dataset) refracted [s]", f"{r['graph_s']:.2f}"],
+        ["  factors / initialisation", f"{t.get('factors_s', 0.0):.2f} / "
+                                       f"{t.get('initialisation_s', 0.0):.2f}"],
+        ["  optimisation / marginals", f"{t.get('optimisation_s', 0.0):.2f} / "
+                                       f"{t.get('marginals_s', 0.0):.2f}"],
+        ["refracted / straight", f"{r['ratio']:.2f}"],
+        ["max |z|, mean z^2", f"{r['max_abs_z']:.2f}, {r['mean_z2']:.2f}"],
+    ]
+    print_table("PART 3: the network with refraction (N_s = 320, H = 7 km)", ["", "value"], rows)
+
+
 def print_part2(r: dict[str, Any]) -> None:
     """Print the part 2 tables."""
     t = r["timing_s"]
@@ -669,6 +729,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true",
                         help="only the 40k size of part 1, no part 2")
+    parser.add_argument("--network-only", action="store_true",
+                        help="only parts 2 and 3 (the network, straight and refracted)")
     parser.add_argument("--profile", action="store_true",
                         help="also print a cProfile of part 2's graph(dataset) (extra run)")
     args = parser.parse_args(argv)
@@ -678,13 +740,17 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load average at start: {env['load_average_1_5_15min'][0]:.2f} "
           f"on {env['cpu_count']} CPUs (timings are wall times: other load inflates them)")
     base = load_scenario(SCENARIO_PATH)
-    sizes = SIZES[:1] if args.quick else SIZES
+    sizes = [] if args.network_only else SIZES[:1] if args.quick else SIZES
     part1 = [bench_size(label, n, seed, base) for label, n, seed in sizes]
     part2 = None if args.quick else bench_network(base, args.profile)
+    part3 = None if part2 is None else bench_refraction(base, part2["graph_s"])
 
-    print_part1(part1)
+    if part1:
+        print_part1(part1)
     if part2 is not None:
         print_part2(part2)
+    if part3 is not None:
+        print_part3(part3)
     print("\nTARGETS")
     for r in part1:
         verdict = "PASS" if r["target_pass"] else "FAIL"
@@ -695,6 +761,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {verdict}  network graph(dataset) = {part2['graph_s']:.1f} s "
               f"< {TARGET_NETWORK_S:.0f} s (simulation {part2['simulation_s']:.1f} s "
               "not included)")
+    if part3 is not None:
+        verdict = "PASS" if part3["target_pass"] else "FAIL"
+        print(f"  {verdict}  network with refraction / without = {part3['ratio']:.2f} "
+              f"< {TARGET_REFRACTION_RATIO}")
     peak = peak_rss_mib()
     print(f"\npeak memory (ru_maxrss): {peak:.0f} MiB; wall time "
           f"{time.perf_counter() - start:.0f} s")
@@ -706,6 +776,7 @@ def main(argv: list[str] | None = None) -> int:
         "environment": env,
         "part1": part1,
         "part2": part2,
+        "part3": part3,
         "peak_rss_mib": peak,
         "wall_time_s": time.perf_counter() - start,
     }

@@ -65,10 +65,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--case", choices=("both", "adsb", "cross"), default="both",
+                        help="run one case only and update its entry in the JSON")
     args = parser.parse_args()
-    report = {}
+    report = json.loads(RESULTS.read_text()) if args.case != "both" and RESULTS.exists() else {}
+    cases = {"both": (True, False), "adsb": (True,), "cross": (False,)}[args.case]
     bound = float(np.sqrt(stats.chi2.ppf(0.99, args.seeds) / args.seeds))
-    for use_adsb in (True, False):
+    for use_adsb in cases:
         case = "with ADS-B" if use_adsb else "without ADS-B"
         rows: dict[str, list[tuple[float, float, float]]] = {}
         start = time.perf_counter()

@@ -17,10 +17,17 @@ Consecutive reports of one aircraft are not independent: a GNSS vertical error
 and the local departure of the atmosphere from one linear model persist for
 minutes, and a level aircraft's 25 ft quantisation error is the same in every
 report.  A report-by-report factor with the white report noise would therefore
-be far too confident.  :func:`adsb_height_segments` cuts each aircraft's
-reports into segments of :data:`SEGMENT_S` seconds and keeps one measurement
-per segment, the segment means (the model is linear, so the mean residual is
-the residual of the means), with the variance
+be far too confident.  :func:`adsb_height_segments` groups each aircraft's
+reports into segments and keeps one measurement per segment, the segment means
+(the model is linear, so the mean residual is the residual of the means):
+
+- *level*: all the reports of one aircraft at one reported pressure altitude,
+  when there are at least :data:`MIN_LEVEL_REPORTS` of them, however long the
+  aircraft stays there (they share one quantisation error);
+- *climbing or descending*: the other reports, cut into pieces of
+  :data:`SEGMENT_S` seconds,
+
+with the variance
 
     sigma^2 = mean(sigma_v^2) / n + q^2 / 12 + sigma_c^2,
 
@@ -55,6 +62,8 @@ HEIGHT_PRIOR_SIGMA: tuple[float, float] = (1000.0, 0.1)
 SEGMENT_S = 60.0
 #: Quantum [m] of a reported pressure altitude (25 ft).
 BARO_QUANTUM_M = 25.0 * FOOT_M
+#: Fewest reports of one aircraft at one reported pressure altitude that form a level segment.
+MIN_LEVEL_REPORTS = 3
 #: Correlated 1-sigma [m] of a segment mean that averaging does not remove (GNSS vertical
 #: errors and the atmosphere's local departure from one linear model).
 CORRELATED_SIGMA_M = 3.0
@@ -102,7 +111,8 @@ def adsb_height_segments(
         The dataset's ADS-B table (``time_s``, ``target_id``, ``alt_m``, ``sigma_m``
         and, for any segment at all, ``baro_alt_m``).
     segment_s : float
-        Segment length [s]; an aircraft's segments start at its first report.
+        Length [s] of the climbing or descending segments; an aircraft's start at
+        its first such report.  Level segments are whole (module docstring).
     correlated_sigma_m : float
         The floor ``sigma_c`` [m].
 
@@ -128,8 +138,17 @@ def adsb_height_segments(
         "p": pressure[keep],
         "var_v": (ADSB_VERTICAL_SIGMA_RATIO * adsb["sigma_m"].to_numpy(dtype=float)[keep]) ** 2,
     })
-    start = table.groupby("target", sort=False)["time"].transform("min")
-    table["segment"] = np.floor((table["time"] - start) / segment_s).astype(np.int64)
+    at_level = table.groupby(["target", "p"], sort=False)["time"].transform("size")
+    level = (at_level >= MIN_LEVEL_REPORTS).to_numpy()
+    moving = table[~level]
+    start = moving.groupby("target", sort=False)["time"].transform("min")
+    pieces = np.floor((moving["time"] - start) / segment_s).astype(np.int64)
+    # Level segments: one per (aircraft, pressure altitude), numbered apart from the pieces.
+    levels = pd.factorize(pd.MultiIndex.from_frame(table.loc[level, ["target", "p"]]))[0]
+    segment = np.empty(len(table), dtype=np.int64)
+    segment[~level] = pieces.to_numpy()
+    segment[level] = -1 - levels
+    table["segment"] = segment
     means = table.groupby(["target", "segment"], sort=True).agg(
         time=("time", "mean"), h=("h", "mean"), p=("p", "mean"), var_v=("var_v", "mean"),
         n=("time", "size"),

@@ -131,11 +131,13 @@ def test_corrected_ecef_height_columns(rid: str) -> None:
 
 # --------------------------------------------------------------------------- ADS-B
 def _adsb_table() -> pd.DataFrame:
-    """Two aircraft at 1 Hz: 150 and 45 reports, heights of the true model plus noise."""
+    """Three aircraft at 1 Hz, heights of the true model plus noise: one level (150
+    reports), one climbing (45) and one descending (130)."""
     rng = np.random.default_rng(11)
     rows = []
     for target, n, start, p0, climb in (("aa0001", 150, 10.0, 9000.0, 0.0),
-                                        ("aa0002", 45, 30.0, 3000.0, 8.0)):
+                                        ("aa0002", 45, 30.0, 3000.0, 8.0),
+                                        ("aa0003", 130, 0.0, 5000.0, -6.0)):
         t = start + np.arange(n)
         p = p0 + climb * (t - start)
         h = TRUE_HEIGHT.geometric(p) + rng.normal(0.0, 15.0, n)
@@ -150,10 +152,11 @@ def _adsb_table() -> pd.DataFrame:
 def test_segments_are_means_with_the_documented_sigma() -> None:
     table = _adsb_table()
     seg = adsb_height_segments(table)
-    # aa0001: reports 0-59 (one without baro_alt_m), 60-119, 120-149; aa0002: 0-44.
-    assert seg.n_reports.tolist() == [59, 60, 30, 45]
-    assert seg.target_id.tolist() == ["aa0001"] * 3 + ["aa0002"]
-    first = table.iloc[[i for i in range(60) if i != 5]]
+    # aa0001 level: one segment of its 149 reports with baro_alt_m, however long;
+    # aa0002 climbing: 0-44 s; aa0003 descending: 0-59, 60-119, 120-129 s.
+    assert seg.n_reports.tolist() == [149, 45, 60, 60, 10]
+    assert seg.target_id.tolist() == ["aa0001", "aa0002"] + ["aa0003"] * 3
+    first = table.iloc[[i for i in range(150) if i != 5]]
     assert seg.geometric_m[0] == pytest.approx(first["alt_m"].mean())
     assert seg.pressure_m[0] == pytest.approx(first["baro_alt_m"].mean())
     assert seg.time_s[0] == pytest.approx(first["time_s"].mean())
@@ -169,7 +172,7 @@ def test_adsb_height_factor_jacobian_and_truth() -> None:
     table = _adsb_table()
     table["alt_m"] = TRUE_HEIGHT.geometric(table["baro_alt_m"])  # noise-free
     f = AdsbHeightFactor(3, adsb_height_segments(table), RobustKernel("none"))
-    assert f.keys == [3] and f.dimension == 4
+    assert f.keys == [3] and f.dimension == 5
     truth = TRUE_HEIGHT.as_vector()
     assert np.max(np.abs(f.whitened([truth])[0])) < 1e-9
     x = np.array([100.0, 0.01])
@@ -177,7 +180,7 @@ def test_adsb_height_factor_jacobian_and_truth() -> None:
     numeric = numerical_jacobian(lambda v: f.whitened([v])[0], x, HEIGHT_STEPS)
     np.testing.assert_allclose(jac, numeric, rtol=1e-7)
     e, (flat,) = f.error([x], True)
-    assert e.shape == (4,) and flat.shape == (4, 2)
+    assert e.shape == (5,) and flat.shape == (5, 2)
 
 
 # --------------------------------------------------------------------------- placeable
