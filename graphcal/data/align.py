@@ -22,7 +22,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
-from graphcal.core.refraction import refracted_polar
+from graphcal.core.refraction import refracted_polar_jacobian
 from graphcal.data.dataset import Dataset, Site
 
 #: Default longest gap [s] between two ADS-B reports that is bridged by interpolation.
@@ -156,6 +156,10 @@ class AdsbAlignment:
         The radar's time-stamping bias assumed in the alignment: ADS-B is
         interpolated at ``time_s - time_offset_s`` (CONTRACT.md:
         ``time_reported = time_true + time_offset_s``).
+    reference_polar_jacobian : ndarray, shape (n, 3, 3), or None
+        ``d reference_polar / d enu`` (radar ENU) along the refracted rays, for a
+        radar with refraction (traced once here, used by the noise conversion and
+        the time-offset rates); ``None`` for straight lines.
     """
 
     radar_id: str
@@ -166,6 +170,7 @@ class AdsbAlignment:
     n_unmatched: int
     reference_velocity_ecef_m_s: FloatArray | None = None
     time_offset_s: float = 0.0
+    reference_polar_jacobian: FloatArray | None = None
 
     def __len__(self) -> int:
         return len(self.plots)
@@ -288,15 +293,16 @@ def align_adsb(
     cov[:, 0, 0] = var_h
     cov[:, 1, 1] = var_h
     cov[:, 2, 2] = ADSB_VERTICAL_SIGMA_RATIO**2 * var_h
+    jacobian = None
     if not len(plots):
         polar = np.zeros((0, 3))
     elif site.atmosphere is not None:  # contract v2: electrical length, apparent elevation
-        polar = np.stack(refracted_polar(site.atmosphere, site.lat_rad, site.alt_m,
-                                         site.enu_from_ecef(ref)), axis=-1)
+        polar, jacobian = refracted_polar_jacobian(site.atmosphere, site.lat_rad, site.alt_m,
+                                                   site.enu_from_ecef(ref))
     else:
         polar = np.stack(site.polar_from_ecef(ref), axis=-1)
     return AdsbAlignment(radar_id, plots, ref, polar, cov, int(n - matched.sum()), vel,
-                         float(time_offset_s))
+                         float(time_offset_s), jacobian)
 
 
 @dataclass

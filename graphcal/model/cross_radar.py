@@ -63,7 +63,8 @@ class ConvertedPlots:
 
 
 def convert_plots(
-    site: Site, plots: PlotArrays, linearise_at: PlotArrays | None = None
+    site: Site, plots: PlotArrays, linearise_at: PlotArrays | None = None,
+    refraction: RayExcess | None = None,
 ) -> ConvertedPlots:
     """Measured plots -> ECEF with d(ECEF)/d(bias) and the converted noise covariance.
 
@@ -72,8 +73,11 @@ def convert_plots(
     ``d el / d r = -(R_t^2 - R_r^2 + r^2) / (2 r^2 R_r cos el)`` enters the range
     column.  With ``linearise_at`` (e.g. :func:`graphcal.data.align.neighbour_plots`),
     the Jacobian and the covariance are evaluated there instead of at the plots.
+    ``refraction``: the plots' :class:`RayExcess` traced at the measured plots, so
+    that their rays are not traced again.
     """
-    geometry = _plot_geometry(site, plots.range_m, plots.azimuth_rad, plots)
+    geometry = _plot_geometry(site, plots.range_m, plots.azimuth_rad, plots,
+                              refraction=refraction)
     bias_jac = geometry.ecef_jacobian @ RadarMeasurementModel.bias_jacobian(plots.range_m)
     cov = geometry.cov_m2
     if linearise_at is not None:
@@ -343,6 +347,34 @@ RAY_EXCESS_RANGE_TOLERANCE_M = 25.0
 RAY_EXCESS_ELEVATION_TOLERANCE_RAD = 1e-4
 
 
+def _corrected_plots(site: Site, plots: PlotArrays, bias: FloatArray,
+                     height_model: tuple[float, float] | None) -> PlotArrays:
+    """``plots`` with the bias corrections that move a refracted ray: range, elevation
+    (3-D) and, with pressure altitudes, a 2-D radar's height."""
+    offset, gain, _, el_bias = (float(v) for v in bias)
+    r = (plots.range_m - offset) / (1.0 + gain)
+    if site.is_3d:
+        return replace(plots, range_m=r, elevation_rad=plots.elevation_rad - el_bias)
+    if height_model is not None:
+        height_offset, scale = (float(v) for v in height_model)
+        return replace(plots, range_m=r,
+                       altitude_m=(1.0 + scale) * plots.altitude_m + height_offset)
+    return replace(plots, range_m=r)
+
+
+def _traced_near(excess: RayExcess, site: Site, corrected: PlotArrays) -> bool:
+    """Whether every corrected plot is within the tolerances of where ``excess`` was traced."""
+    near = np.abs(np.nan_to_num(corrected.range_m) - excess.range_m
+                  ) <= RAY_EXCESS_RANGE_TOLERANCE_M
+    if site.is_3d:
+        near &= np.abs(np.nan_to_num(corrected.elevation_rad) - excess.elevation_rad
+                       ) <= RAY_EXCESS_ELEVATION_TOLERANCE_RAD
+    else:
+        near &= np.abs(np.nan_to_num(corrected.altitude_m) - excess.height_m
+                       ) <= RAY_EXCESS_RANGE_TOLERANCE_M
+    return bool(near.all())
+
+
 def ray_excess_near(
     excess: RayExcess | None, site: Site, plots: PlotArrays, bias: FloatArray,
     height_model: tuple[float, float] | None = None,
@@ -357,28 +389,64 @@ def ray_excess_near(
     """
     if site.atmosphere is None:
         return None
-    offset, gain, _, el_bias = (float(v) for v in bias)
-    r = (plots.range_m - offset) / (1.0 + gain)
-    if site.is_3d:
-        corrected = replace(plots, range_m=r, elevation_rad=plots.elevation_rad - el_bias)
-    elif height_model is not None:
-        height_offset, scale = (float(v) for v in height_model)
-        corrected = replace(plots, range_m=r,
-                            altitude_m=(1.0 + scale) * plots.altitude_m + height_offset)
-    else:
-        corrected = replace(plots, range_m=r)
-    if excess is not None:
-        near = np.abs(np.nan_to_num(corrected.range_m) - excess.range_m
-                      ) <= RAY_EXCESS_RANGE_TOLERANCE_M
-        if site.is_3d:
-            near &= np.abs(np.nan_to_num(corrected.elevation_rad) - excess.elevation_rad
-                           ) <= RAY_EXCESS_ELEVATION_TOLERANCE_RAD
-        else:
-            near &= np.abs(np.nan_to_num(corrected.altitude_m) - excess.height_m
-                           ) <= RAY_EXCESS_RANGE_TOLERANCE_M
-        if near.all():
-            return excess
+    corrected = _corrected_plots(site, plots, bias, height_model)
+    if excess is not None and _traced_near(excess, site, corrected):
+        return excess
     return ray_excess(site, corrected)
+
+
+class RayExcessCache:
+    """One radar's :class:`RayExcess`, shared by every factor that places its plots.
+
+    A radar's plot enters the pairwise factors of several partners; tracing its ray
+    once per bias estimate for all of them, rather than once per factor, is what this
+    is for.  It keeps the excess traced at the measured plots (for the noise
+    conversion) and the one traced nearest the latest biases asked for
+    (:func:`ray_excess_near`); :meth:`rows` maps dataset row labels to its rows.
+
+    Parameters
+    ----------
+    site : Site
+        A radar with refraction.
+    plots : PlotArrays
+        Every plot of it that a factor may use, any order.
+    """
+
+    def __init__(self, site: Site, plots: PlotArrays) -> None:
+        self.site = site
+        self.plots = plots
+        self._order = np.argsort(plots.index, kind="stable")
+        self._measured: RayExcess | None = None
+        self._latest: RayExcess | None = None
+
+    def covers(self, plots: PlotArrays) -> bool:
+        """Whether every plot of ``plots`` (by row label) is in the cache."""
+        rows = np.searchsorted(self.plots.index, plots.index, sorter=self._order)
+        rows = np.minimum(rows, len(self._order) - 1)
+        return bool(len(self._order)) and bool(
+            np.all(self.plots.index[self._order[rows]] == plots.index))
+
+    def rows(self, index: NDArray[np.int64]) -> NDArray[np.int64]:
+        """Positions in the cache of the plots with these dataset row labels."""
+        return self._order[np.searchsorted(self.plots.index, index, sorter=self._order)]
+
+    def measured(self) -> RayExcess:
+        """The excess traced at the measured plots."""
+        if self._measured is None:
+            self._measured = ray_excess(self.site, self.plots)
+        assert self._measured is not None
+        return self._measured
+
+    def near(self, bias: FloatArray, height_model: tuple[float, float] | None = None
+             ) -> RayExcess:
+        """The excess traced within tolerance of the plots corrected by ``bias``."""
+        corrected = _corrected_plots(self.site, self.plots, bias, height_model)
+        for excess in (self._latest, self._measured):
+            if excess is not None and _traced_near(excess, self.site, corrected):
+                return excess
+        self._latest = ray_excess(self.site, corrected)
+        assert self._latest is not None
+        return self._latest
 
 
 def _add_ray_excess(refraction: RayExcess, r: FloatArray, az: FloatArray, el: FloatArray,

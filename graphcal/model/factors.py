@@ -33,11 +33,9 @@ from graphcal.core import frames
 from graphcal.data.align import PlotArrays
 from graphcal.data.dataset import Site
 from graphcal.model.cross_radar import (
-    RayExcess,
+    RayExcessCache,
     convert_plots,
     corrected_ecef,
-    ray_excess,
-    ray_excess_near,
 )
 from graphcal.model.height import placeable_over_prior
 from graphcal.model.measurement import RadarMeasurementModel
@@ -227,9 +225,10 @@ class PairwiseFactor:
     (:func:`graphcal.model.cross_radar.corrected_ecef`).
 
     Refraction: the plots of a radar with an atmosphere are placed along their
-    refracted rays through :class:`graphcal.model.cross_radar.RayExcess`, traced
-    again only when the biases move the corrected plots beyond its tolerance
-    (:func:`graphcal.model.cross_radar.ray_excess_near`), not at every iteration.
+    refracted rays through the radar's
+    :class:`graphcal.model.cross_radar.RayExcessCache`, shared with its other pairs
+    and traced again only when the biases move the corrected plots beyond its
+    tolerance, not at every iteration.
     """
 
     terms_a: RadarTerms
@@ -250,8 +249,10 @@ class PairwiseFactor:
     tau0_a: float = 0.0
     tau0_b: float = 0.0
     height_key: int | None = None
-    a_refraction: RayExcess | None = None
-    b_refraction: RayExcess | None = None
+    a_rays: RayExcessCache | None = None
+    b_rays: RayExcessCache | None = None
+    a_rows: NDArray[np.int64] | None = None  # rows of a_plots in a_rays
+    b_rows: NDArray[np.int64] | None = None
 
     @property
     def keys(self) -> list[int]:
@@ -278,14 +279,14 @@ class PairwiseFactor:
         then has two more columns, the residual's dependence on ``(d, k)`` through
         that radar's plots (their sum is ``d e / d (d, k)``).
         """
-        self.a_refraction = ray_excess_near(self.a_refraction, self.site_a, self.a_plots,
-                                            bias_a, height)
-        self.b_refraction = ray_excess_near(self.b_refraction, self.site_b, self.b_plots,
-                                            bias_b, height)
+        rays_a = (None if self.a_rays is None
+                  else self.a_rays.near(bias_a, height).subset(self.a_rows))
+        rays_b = (None if self.b_rays is None
+                  else self.b_rays.near(bias_b, height).subset(self.b_rows))
         ecef_a, jac_a, _ = corrected_ecef(self.site_a, self.a_plots, bias_a, ecc_a, height,
-                                          self.a_refraction)
+                                          rays_a)
         ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b, ecc_b, height,
-                                          self.b_refraction)
+                                          rays_b)
         w1 = self.weight[:, None]
         w0 = 1.0 - w1
         i0, i1 = self.i0, self.i0 + 1
@@ -360,6 +361,8 @@ def pairwise_factor(
     tau0_a: float = 0.0,
     tau0_b: float = 0.0,
     height_key: int | None = None,
+    a_rays: RayExcessCache | None = None,
+    b_rays: RayExcessCache | None = None,
 ) -> PairwiseFactor | None:
     """Build the pairwise factor from :func:`graphcal.data.align.pair_plots` indices.
 
@@ -367,7 +370,9 @@ def pairwise_factor(
     2-D plot without reported height) are dropped.  ``None`` when nothing is left.
     ``tau0_a``, ``tau0_b``: the time offsets [s] the pairs were formed with;
     ``height_key``: the height-model variable, for pairs with a 2-D radar whose
-    plots carry pressure altitudes (the noise is converted at the reported heights).
+    plots carry pressure altitudes (the noise is converted at the reported heights);
+    ``a_rays``, ``b_rays``: the radars' shared refracted rays, when they refract
+    (made here for the factor alone when not given).
     """
     used_a = np.unique(np.concatenate([i0, i0 + 1]))
     used_b = np.unique(ib)
@@ -375,8 +380,14 @@ def pairwise_factor(
     b_sub = b_plots.subset(used_b)
     i0 = np.searchsorted(used_a, i0)
     ib = np.searchsorted(used_b, ib)
-    conv_a = convert_plots(site_a, a_sub)
-    conv_b = convert_plots(site_b, b_sub)
+    a_rays = _rays_for(site_a, a_plots, a_rays)
+    b_rays = _rays_for(site_b, b_plots, b_rays)
+    a_rows = None if a_rays is None else a_rays.rows(a_sub.index)
+    b_rows = None if b_rays is None else b_rays.rows(b_sub.index)
+    conv_a = convert_plots(site_a, a_sub, refraction=None if a_rays is None
+                           else a_rays.measured().subset(a_rows))
+    conv_b = convert_plots(site_b, b_sub, refraction=None if b_rays is None
+                           else b_rays.measured().subset(b_rows))
     ok = conv_b.usable[ib] & conv_a.usable[i0] & conv_a.usable[i0 + 1]
     if height_key is not None:  # pressure altitudes: the heights move with the model
         placeable_a = placeable_over_prior(site_a, a_sub)
@@ -391,5 +402,15 @@ def pairwise_factor(
     return PairwiseFactor(
         terms_a, terms_b, key_a, key_b, site_a, site_b, a_sub, b_sub, i0, weight, ib,
         whitening_matrices(cov), conv_a.cov_m2, conv_b.cov_m2, kernel, float(tau0_a),
-        float(tau0_b), height_key, ray_excess(site_a, a_sub), ray_excess(site_b, b_sub),
+        float(tau0_b), height_key, a_rays, b_rays, a_rows, b_rows,
     )
+
+
+def _rays_for(site: Site, plots: PlotArrays, rays: RayExcessCache | None
+              ) -> RayExcessCache | None:
+    """``rays`` when it holds ``plots``; a new cache of them for a refracting radar; else None."""
+    if site.atmosphere is None:
+        return None
+    if rays is not None and rays.covers(plots):
+        return rays
+    return RayExcessCache(site, plots)

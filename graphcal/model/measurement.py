@@ -142,7 +142,9 @@ def reference_polar_covariance(al: AdsbAlignment, site: Site | None = None) -> F
     an atmosphere.
     """
     if site is not None and site.atmosphere is not None:
-        _, jac = measurement_model(site).enu_jacobian(site.enu_from_ecef(al.reference_ecef_m))
+        jac = al.reference_polar_jacobian
+        if jac is None:
+            _, jac = measurement_model(site).enu_jacobian(site.enu_from_ecef(al.reference_ecef_m))
     else:
         enu = frames.polar_to_enu(*al.reference_polar.T)
         jac = frames.enu_to_polar_jacobian(enu)

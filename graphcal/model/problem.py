@@ -21,8 +21,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from graphcal.data.align import AdsbAlignment, align_adsb, pair_plots
+from graphcal.data.align import AdsbAlignment, align_adsb, pair_plots, plot_arrays
 from graphcal.data.dataset import Dataset, Site
+from graphcal.model.cross_radar import RayExcessCache
 from graphcal.model.factors import AdsbFactor, PairwiseFactor, adsb_factor, pairwise_factor
 from graphcal.model.height import AdsbHeightFactor, adsb_height_factor
 from graphcal.model.measurement import measurement_model, reference_polar_covariance
@@ -50,6 +51,7 @@ class Problem:
     target_state: Any = None
     height_key: int | None = None
     height: AdsbHeightFactor | None = None
+    rays: dict[str, RayExcessCache] = field(default_factory=dict)
 
     def variable_radars(self) -> list[str]:
         """Radars with at least one factor and one free term, in dataset order."""
@@ -81,7 +83,9 @@ def polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
     velocity = al.reference_velocity_ecef_m_s
     plausible = np.linalg.norm(velocity, axis=1) <= ADSB_MAX_SPEED_M_S
     velocity_enu = np.where(plausible[:, None], velocity, 0.0) @ site.ecef_to_enu.T
-    _, jac = measurement_model(site).enu_jacobian(enu)
+    jac = al.reference_polar_jacobian
+    if jac is None or site.atmosphere is None:
+        _, jac = measurement_model(site).enu_jacobian(enu)
     return np.einsum("nij,nj->ni", jac, velocity_enu)
 
 
@@ -124,6 +128,7 @@ def build_factors(
     if cross != "pairwise":
         return
     rest = without_plots(dataset, np.concatenate(matched) if matched else np.zeros(0, np.int64))
+    _share_rays(rest, problem)
     todo = [(a, b) for i, a in enumerate(radar_ids) for b in radar_ids[i + 1:]]
     for n, (ra, rb) in enumerate(todo):
         pairs = pair_plots(rest, ra, rb, pair_max_gap_s, shift_s=tau0[ra] - tau0[rb])
@@ -136,10 +141,22 @@ def build_factors(
             dataset.sites[ra], dataset.sites[rb], problem.terms[ra], problem.terms[rb],
             problem.keys[ra], problem.keys[rb], pairs.a_plots, pairs.b_plots,
             pairs.a_index0, pairs.weight, pairs.b_index, kernel, tau0[ra], tau0[rb],
-            None if both_3d else problem.height_key,
+            None if both_3d else problem.height_key, problem.rays.get(ra), problem.rays.get(rb),
         )
         if factor is not None:
             problem.pairs.append(factor)
+
+
+def _share_rays(rest: Dataset, problem: Problem) -> None:
+    """One :class:`RayExcessCache` per refracting radar over the plots left for pairs,
+    kept from an earlier build when it still holds them all."""
+    for rid, site in rest.sites.items():
+        if site.atmosphere is None:
+            continue
+        plots = plot_arrays(rest, rid)
+        old = problem.rays.get(rid)
+        if old is None or len(old.plots) != len(plots) or not old.covers(plots):
+            problem.rays[rid] = RayExcessCache(site, plots)
 
 
 def radars_with_adsb(dataset: Dataset) -> set[str]:
