@@ -26,7 +26,7 @@ from graphcal.analysis.binned_test import (
     segment_codes,
 )
 from graphcal.analysis.check_patterns import cause, describe
-from graphcal.analysis.model_checks import model_checks
+from graphcal.analysis.model_checks import FAMILY_FALSE_ALARM, model_checks
 from graphcal.data.dataset import Dataset
 from graphcal.simulation.scenario import load_scenario
 from graphcal.simulation.simulate import simulate
@@ -369,7 +369,7 @@ def test_only_the_radar_with_the_effect_is_warned_about(demo) -> None:
 def test_result_is_json_ready_with_units_in_the_names(demo) -> None:
     checks = model_checks(demo.dataset, METHODS["ls"](demo.dataset))
     data = json.loads(json.dumps(checks.to_dict(), allow_nan=False))
-    assert data["reference"] == "adsb" and data["family_false_alarm"] == 0.01
+    assert data["reference"] == "adsb" and data["family_false_alarm"] == FAMILY_FALSE_ALARM == 0.002
     est3d = data["radars"]["EST3D"]
     assert est3d["threshold_p"] == pytest.approx(0.01 / est3d["n_tests"])
     assert set(est3d["chi2_per_dof"]) == {"range_m", "azimuth_mrad", "elevation_mrad"}
