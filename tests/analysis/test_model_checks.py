@@ -371,7 +371,7 @@ def test_result_is_json_ready_with_units_in_the_names(demo) -> None:
     data = json.loads(json.dumps(checks.to_dict(), allow_nan=False))
     assert data["reference"] == "adsb" and data["family_false_alarm"] == FAMILY_FALSE_ALARM == 0.002
     est3d = data["radars"]["EST3D"]
-    assert est3d["threshold_p"] == pytest.approx(0.01 / est3d["n_tests"])
+    assert est3d["threshold_p"] == pytest.approx(FAMILY_FALSE_ALARM / est3d["n_tests"])
     assert set(est3d["chi2_per_dof"]) == {"range_m", "azimuth_mrad", "elevation_mrad"}
     test = next(t for t in est3d["tests"]
                 if (t["residual"], t["against"]) == ("elevation_mrad", "elevation_deg"))
