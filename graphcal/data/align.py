@@ -311,7 +311,17 @@ class PlotPairs:
 
     For pair ``k`` the radar-``a`` position is
     ``(1 - weight[k]) * a[a_index0[k]] + weight[k] * a[a_index0[k] + 1]`` in
-    terms of positions in :attr:`a_plots`.
+    terms of positions in :attr:`a_plots` (linear interpolation).
+
+    :attr:`a_index2` and :attr:`quadratic_weights` give the quadratic
+    interpolation through a third plot of the same track: ``sum_j
+    quadratic_weights[k, j] * a[(a_index0[k], a_index0[k] + 1, a_index2[k])[j]]``.
+    A straight chord between two plots cuts inside a turn, by ``a w (1 - w) dt^2 / 2``
+    (``a`` the aircraft's acceleration, ``dt`` the scan): 16 m at 2 m/s² and 8 s,
+    a systematic error that linear interpolation leaves in every pair of a turning
+    aircraft.  The third plot (the track's next plot on the side nearer ``b``'s
+    time, within the gap limit) takes it out to second order; where the track has
+    none, ``a_index2`` is ``-1`` and the weights are the linear ones.
     """
 
     radar_a: str
@@ -321,6 +331,8 @@ class PlotPairs:
     a_index0: NDArray[np.int64]
     weight: FloatArray
     b_index: NDArray[np.int64]
+    a_index2: NDArray[np.int64] | None = None
+    quadratic_weights: FloatArray | None = None
 
     def __len__(self) -> int:
         return len(self.b_index)
@@ -358,6 +370,8 @@ def pair_plots(
     a_index0: list[NDArray[np.int64]] = []
     weights: list[FloatArray] = []
     b_index: list[NDArray[np.int64]] = []
+    a_index2: list[NDArray[np.int64]] = []
+    quadratic: list[FloatArray] = []
     a_targets = a.target_id.astype(str)
     starts = {}
     for target in pd.unique(a_targets):
@@ -369,13 +383,68 @@ def pair_plots(
             continue
         lo, hi = starts[target]
         rows_b = np.flatnonzero(b_targets == target)
-        j, w, ok = bracket(a.time_s[lo:hi], b.time_s[rows_b] + shift_s, max_gap_s)
+        query = b.time_s[rows_b] + shift_s
+        j, w, ok = bracket(a.time_s[lo:hi], query, max_gap_s)
         a_index0.append(j[ok] + lo)
         weights.append(w[ok])
         b_index.append(rows_b[ok])
+        third, lagrange = quadratic_third(a.time_s[lo:hi], query[ok], j[ok], w[ok], max_gap_s)
+        a_index2.append(np.where(third >= 0, third + lo, -1))
+        quadratic.append(lagrange)
     if b_index:
         ia, ww, ib = np.concatenate(a_index0), np.concatenate(weights), np.concatenate(b_index)
+        i2, q = np.concatenate(a_index2), np.concatenate(quadratic)
     else:
         ia, ww, ib = np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64)
+        i2, q = np.zeros(0, np.int64), np.zeros((0, 3))
     order_b = np.argsort(b.time_s[ib], kind="stable")
-    return PlotPairs(radar_a, radar_b, a, b, ia[order_b], ww[order_b], ib[order_b])
+    return PlotPairs(radar_a, radar_b, a, b, ia[order_b], ww[order_b], ib[order_b],
+                     i2[order_b], q[order_b])
+
+
+def quadratic_third(
+    track_time_s: FloatArray, query_time_s: FloatArray, j: NDArray[np.int64], w: FloatArray,
+    max_gap_s: float,
+) -> tuple[NDArray[np.int64], FloatArray]:
+    """The third plot and the quadratic (Lagrange) weights of :class:`PlotPairs`.
+
+    For a query between samples ``j`` and ``j + 1`` (:func:`bracket`), the third
+    sample is ``j - 1`` or ``j + 2``, whichever is nearer the query in time, when
+    it exists and lies within ``max_gap_s`` of its neighbour.  The weights of
+    ``(j, j + 1, third)`` at time ``t`` are the Lagrange basis polynomials
+    ``L_i(t) = prod_{m != i} (t - t_m) / (t_i - t_m)``; without a third sample
+    they are ``(1 - w, w, 0)``.
+
+    Returns
+    -------
+    third : ndarray (m,) of int
+        Index of the third sample in ``track_time_s``, ``-1`` where there is none.
+    weights : ndarray (m, 3)
+        Weights of samples ``j``, ``j + 1`` and ``third``; they sum to 1.
+    """
+    n = len(track_time_s)
+    linear = np.stack([1.0 - w, w, np.zeros_like(w)], axis=1)
+    if n < 3 or len(j) == 0:
+        return np.full(len(j), -1, dtype=np.int64), linear
+    t0, t1 = track_time_s[j], track_time_s[np.minimum(j + 1, n - 1)]
+    before = j - 1
+    after = j + 2
+    ok_before = before >= 0
+    ok_after = after < n
+    t_before = track_time_s[np.maximum(before, 0)]
+    t_after = track_time_s[np.minimum(after, n - 1)]
+    ok_before &= (t0 - t_before) <= max_gap_s
+    ok_after &= (t_after - t1) <= max_gap_s
+    use_after = ok_after & (~ok_before | (t_after - query_time_s < query_time_s - t_before))
+    third = np.where(use_after, after, np.where(ok_before, before, -1))
+    has = third >= 0
+    t2 = track_time_s[np.clip(third, 0, n - 1)]
+    t = query_time_s
+    with np.errstate(invalid="ignore", divide="ignore"):
+        l0 = (t - t1) * (t - t2) / ((t0 - t1) * (t0 - t2))
+        l1 = (t - t0) * (t - t2) / ((t1 - t0) * (t1 - t2))
+        l2 = (t - t0) * (t - t1) / ((t2 - t0) * (t2 - t1))
+    weights = np.stack([l0, l1, l2], axis=1)
+    good = has & np.all(np.isfinite(weights), axis=1) & (t1 > t0)
+    return (np.where(good, third, -1).astype(np.int64),
+            np.where(good[:, None], weights, linear))

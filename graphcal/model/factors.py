@@ -207,6 +207,10 @@ class PairwiseFactor:
 
         e_k = P_b(z_b, beta_b) - [(1 - w) P_a(z_a0, beta_a) + w P_a(z_a1, beta_a)]
 
+    or, with a third plot ``i2[k]`` of a's track (``blend``: the quadratic weights
+    of :class:`graphcal.data.align.PlotPairs`), ``e_k = P_b - sum_j c_j P_a(z_aj)``,
+    which follows a turning aircraft where the straight chord cuts inside the turn.
+
     with ``P(z, beta)`` the plot corrected by the bias and converted to ECEF
     (:func:`graphcal.model.cross_radar.corrected_ecef`); paper 001 eq. 8
     evaluated exactly at every iteration rather than linearised at zero bias.
@@ -253,6 +257,16 @@ class PairwiseFactor:
     b_rays: RayExcessCache | None = None
     a_rows: NDArray[np.int64] | None = None  # rows of a_plots in a_rays
     b_rows: NDArray[np.int64] | None = None
+    i2: NDArray[np.int64] | None = None  # third plot of a (quadratic), a valid index
+    blend: FloatArray | None = None  # (n, 3) weights of a's plots i0, i0 + 1, i2
+
+    def _a_weights(self) -> tuple[list[NDArray[np.int64]], FloatArray]:
+        """a's plots behind each pair and their weights ``(n, 3)`` (linear: third 0)."""
+        if self.blend is None or self.i2 is None:
+            w = self.weight
+            return [self.i0, self.i0 + 1, self.i0], np.stack(
+                [1.0 - w, w, np.zeros_like(w)], axis=1)
+        return [self.i0, self.i0 + 1, self.i2], self.blend
 
     @property
     def keys(self) -> list[int]:
@@ -287,16 +301,15 @@ class PairwiseFactor:
                                           rays_a)
         ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b, ecc_b, height,
                                           rays_b)
-        w1 = self.weight[:, None]
-        w0 = 1.0 - w1
+        rows, c = self._a_weights()
         i0, i1 = self.i0, self.i0 + 1
-        res = ecef_b[self.ib] - (w0 * ecef_a[i0] + w1 * ecef_a[i1])
+        res = ecef_b[self.ib] - sum(c[:, j, None] * ecef_a[r] for j, r in enumerate(rows))
         n = len(self.ib)
         columns = len(TERM_NAMES) + (0 if height is None else 2)
         d_a = np.zeros((n, 3, columns))
         d_b = np.zeros((n, 3, columns))
         own = [*SPATIAL, *range(len(TERM_NAMES), columns)]  # jac_a's columns in d_a
-        d_a[:, :, own] = -(w0[:, :, None] * jac_a[i0] + w1[:, :, None] * jac_a[i1])
+        d_a[:, :, own] = -sum(c[:, j, None, None] * jac_a[r] for j, r in enumerate(rows))
         d_b[:, :, own] = jac_b[self.ib]
         dt = (self.a_plots.time_s[i1] - self.a_plots.time_s[i0])[:, None]
         dt = np.where(dt > 0.0, dt, np.inf)  # two plots at one time: no velocity
@@ -334,14 +347,15 @@ class PairwiseFactor:
     def plot_noise(self) -> tuple[NDArray[np.int64], FloatArray]:
         """For the shared-noise sandwich: per pair, the plots behind it and their coefficients.
 
-        Returns ``(positions (n, 3), coefficients (n, 3))`` with positions
+        Returns ``(positions (n, 4), coefficients (n, 4))`` with positions
         indexing the concatenation ``[a_plots, b_plots]`` and the residual
-        noise ``sum_j c_j e_j`` of the plots' ECEF noise ``e_j``.
+        noise ``sum_j c_j e_j`` of the plots' ECEF noise ``e_j`` (the third of a's
+        plots has coefficient 0 for a linear pair).
         """
         na = len(self.a_plots)
-        positions = np.stack([self.ib + na, self.i0, self.i0 + 1], axis=1)
-        w = self.weight
-        coefficients = np.stack([np.ones_like(w), -(1.0 - w), -w], axis=1)
+        rows, c = self._a_weights()
+        positions = np.stack([self.ib + na, *rows], axis=1)
+        coefficients = np.column_stack([np.ones(len(c)), -c])
         return positions, coefficients
 
 
@@ -363,6 +377,8 @@ def pairwise_factor(
     height_key: int | None = None,
     a_rays: RayExcessCache | None = None,
     b_rays: RayExcessCache | None = None,
+    i2: NDArray[np.int64] | None = None,
+    quadratic_weights: FloatArray | None = None,
 ) -> PairwiseFactor | None:
     """Build the pairwise factor from :func:`graphcal.data.align.pair_plots` indices.
 
@@ -372,13 +388,23 @@ def pairwise_factor(
     ``height_key``: the height-model variable, for pairs with a 2-D radar whose
     plots carry pressure altitudes (the noise is converted at the reported heights);
     ``a_rays``, ``b_rays``: the radars' shared refracted rays, when they refract
-    (made here for the factor alone when not given).
+    (made here for the factor alone when not given); ``i2``, ``quadratic_weights``:
+    the third plot of a's track and the quadratic weights
+    (:class:`graphcal.data.align.PlotPairs`; a pair whose third plot is unusable is
+    interpolated linearly).
     """
-    used_a = np.unique(np.concatenate([i0, i0 + 1]))
+    quadratic = i2 is not None and quadratic_weights is not None
+    if not quadratic:
+        i2 = np.full(len(i0), -1, dtype=np.int64)
+        quadratic_weights = np.stack([1.0 - weight, weight, np.zeros_like(weight)], axis=1)
+    assert i2 is not None and quadratic_weights is not None
+    used_a = np.unique(np.concatenate([i0, i0 + 1, i2[i2 >= 0]]))
     used_b = np.unique(ib)
     a_sub = a_plots.subset(used_a)
     b_sub = b_plots.subset(used_b)
     i0 = np.searchsorted(used_a, i0)
+    has_third = i2 >= 0
+    i2 = np.where(has_third, np.searchsorted(used_a, np.maximum(i2, 0)), i0)
     ib = np.searchsorted(used_b, ib)
     a_rays = _rays_for(site_a, a_plots, a_rays)
     b_rays = _rays_for(site_b, b_plots, b_rays)
@@ -392,17 +418,23 @@ def pairwise_factor(
     if height_key is not None:  # pressure altitudes: the heights move with the model
         placeable_a = placeable_over_prior(site_a, a_sub)
         ok &= placeable_over_prior(site_b, b_sub)[ib] & placeable_a[i0] & placeable_a[i0 + 1]
-    # used_a holds both bracketing plots, so i0 + 1 is still the later one.
+    # used_a holds both bracketing plots and the third outside them, so i0 + 1 is
+    # still the later bracketing plot.
     if not np.any(ok):
         return None
-    i0, ib, weight = i0[ok], ib[ok], weight[ok]
-    w0 = (1.0 - weight)[:, None, None]
-    w1 = weight[:, None, None]
-    cov = conv_b.cov_m2[ib] + w0**2 * conv_a.cov_m2[i0] + w1**2 * conv_a.cov_m2[i0 + 1]
+    third_ok = has_third & conv_a.usable[i2]
+    if height_key is not None:
+        third_ok &= placeable_a[i2]
+    linear = np.stack([1.0 - weight, weight, np.zeros_like(weight)], axis=1)
+    blend = np.where(third_ok[:, None], quadratic_weights, linear)[ok]
+    i0, ib, weight, i2 = i0[ok], ib[ok], weight[ok], np.where(third_ok, i2, i0)[ok]
+    cov = conv_b.cov_m2[ib] + sum(
+        blend[:, j, None, None] ** 2 * conv_a.cov_m2[r] for j, r in enumerate((i0, i0 + 1, i2)))
     return PairwiseFactor(
         terms_a, terms_b, key_a, key_b, site_a, site_b, a_sub, b_sub, i0, weight, ib,
         whitening_matrices(cov), conv_a.cov_m2, conv_b.cov_m2, kernel, float(tau0_a),
         float(tau0_b), height_key, a_rays, b_rays, a_rows, b_rows,
+        i2 if quadratic else None, blend if quadratic else None,
     )
 
 

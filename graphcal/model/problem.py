@@ -142,6 +142,7 @@ def build_factors(
             problem.keys[ra], problem.keys[rb], pairs.a_plots, pairs.b_plots,
             pairs.a_index0, pairs.weight, pairs.b_index, kernel, tau0[ra], tau0[rb],
             None if both_3d else problem.height_key, problem.rays.get(ra), problem.rays.get(rb),
+            pairs.a_index2, pairs.quadratic_weights,
         )
         if factor is not None:
             problem.pairs.append(factor)
