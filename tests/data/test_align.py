@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from graphcal.data.align import align_adsb, bracket, pair_plots
+from graphcal.data.align import align_adsb, bracket, pair_max_gap_s, pair_plots
 from graphcal.data.bias import RadarBias
 from tests.synthetic import Track, make_dataset, site_at
 
@@ -89,3 +89,48 @@ def test_cross_radar_pairs_match_target_and_time() -> None:
     assert np.all((pairs.weight >= 0) & (pairs.weight <= 1))
     assert not np.any(pairs.b_plots.target_id[pairs.b_index] == "")
     assert isinstance(ds.plots, pd.DataFrame)
+
+
+def test_quadratic_third_reproduces_a_parabola_and_picks_the_nearer_side() -> None:
+    """Lagrange weights through three samples reproduce any quadratic of time exactly; the
+    third sample is on the side nearer the query, and without one the weights are linear."""
+    from graphcal.data.align import quadratic_third
+
+    t = np.array([0.0, 4.0, 8.5, 12.0, 16.5, 40.0])
+    value = 3.0 - 2.0 * t + 0.7 * t**2
+    query = np.array([1.0, 7.0, 9.0, 15.0, 0.0])
+    j, w, ok = bracket(t, query, max_gap_s=10.0)
+    assert ok.all()
+    third, weights = quadratic_third(t, query, j, w, max_gap_s=10.0)
+    np.testing.assert_allclose(weights.sum(axis=1), 1.0)
+    # 1 s: no sample before 0 s, so 8.5 s; 7 s: 12 s (nearer than 0 s); 9 s: 4 s (nearer
+    # than 16.5 s); 15 s: 8.5 s (40 s is beyond the gap limit).
+    assert third.tolist() == [2, 3, 1, 2, 2]
+    estimate = (weights[:, 0] * value[j] + weights[:, 1] * value[j + 1]
+                + weights[:, 2] * value[np.maximum(third, 0)])
+    np.testing.assert_allclose(estimate, 3.0 - 2.0 * query + 0.7 * query**2, rtol=1e-12)
+    # At a sample the weights select it alone.
+    np.testing.assert_allclose(weights[4], [1.0, 0.0, 0.0], atol=1e-12)
+    # With a 3 s limit neither 8.5 s (3.5 s before 12 s) nor 40 s qualifies: linear.
+    j, w, _ = bracket(t, np.array([14.0]), max_gap_s=10.0)
+    third, weights = quadratic_third(t, np.array([14.0]), j, w, max_gap_s=3.0)
+    assert third.tolist() == [-1]
+    np.testing.assert_allclose(weights[0], [1.0 - w[0], w[0], 0.0])
+
+
+def test_cross_radar_pairs_carry_the_quadratic_third_plot() -> None:
+    from graphcal.data.align import quadratic_third
+
+    rng = np.random.default_rng(8)
+    a, b = site_at("A", -30e3, 0.0), site_at("B", 30e3, 0.0, scan_period_s=5.0)
+    ds = make_dataset(rng, [(a, RadarBias()), (b, RadarBias())],
+                      [Track("ab0001", (0.0, 40e3, 8000.0), (180.0, 30.0, 0.0), 0.0, 300.0)])
+    pairs = pair_plots(ds, "A", "B")
+    assert pairs.a_index2 is not None and pairs.quadratic_weights is not None
+    assert len(pairs) > 40 and np.all(pairs.a_index2 >= 0)
+    np.testing.assert_allclose(pairs.quadratic_weights.sum(axis=1), 1.0)
+    query = pairs.b_plots.time_s[pairs.b_index]
+    third, weights = quadratic_third(pairs.a_plots.time_s, query, pairs.a_index0, pairs.weight,
+                                     pair_max_gap_s(a))
+    np.testing.assert_array_equal(third, pairs.a_index2)
+    np.testing.assert_allclose(weights, pairs.quadratic_weights)
