@@ -256,15 +256,23 @@ def cross_radar_residuals(
             ok = ga.usable[i0] & ga.usable[i1] & gb.usable[ib]
             if not np.any(ok):
                 continue
-            i0, i1, w, ib = i0[ok], i1[ok], w[ok], ib[ok]
-            w0, w1 = (1.0 - w)[:, None], w[:, None]
-            own_a = (w0 * ga.ecef_m[i0] + w1 * ga.ecef_m[i1],
-                     w0[:, :, None] ** 2 * ga.cov_m2[i0] + w1[:, :, None] ** 2 * ga.cov_m2[i1],
-                     w0[:, :, None] * ga.jacobian[i0] + w1[:, :, None] * ga.jacobian[i1],
-                     w0 * ga.near_ecef_m[i0] + w1 * ga.near_ecef_m[i1])
+            # The partner's track interpolated quadratically where a third plot is usable
+            # (graphcal.data.align.PlotPairs), as the graph's pairwise factors do.
+            linear = np.stack([1.0 - w, w, np.zeros_like(w)], axis=1)
+            if pairs.a_index2 is not None and pairs.quadratic_weights is not None:
+                i2 = np.where(pairs.a_index2 >= 0,
+                              rows_a[np.maximum(pairs.a_index2, 0)], i0)
+                third = (pairs.a_index2 >= 0) & ga.usable[i2]
+                c = np.where(third[:, None], pairs.quadratic_weights, linear)
+            else:
+                i2, c = i0, linear
+            i0, i1, i2, c, ib = i0[ok], i1[ok], np.broadcast_to(i2, ok.shape)[ok], c[ok], ib[ok]
+            rows = (i0, i1, i2)
+            own_a = (_blend(ga.ecef_m, rows, c), _blend(ga.cov_m2, rows, c**2),
+                     _blend(ga.jacobian, rows, c), _blend(ga.near_ecef_m, rows, c))
             own_b = (gb.ecef_m[ib], gb.cov_m2[ib], gb.jacobian[ib], gb.near_ecef_m[ib])
-            altitude_a = (1.0 - w) * ga.altitude_m[i0] + w * ga.altitude_m[i1]
-            reported_a = (1.0 - w) * ga.reported_m[i0] + w * ga.reported_m[i1]
+            altitude_a = _blend(ga.altitude_m, rows, c)
+            reported_a = _blend(ga.reported_m, rows, c)
             shared = {"time": gb.time_s[ib], "target": gb.target_id[ib]}
             for rid, site, other_site, own, other, where, altitude, reported in (
                 (rb, gb.site, ga.site, own_b, own_a, gb.where(ib), gb.altitude_m[ib],
@@ -280,6 +288,13 @@ def cross_radar_residuals(
             out[rid] = without_outliers(_joined(
                 dataset.sites[rid], biases[rid], parts[rid], dataset.pressure_altitudes))
     return out
+
+
+def _blend(values: FloatArray, rows: tuple[NDArray[np.int64], ...], weights: FloatArray
+           ) -> FloatArray:
+    """``sum_j weights[:, j] * values[rows[j]]`` over the leading axis."""
+    shape = (-1,) + (1,) * (values.ndim - 1)
+    return sum(weights[:, j].reshape(shape) * values[r] for j, r in enumerate(rows))
 
 
 @dataclass
