@@ -775,7 +775,8 @@ def main(argv: list[str] | None = None) -> int:
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "quick": args.quick,
         "environment": env,
-        "part1": part1,
+        "part1": part1 if part1 or not RESULTS_PATH.exists() else json.loads(
+            RESULTS_PATH.read_text()).get("part1", []),  # --network-only keeps part 1's
         "part2": part2,
         "part3": part3,
         "peak_rss_mib": peak,
