@@ -109,8 +109,10 @@ class RadarBias:
 
     @property
     def has_eccentricity(self) -> bool:
-        """Whether either azimuth eccentricity term is non-zero."""
-        return self.azimuth_sin_rad != 0.0 or self.azimuth_cos_rad != 0.0
+        """Whether either azimuth eccentricity term is non-zero (anywhere, when the
+        terms are arrays of per-plot values, as for biases over time)."""
+        return bool(np.any(np.asarray(self.azimuth_sin_rad) != 0.0)
+                    or np.any(np.asarray(self.azimuth_cos_rad) != 0.0))
 
     @classmethod
     def from_vector(cls, values: ArrayLike, time_offset_s: float = 0.0) -> RadarBias:

@@ -10,6 +10,8 @@ The format is documented in ``scenarios/README.md``.  In short::
                  refractivity_n_s, refractivity_scale_height_m,
                  [radar.bias] range_offset_m, range_gain, azimuth_bias_mrad,
                  elevation_bias_mrad, time_offset_s, azimuth_sin_mrad, azimuth_cos_mrad
+                 [radar.drift] the same keys (but time_offset_s) with ``_per_h``
+                 [[radar.step]] time_s and the same keys (but time_offset_s): a change
     [[aircraft]] piecewise legs from a start state, or constant ECEF velocity
     [traffic]    random waypoint traffic
     [opensky]    replay of an OpenSky-style state-vector table
@@ -43,6 +45,7 @@ from graphcal.core import frames
 from graphcal.core.errors import ScenarioError, SensorModelError
 from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosphere
 from graphcal.data.bias import ESTIMATE_NAMES, RadarBias
+from graphcal.data.bias_schedule import BiasSchedule, BiasStep
 from graphcal.data.dataset import REFRACTION_MODELS, REFRACTIVITY_N_S_RANGE, Site
 from graphcal.data.height import GEOMETRIC, PLOT_ALTITUDE_CHOICES, PRESSURE, HeightModel
 from graphcal.data.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
@@ -125,6 +128,10 @@ class RadarSpec:
         Surface refractivity of the exponential atmosphere [N-units].
     refractivity_scale_height_m : float
         Its scale height [m].
+    drift_per_s : RadarBias
+        Rate of change of each bias [SI per s] (``[radar.drift]``, per hour in the file).
+    steps : tuple of BiasStep
+        Changes of the biases at given times (``[[radar.step]]``).
     """
 
     id: str
@@ -148,6 +155,13 @@ class RadarSpec:
     refraction: str = "none"
     refractivity_n_s: float = DEFAULT_N_S
     refractivity_scale_height_m: float = DEFAULT_SCALE_HEIGHT_M
+    drift_per_s: RadarBias = field(default_factory=RadarBias)
+    steps: tuple[BiasStep, ...] = ()
+
+    @property
+    def schedule(self) -> BiasSchedule:
+        """The biases over time: ``bias`` at t = 0, ``drift_per_s`` and ``steps``."""
+        return BiasSchedule(self.bias, self.drift_per_s, self.steps, 0.0)
 
     @property
     def is_3d(self) -> bool:
@@ -534,6 +548,49 @@ def _radar_bias(t: _Table, is_3d: bool) -> RadarBias:
     return bias
 
 
+#: Bias terms that may drift or step: file key, RadarBias field, factor to SI.
+_VARYING_KEYS: tuple[tuple[str, str, float], ...] = (
+    ("range_offset_m", "range_offset_m", 1.0),
+    ("range_gain", "range_gain", 1.0),
+    ("azimuth_bias_mrad", "azimuth_bias_rad", 1e-3),
+    ("elevation_bias_mrad", "elevation_bias_rad", 1e-3),
+    ("azimuth_sin_mrad", "azimuth_sin_rad", 1e-3),
+    ("azimuth_cos_mrad", "azimuth_cos_rad", 1e-3),
+)
+
+
+def _bias_change(t: _Table, suffix: str, scale: float, is_3d: bool) -> RadarBias:
+    """A change of the bias terms from keys ``<contract key><suffix>``, times ``scale``."""
+    values = {}
+    for key, name, factor in _VARYING_KEYS:
+        value = t.number(key + suffix, 0.0)
+        if value != 0.0 and name == "elevation_bias_rad" and not is_3d:
+            raise t.error(key + suffix, "a 2-D radar has no elevation bias")
+        values[name] = value * factor * scale
+    if t.has("time_offset_s" + suffix):
+        raise t.error("time_offset_s" + suffix, "the time-stamping bias cannot drift or step")
+    return RadarBias(**values)
+
+
+def _radar_drift(t: _Table, is_3d: bool, duration_s: float | None
+                 ) -> tuple[RadarBias, tuple[BiasStep, ...]]:
+    """``[radar.drift]`` (per hour -> per second) and ``[[radar.step]]``."""
+    d = t.table("drift")
+    drift = RadarBias()
+    if d is not None:
+        drift = _bias_change(d, "_per_h", 1.0 / 3600.0, is_3d)
+        d.finish()
+    steps = []
+    for st in t.tables("step"):
+        time_s = st.number("time_s")
+        if duration_s is not None and not 0.0 < time_s < duration_s:
+            raise st.error("time_s", f"must lie inside the scenario (0 to {duration_s:g} s)")
+        steps.append(BiasStep(time_s, _bias_change(st, "", 1.0, is_3d)))
+        st.finish()
+    steps.sort(key=lambda step: step.time_s)
+    return drift, tuple(steps)
+
+
 def _radar_refraction(t: _Table) -> tuple[str, float, float]:
     """``(refraction, refractivity_n_s, refractivity_scale_height_m)`` (contract v2 keys)."""
     model = t.string("refraction", "none")
@@ -561,7 +618,7 @@ def _model_value(t: _Table, key: str, model_value: Any, **checks: Any) -> Any:
     return model_value if value is None else value
 
 
-def _parse_radar(t: _Table) -> RadarSpec:
+def _parse_radar(t: _Table, duration_s: float | None = None) -> RadarSpec:
     radar_id = t.string("id")
     if not radar_id.strip():
         raise t.error("id", "radar id is empty")
@@ -606,6 +663,7 @@ def _parse_radar(t: _Table) -> RadarSpec:
     )
     phase = t.number("antenna_phase_deg", None)
     refraction, n_s, scale_height = _radar_refraction(t)
+    drift, steps = _radar_drift(t, dims == 3, duration_s)
     spec = RadarSpec(
         id=radar_id.strip(),
         lat_rad=lat,
@@ -631,6 +689,8 @@ def _parse_radar(t: _Table) -> RadarSpec:
         refraction=refraction,
         refractivity_n_s=n_s,
         refractivity_scale_height_m=scale_height,
+        drift_per_s=drift,
+        steps=steps,
     )
     t.finish()
     return spec
@@ -905,7 +965,7 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
     radar_tables = root.tables("radar")
     if not radar_tables:
         raise root.error("radar", "no [[radar]] tables: a scenario needs at least one radar")
-    radars = [_parse_radar(rt) for rt in radar_tables]
+    radars = [_parse_radar(rt, duration) for rt in radar_tables]
     _unique(radars, "id", radar_tables, "radar")
 
     aircraft_tables = root.tables("aircraft")

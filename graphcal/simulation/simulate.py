@@ -392,7 +392,9 @@ def _radar_plots(
     noise = rng.standard_normal(size=(n, 3))
     alt_noise = rng.standard_normal(size=n)
     detected = detect_u < radar.detection_probability
-    r_meas, az_meas, el_meas = apply_bias(rng_m, az, el, radar.bias)
+    schedule = radar.schedule
+    bias = radar.bias if schedule.constant else RadarBias(**schedule.at(t_true))
+    r_meas, az_meas, el_meas = apply_bias(rng_m, az, el, bias)
     r_meas = r_meas + radar.sigma_range_m * noise[:, 0]
     az_meas = frames.wrap_to_2pi(az_meas + radar.sigma_azimuth_rad * noise[:, 1])
     if radar.sigma_elevation_rad is None:
@@ -622,7 +624,11 @@ def truth_document(result: SimulationResult) -> dict:
     is not zero, ``azimuth_sin_mrad`` and ``azimuth_cos_mrad`` when the radar
     has an azimuth eccentricity, an empty ``sigma`` and ``n_plots``.  A scenario
     that simulates pressure altitudes adds the ``atmosphere`` block: the true
-    ``height_offset_m`` and ``height_scale`` (contract v2).
+    ``height_offset_m`` and ``height_scale`` (contract v2).  A scenario whose biases
+    change over time adds the ``drift`` block, per such radar: ``per_h`` (each
+    drifting term's rate per hour, contract units) and ``steps`` (``time_s`` and each
+    changed term); ``radars`` then holds the biases at t = 0
+    (:class:`graphcal.data.bias_schedule.BiasSchedule`).
     """
     counts = result.n_plots()
     radars = {}
@@ -653,7 +659,29 @@ def truth_document(result: SimulationResult) -> dict:
         model = result.scenario.height_model
         document["atmosphere"] = {"height_offset_m": float(model.height_offset_m),
                                   "height_scale": float(model.height_scale), "sigma": {}}
+    drift = {radar.id: _drift_entry(radar) for radar in result.scenario.radars
+             if not radar.schedule.constant}
+    if drift:
+        document["drift"] = drift
     return document
+
+
+def _contract_terms(change: RadarBias, scale: float = 1.0) -> dict[str, float]:
+    """The non-zero terms of a bias change, by contract key in contract units."""
+    out = {}
+    for name in (*PARAMETER_NAMES, *ECCENTRICITY_NAMES):
+        value = change.value(name)
+        if value != 0.0:
+            key, factor = CONTRACT_KEYS[name]
+            out[key] = float(value) * factor * scale
+    return out
+
+
+def _drift_entry(radar) -> dict[str, object]:
+    """A radar's ``drift`` entry of ``truth.json``: rates per hour and steps."""
+    return {"per_h": _contract_terms(radar.drift_per_s, 3600.0),
+            "steps": [{"time_s": float(step.time_s), **_contract_terms(step.change)}
+                      for step in radar.steps]}
 
 
 def write_simulation(

@@ -692,3 +692,74 @@ def test_refraction_is_written_to_sites(tmp_path):
     loaded = load_dataset(folder)
     assert loaded.sites == result.dataset.sites
     assert all(s.atmosphere == Atmosphere(320.0, 7000.0) for s in loaded.sites.values())
+
+
+# --------------------------------------------------------------------------- biases over time
+DRIFT = {"azimuth_bias_mrad_per_h": 3.0, "range_gain_per_h": 2e-4,
+         "elevation_bias_mrad_per_h": -1.2}
+STEP = {"time_s": 300.0, "range_offset_m": 60.0, "azimuth_bias_mrad": -0.5}
+
+
+def _drifting(**radar_changes) -> dict:
+    doc = _document()
+    doc["radar"][0]["drift"] = dict(DRIFT)
+    doc["radar"][0]["step"] = [dict(STEP)]
+    doc["radar"][0].update(radar_changes)
+    return doc
+
+
+def test_noise_free_plots_carry_the_bias_of_their_time() -> None:
+    """Removing each plot's bias at its own true time gives the true position back, and the
+    bias at t = 0 alone does not."""
+    scenario = _noise_free(parse_scenario(_drifting()))
+    radar = scenario.radars[0]
+    assert not radar.schedule.constant and scenario.radars[1].schedule.constant
+    result = simulate(scenario, np.random.default_rng(3))
+    plots, truth = result.dataset.plots, result.plot_truth
+    rows = (plots["radar_id"] == radar.id).to_numpy()
+    t_true = correct_time(plots.loc[rows, "time_s"].to_numpy(), radar.bias)
+    assert t_true.min() < 300.0 < t_true.max()
+    measured = (plots.loc[rows, "range_m"].to_numpy(),
+                np.radians(plots.loc[rows, "azimuth_deg"].to_numpy()),
+                np.radians(plots.loc[rows, "elevation_deg"].to_numpy()))
+    r, az, el = correct_bias(*measured, RadarBias(**radar.schedule.at(t_true)))
+    np.testing.assert_allclose(r, truth.loc[rows, "range_true_m"], atol=1e-6)
+    np.testing.assert_allclose(np.degrees(az), truth.loc[rows, "azimuth_true_deg"], atol=1e-9)
+    np.testing.assert_allclose(np.degrees(el), truth.loc[rows, "elevation_true_deg"], atol=1e-9)
+    r0, _, _ = correct_bias(*measured, radar.bias)
+    late = t_true > 300.0
+    assert np.min(r0[late] - truth.loc[rows, "range_true_m"].to_numpy()[late]) > 55.0
+
+
+def test_truth_json_describes_the_drift() -> None:
+    scenario = parse_scenario(_drifting())
+    doc = truth_document(simulate(scenario, np.random.default_rng(1)))
+    drift = doc["drift"]
+    assert set(drift) == {"A3D"}
+    per_h = drift["A3D"]["per_h"]
+    assert per_h["azimuth_bias_mrad"] == pytest.approx(3.0)
+    assert per_h["range_gain"] == pytest.approx(2e-4)
+    assert per_h["elevation_bias_mrad"] == pytest.approx(-1.2)
+    assert drift["A3D"]["steps"] == [
+        {"time_s": 300.0, "range_offset_m": pytest.approx(60.0),
+         "azimuth_bias_mrad": pytest.approx(-0.5)}]
+    # radars holds the biases at t = 0, as before.
+    assert doc["radars"]["A3D"]["range_offset_m"] == pytest.approx(120.0)
+
+
+@pytest.mark.parametrize(("change", "field"), [
+    ({"drift": {"time_offset_s_per_h": 0.1}}, "radar[0].drift.time_offset_s_per_h"),
+    ({"step": [{"time_s": 900.0, "range_offset_m": 1.0}]}, "radar[0].step[0].time_s"),
+    ({"drift": {"azimuth_bias_mrad": 1.0}}, "radar[0].drift.azimuth_bias_mrad"),
+])
+def test_bad_drift_is_refused_naming_the_field(change, field) -> None:
+    with pytest.raises(ScenarioError) as info:
+        parse_scenario(_drifting(**change))
+    assert field in str(info.value)
+
+
+def test_elevation_drift_needs_a_3d_radar() -> None:
+    doc = _document()
+    doc["radar"][1]["drift"] = {"elevation_bias_mrad_per_h": 1.0}
+    with pytest.raises(ScenarioError, match="2-D radar has no elevation bias"):
+        parse_scenario(doc)
