@@ -136,6 +136,12 @@ class FactorGraph:
         joint = marginals.jointMarginalCovariance(key_vector)
         return np.block([[joint.at(int(a), int(b)) for b in keys] for a in keys])
 
+    def marginal_covariances(self, values: gtsam.Values, keys: Sequence[int]
+                             ) -> list[FloatArray]:
+        """Each key's own marginal covariance, from one factorisation (GTSAM ``Marginals``)."""
+        marginals = gtsam.Marginals(self._graph, values)
+        return [np.asarray(marginals.marginalCovariance(int(k)), dtype=float) for k in keys]
+
 
 @dataclass
 class OptimizationResult:
