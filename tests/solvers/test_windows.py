@@ -55,10 +55,10 @@ def test_windows_follow_the_drift_and_the_step(drifting) -> None:
 
 
 def test_tight_random_walks_smooth_a_real_drift_away(drifting) -> None:
-    """With the default (tight) rates the chain cannot follow 1 mrad/h: the first and last
-    windows' azimuth errors are many sigma (what rate estimation is for)."""
+    """With the default (tight) rates and no rate estimation the chain cannot follow
+    1 mrad/h: the first window's azimuth error is many sigma (what rate estimation is for)."""
     scenario, sim = drifting
-    result = windowed_graph(sim.dataset, 900.0)
+    result = windowed_graph(sim.dataset, 900.0, estimate_rates=False)
     nord = scenario.radars[0]
     first = result.series["NORD"][0]
     truth = nord.schedule.mean(first.t_start_s, first.t_end_s)
@@ -73,3 +73,40 @@ def test_pressure_altitudes_are_not_windowed_yet() -> None:
     sim = simulate(load_scenario(SCENARIOS / "demo_pressure.toml"), np.random.default_rng(1))
     with pytest.raises(ValueError, match="pressure altitudes"):
         windowed_graph(sim.dataset, 900.0)
+
+
+@pytest.mark.parametrize("q_true", [0.5, 2.0])
+def test_random_walk_rate_recovers_the_simulated_rate(q_true) -> None:
+    """Chains of 40 windows: a random walk of rate q seen through noise of 10 units; the
+    median over 40 chains of the maximum-likelihood rate is within 15 % of q."""
+    from graphcal.solvers.windows import random_walk_rate
+
+    rng = np.random.default_rng(0)
+    t = np.arange(40) * 900.0
+    rates = []
+    for _ in range(40):
+        x = np.cumsum(np.r_[0.0, rng.normal(0.0, q_true * np.sqrt(900.0), 39)])
+        rates.append(random_walk_rate(t, x + rng.normal(0.0, 10.0, 40), np.full(40, 100.0)))
+    assert np.median(rates) == pytest.approx(q_true, rel=0.15)
+
+
+def test_random_walk_rate_of_a_constant_is_mostly_zero() -> None:
+    from graphcal.solvers.windows import random_walk_rate
+
+    rng = np.random.default_rng(1)
+    t = np.arange(40) * 900.0
+    rates = [random_walk_rate(t, rng.normal(5.0, 10.0, 40), np.full(40, 100.0))
+             for _ in range(40)]
+    assert np.mean(np.array(rates) == 0.0) > 0.5
+    assert np.max(rates) < 0.2  # far below what 10 units of noise per window could hide
+
+
+def test_estimated_rates_follow_the_drift(drifting) -> None:
+    scenario, sim = drifting
+    result = windowed_graph(sim.dataset, 900.0)
+    assert result.rates["NORD"]["azimuth_bias"] > 1e-7  # 1 mrad/h drift found
+    for w in result.series["NORD"]:
+        truth = scenario.radars[0].schedule.mean(w.t_start_s, w.t_end_s)
+        z = (w.bias.azimuth_bias_rad - truth.azimuth_bias_rad) * 1e3 / w.sigma[
+            "azimuth_bias_mrad"]
+        assert abs(z) < 3.0
