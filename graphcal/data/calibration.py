@@ -693,6 +693,23 @@ def load_result(path: str | Path) -> dict[str, Any]:
         return json.load(handle)
 
 
+def read_height_model(source: Any) -> tuple[float, float] | None:
+    """``(height_offset_m, height_scale)`` of a result's ``atmosphere`` block (contract v2).
+
+    ``source``: a result JSON path (a calibration or a simulation's ``truth.json``) or a
+    :class:`Calibration`; ``None`` when it has no height model (or is anything else,
+    e.g. a mapping of plain biases).
+    """
+    if isinstance(source, str | Path):
+        block = load_result(source).get("atmosphere")
+        if not isinstance(block, Mapping):
+            return None
+        return float(block["height_offset_m"]), float(block["height_scale"])
+    if isinstance(source, Calibration) and source.atmosphere is not None:
+        return source.atmosphere.height_offset_m, source.atmosphere.height_scale
+    return None
+
+
 def read_biases(path: str | Path) -> dict[str, RadarBias]:
     """Per-radar biases from a result JSON: a calibration or a simulation's ``truth.json``.
 

@@ -701,15 +701,11 @@ def _as_truth(truth: Any) -> dict[str, RadarBias] | None:
 
 def _truth_atmosphere(truth: Any) -> dict[str, Any] | None:
     """The true height model of a truth file or Calibration, when it has one."""
-    if isinstance(truth, str | Path):
-        import json
+    from graphcal.data.calibration import read_height_model
 
-        block = json.loads(Path(truth).read_text()).get("atmosphere")
-        return block if isinstance(block, dict) else None
-    if isinstance(truth, Calibration) and truth.atmosphere is not None:
-        return {"height_offset_m": truth.atmosphere.height_offset_m,
-                "height_scale": truth.atmosphere.height_scale}
-    return None
+    pair = read_height_model(truth)
+    return None if pair is None else dict(zip(("height_offset_m", "height_scale"), pair,
+                                              strict=True))
 
 
 def build_report(

@@ -127,11 +127,6 @@ def random_walk_rate(time_s: FloatArray, estimate: FloatArray, variance: FloatAr
     return float(np.exp(found.x))
 
 
-def _random_walk_sigmas(terms: RadarTerms, rates: Mapping[str, float], dt_s: float
-                        ) -> FloatArray:
-    return np.array([rates[name] for name in terms.free]) * np.sqrt(max(dt_s, 1e-9))
-
-
 def _build(windows: list[Window], dataset: Dataset, terms: dict[str, RadarTerms],
            priors: dict[str, FloatArray], have_adsb: bool, kernel: RobustKernel
            ) -> tuple[FactorGraph, dict[str, list[tuple[Window, int]]]]:
@@ -233,11 +228,11 @@ def windowed_graph(
         timing["rates_s"] = time.perf_counter() - t0
     for rid, links in chain.items():
         n_free = len(terms[rid].free)
-        q = np.array([rates[rid][name] for name in terms[rid].free])
+        # A rate of 0 (a constant term) is held by a tight but finite walk.
+        floor = 1e-2 * np.array([DEFAULT_RANDOM_WALK_PER_SQRT_S[n] for n in terms[rid].free])
+        q = np.maximum(np.array([rates[rid][name] for name in terms[rid].free]), floor)
         for (w_a, k_a), (w_b, k_b) in zip(links, links[1:], strict=False):
-            # A rate of 0 (a constant term) is held by a tight but finite walk.
-            floor = 1e-2 * np.array([DEFAULT_RANDOM_WALK_PER_SQRT_S[n] for n in terms[rid].free])
-            sigma = np.maximum(q, floor) * np.sqrt(max(w_b.middle_s - w_a.middle_s, 1e-9))
+            sigma = q * np.sqrt(max(w_b.middle_s - w_a.middle_s, 1e-9))
             block = np.diag(1.0 / sigma)
             fg.add_linear([k_a, k_b], [-block, block], np.zeros(n_free))
     t0 = time.perf_counter()

@@ -46,7 +46,7 @@ from graphcal.data.align import (
     tracks_by_target,
 )
 from graphcal.data.bias import RadarBias
-from graphcal.data.calibration import Calibration, read_biases
+from graphcal.data.calibration import Calibration, read_biases, read_height_model
 from graphcal.data.dataset import Dataset
 from graphcal.model.cross_radar import convert_plots, corrected_ecef
 from graphcal.tracking.kalman import kalman_filter, pad_tracks, predict_rows
@@ -169,16 +169,7 @@ def height_model_of(calibration: CalibrationLike | None, dataset: Dataset
     the dataset's altitudes are geometric or the calibration has no height model."""
     if not dataset.pressure_altitudes or calibration is None:
         return None
-    if isinstance(calibration, str | Path):
-        import json
-
-        block = json.loads(Path(calibration).read_text()).get("atmosphere")
-        if not isinstance(block, dict):
-            return None
-        return float(block["height_offset_m"]), float(block["height_scale"])
-    if isinstance(calibration, Calibration) and calibration.atmosphere is not None:
-        return calibration.atmosphere.height_offset_m, calibration.atmosphere.height_scale
-    return None
+    return read_height_model(calibration)
 
 
 def _biases(calibration: CalibrationLike | None, radar_ids: list[str]) -> dict[str, RadarBias]:
