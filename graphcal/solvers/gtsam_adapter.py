@@ -7,7 +7,8 @@ module wraps the few pieces the graph calibrator needs:
 * vector-valued variables (a radar's biases, a target state),
 * :class:`gtsam.CustomFactor` with a numpy error function (the vectorised
   factors of :mod:`graphcal.model.factors`),
-* linear factors (constant-velocity motion) as a
+* linear factors (constant-velocity motion, random walks) and Gaussian summaries
+  (a time window's data reduced to its bias variables) as a
   :class:`gtsam.LinearContainerFactor` so they cost no Python call per iteration,
 * Gaussian priors, Levenberg-Marquardt, and joint marginal covariances.
 """
@@ -88,6 +89,40 @@ class FactorGraph:
         factor = gtsam.JacobianFactor(*args, rhs, noise)
         self._graph.add(gtsam.LinearContainerFactor(factor, point))
 
+    def add_gaussian(
+        self,
+        keys: Sequence[int],
+        information: FloatArray,
+        vector: FloatArray,
+        point: Sequence[FloatArray],
+    ) -> None:
+        """Add a Gaussian summary ``1/2 d^T L d - d^T eta`` on ``keys``, ``d = x - point``.
+
+        ``information`` (``L``) and ``vector`` (``eta``) stack the keys' blocks in
+        order, each as long as its ``point``.  GTSAM's ``HessianFactor`` takes at
+        most three keys at once, so the summary is assembled from one factor per
+        diagonal block and one per pair of keys (their sum is ``L``), merged into
+        a single ``HessianFactor``, and held at ``point`` by a
+        :class:`gtsam.LinearContainerFactor`.
+        """
+        keys = [int(k) for k in keys]
+        sizes = [len(np.atleast_1d(p)) for p in point]
+        edges = np.concatenate([[0], np.cumsum(sizes)])
+        information = np.asarray(information, dtype=float)
+        vector = np.asarray(vector, dtype=float)
+        pieces = gtsam.GaussianFactorGraph()
+        linearisation = gtsam.Values()
+        for i, key in enumerate(keys):
+            a = slice(edges[i], edges[i + 1])
+            pieces.push_back(gtsam.HessianFactor(key, information[a, a], vector[a], 0.0))
+            linearisation.insert(key, np.asarray(point[i], dtype=float))
+            for j in range(i + 1, len(keys)):
+                b = slice(edges[j], edges[j + 1])
+                pieces.push_back(gtsam.HessianFactor(
+                    key, keys[j], np.zeros((sizes[i], sizes[i])), information[a, b],
+                    np.zeros(sizes[i]), np.zeros((sizes[j], sizes[j])), np.zeros(sizes[j]), 0.0))
+        self._graph.add(gtsam.LinearContainerFactor(gtsam.HessianFactor(pieces), linearisation))
+
     def add_prior(self, key: int, mean: FloatArray, sigmas: FloatArray) -> None:
         """Add an independent Gaussian prior ``N(mean, diag(sigmas^2))`` on ``key``."""
         noise = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
@@ -126,6 +161,15 @@ class FactorGraph:
             final_error=float(optimizer.error()),
             converged=iterations < max_iterations,
         )
+
+    def solve_linear(self) -> OptimizationResult:
+        """One Gauss-Newton step from the initial values: exact when every factor is
+        linear (random walks, Gaussian summaries, priors), with no stopping tolerance."""
+        initial_error = self.error()
+        delta = self._graph.linearize(self._values).optimize()
+        values = self._values.retract(delta)
+        return OptimizationResult(values=values, iterations=1, initial_error=initial_error,
+                                  final_error=float(self._graph.error(values)), converged=True)
 
     def joint_covariance(self, values: gtsam.Values, keys: Sequence[int]) -> FloatArray:
         """Joint marginal covariance of ``keys`` at ``values`` (GTSAM ``Marginals``)."""

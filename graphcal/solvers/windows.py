@@ -1,29 +1,46 @@
-"""Biases over time: one set of bias variables per time window, chained by random walks.
+"""Biases over time: each window's data reduced to a summary, the summaries chained.
 
-Contract v2's ``--window``: the recording is cut into windows
-(:func:`graphcal.data.windows.split_windows`); each window's plots give that window's
-ADS-B and pairwise factors (:func:`graphcal.model.problem.build_factors`) on its own
-bias variables ``x_k`` (one vector per radar and window, the radar's free terms); and
-consecutive windows of a radar are tied by a random-walk factor::
+Contract v2's ``--window``.  The recording is cut into windows
+(:func:`graphcal.data.windows.split_windows`, or read window by window from files).
 
-    x_{k+1} - x_k ~ N(0, diag(q^2) (t_{k+1} - t_k))
+1. **Summaries** (:func:`summarise_window`, independent work that can run anywhere).
+   Each window is calibrated on its own by the :func:`~graphcal.solvers.graph.graph`
+   estimator: aligned, paired, solved with weak priors, its nuisance variables (the
+   height model of pressure altitudes, target states) eliminated, its covariance
+   corrected for plots shared between pairs.  What is kept is a Gaussian on the
+   window's bias variables: its estimate ``y_k`` and covariance ``P_k``.  With the
+   weak priors ``Pi`` (mean 0) taken out again, the window's data say
+   ``1/2 d^T L_k d - d^T eta_k`` about ``d = x - y_k``, with ``L_k = P_k^-1 - Pi^-1``
+   and ``eta_k = Pi^-1 y_k`` (the gradient the priors balanced).  The time offsets
+   are estimated in every window with ADS-B.
+2. **Rates and steps** (:func:`graphcal.solvers.drift.analyse_chain`).  From each
+   radar's chain of independent window estimates: each term's random-walk rate
+   (maximum likelihood), and the steps beyond it.
+3. **The chain** (:func:`smooth_windows`).  One bias vector per radar and window;
+   the summaries; one weak prior at the start of each radar's chain and after each
+   step; and random-walk factors between consecutive windows of a radar::
 
-with ``q`` each term's random-walk rate [unit per sqrt(s)] and ``t_k`` the windows'
-middles.  The whole chain is solved at once (a batch smoother: every window's
-estimate uses every window's data) and each window's marginal covariance is its
-1-sigma band.  A window's estimate is of the radar's mean bias over the window.
+       x_{k+1} - x_k ~ N(0, diag(q^2) (t_{k+1} - t_k))
 
-First version: the time-stamping biases are not estimated (they are constant in
-time anyway and need ADS-B), pressure altitudes are refused (their height model
-per window comes later), and the cross-radar noise shared between pairs is not
-corrected in the covariance (the single-batch ``graph`` does it).
+   with ``t_k`` the windows' middles.  Everything is linear, so one solve gives the
+   smoothed chain (each window's estimate uses every window's data) and GTSAM's
+   marginals each window's 1-sigma.  A window's estimate is of the radar's mean
+   bias over the window.
+
+Each summary is linearised at its own window's estimate.  The measurement model is
+nearly linear in the biases (the largest second-order term, range x gain x azimuth,
+is below a millimetre for a 1 mrad, 1e-4 move at 200 km), so the summaries are not
+re-linearised; :attr:`WindowedCalibration.largest_move` reports how far the smoothed
+chain moved each summary's variables from their linearisation point, in that
+window's own sigmas.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,30 +48,134 @@ from numpy.typing import NDArray
 from graphcal.core.errors import EstimationError
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import CONTRACT_KEYS, RadarBias
-from graphcal.data.dataset import Dataset
+from graphcal.data.dataset import Dataset, Site
+from graphcal.data.height import HeightModelEstimate
 from graphcal.data.windows import Window, split_windows
-from graphcal.model.parameters import RadarTerms, prior_sigmas, radar_terms
-from graphcal.model.problem import Problem, build_factors
-from graphcal.model.robust import RobustKernel
-from graphcal.solvers.graph import add_factor
+from graphcal.model.parameters import TERM_NAMES, RadarTerms, prior_sigmas
+from graphcal.solvers.drift import DEFAULT_STEP_FALSE_ALARM, ChainAnalysis, analyse_chain
 from graphcal.solvers.gtsam_adapter import FactorGraph, symbol
 
 FloatArray = NDArray[np.float64]
 
 #: Default random-walk rates per term [SI unit per sqrt(s)], from a change of this
 #: size per sqrt(hour): range offset 2 m, range gain 2e-6, azimuth and elevation
-#: 0.05 mrad, eccentricity 0.02 mrad.  Deliberately loose: they let a real drift be
-#: followed, and the data of each window pin it down.
+#: 0.05 mrad, eccentricity 0.02 mrad, time offset 5 ms.  Used where a rate is
+#: neither given nor estimated (``estimate_rates=False``); an estimated rate is
+#: never below 1 % of these (a constant is held by a tight but finite walk).
 DEFAULT_RANDOM_WALK_PER_SQRT_S: dict[str, float] = {
     "range_offset": 2.0 / 60.0,
     "range_gain": 2e-6 / 60.0,
     "azimuth_bias": 0.05e-3 / 60.0,
     "elevation_bias": 0.05e-3 / 60.0,
+    "time_offset": 5e-3 / 60.0,
     "azimuth_sin": 0.02e-3 / 60.0,
     "azimuth_cos": 0.02e-3 / 60.0,
 }
 
+#: Floor of an estimated rate, as a fraction of the default.
+RATE_FLOOR_FRACTION = 1e-2
 
+
+# --------------------------------------------------------------------------- summaries
+@dataclass(frozen=True)
+class WindowOptions:
+    """How each window is calibrated (the :func:`~graphcal.solvers.graph.graph` options)."""
+
+    use_adsb: bool = True
+    cross: str = "pairwise"
+    robust: str = "huber"
+    robust_scale: float = 1.0
+    fixed: Mapping[tuple[str, str], float] = field(default_factory=dict)
+    max_iterations: int = 100
+    max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S
+    pair_max_gap_s: float | None = None
+
+
+@dataclass
+class WindowSummary:
+    """One window's data reduced to a Gaussian on its bias variables (module docstring).
+
+    Plain numbers only, so it travels between processes and machines.
+
+    Attributes
+    ----------
+    index, t_start_s, t_end_s : int, float, float
+        The window (:class:`graphcal.data.windows.Window`).
+    labels : list of (radar_id, term name)
+        The window's free terms, in the order of ``estimate``.
+    estimate : ndarray
+        The window's own estimate ``y_k`` (SI), with the weak priors.
+    covariance : ndarray
+        Its covariance ``P_k`` (SI).
+    prior_sigma : ndarray
+        The weak priors' sigmas (SI, mean 0).
+    n_plots : dict
+        Plots of each radar used in the window.
+    warnings : list of str
+        The window's own warnings.
+    atmosphere : HeightModelEstimate or None
+        The window's height model of pressure altitudes.
+    elapsed_s : float
+        Time the summary took.
+    """
+
+    index: int
+    t_start_s: float
+    t_end_s: float
+    labels: list[tuple[str, str]]
+    estimate: FloatArray
+    covariance: FloatArray
+    prior_sigma: FloatArray
+    n_plots: dict[str, int]
+    warnings: list[str] = field(default_factory=list)
+    atmosphere: HeightModelEstimate | None = None
+    elapsed_s: float = 0.0
+
+    @property
+    def middle_s(self) -> float:
+        """Middle of the window [s]."""
+        return 0.5 * (self.t_start_s + self.t_end_s)
+
+    def data_information(self) -> tuple[FloatArray, FloatArray]:
+        """``(L_k, eta_k)``: what the window's data alone say about ``x - estimate``."""
+        prior_information = self.prior_sigma ** -2.0
+        information = np.linalg.inv(self.covariance)
+        information = 0.5 * (information + information.T) - np.diag(prior_information)
+        return information, prior_information * self.estimate
+
+
+def summarise_window(window: Window, options: WindowOptions = WindowOptions()
+                     ) -> WindowSummary | None:
+    """Calibrate one window on its own and keep its Gaussian summary.
+
+    Returns ``None`` when the window has nothing to calibrate (no plot matched
+    ADS-B and no two radars saw the same aircraft).
+    """
+    from graphcal.solvers.graph import graph
+
+    start = time.perf_counter()
+    dataset = window.dataset
+    have_adsb = bool(options.use_adsb and dataset.adsb is not None and len(dataset.adsb))
+    try:
+        cal = graph(dataset, cross=options.cross, robust=options.robust,
+                    robust_scale=options.robust_scale, use_adsb=options.use_adsb,
+                    fixed=dict(options.fixed), max_iterations=options.max_iterations,
+                    max_gap_s=options.max_gap_s, pair_max_gap_s=options.pair_max_gap_s,
+                    time_offset=have_adsb and options.cross != "target-state")
+    except EstimationError:
+        return None
+    labels = list(cal.labels)
+    prior = np.concatenate([
+        prior_sigmas(dataset.sites[rid], RadarTerms(rid, (name,), {})) for rid, name in labels
+    ]) if labels else np.zeros(0)
+    return WindowSummary(
+        window.index, window.t_start_s, window.t_end_s, labels,
+        np.asarray(cal.estimate, dtype=float), np.asarray(cal.covariance, dtype=float),
+        prior, {rid: int(cal.n_plots.get(rid, 0)) for rid in cal.radar_ids},
+        list(cal.warnings), cal.atmosphere, time.perf_counter() - start)
+
+
+# --------------------------------------------------------------------------- the chain
 @dataclass
 class WindowEstimate:
     """One radar's biases in one window: the smoothed mean over the window."""
@@ -64,203 +185,374 @@ class WindowEstimate:
     n_plots: int
     bias: RadarBias
     sigma: dict[str, float]  # contract key -> 1-sigma, contract units
-    covariance: FloatArray  # over the radar's free terms, SI
+    covariance: FloatArray  # over the radar's chain terms, SI
+
+
+@dataclass
+class BiasEvent:
+    """A change of a radar's biases beyond the random walk (contract ``events``).
+
+    ``kind`` is ``"step"`` (found in the data) or ``"break"`` (declared by the user).
+    ``size`` and ``sigma`` are in contract units, over the terms that moved.
+    """
+
+    radar_id: str
+    time_s: float
+    kind: str
+    parameters: list[str]
+    size: dict[str, float]
+    sigma: dict[str, float]
+    statistic: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The contract's ``events`` entry."""
+        entry: dict[str, Any] = {"radar_id": self.radar_id, "time_s": self.time_s,
+                                 "kind": self.kind, "parameters": list(self.parameters),
+                                 "size": dict(self.size), "sigma": dict(self.sigma)}
+        if self.statistic is not None:
+            entry["statistic"] = self.statistic
+        return entry
 
 
 @dataclass
 class WindowedCalibration:
-    """The chain's result: per radar, its windows in time order."""
+    """The chain's result: per radar, its windows in time order.
+
+    Attributes
+    ----------
+    window_s : float
+    terms : dict
+        Each radar's chain terms (:class:`~graphcal.model.parameters.RadarTerms`).
+    series : dict
+        Radar id -> its :class:`WindowEstimate` per window.
+    events : list of BiasEvent
+    rates : dict
+        Radar id -> term -> random-walk rate used [SI per sqrt(s)].
+    last_labels, last_estimate, last_covariance
+        Every radar's last window, jointly: ``(radar, term)`` labels, the smoothed
+        estimate (SI) and the joint covariance (SI).
+    largest_move : float
+        How far the smoothed chain moved a summary's variables from its
+        linearisation point, in that window's own sigmas (largest over windows).
+    summaries : list of WindowSummary
+    timing_s : dict
+    """
 
     window_s: float
     terms: dict[str, RadarTerms]
     series: dict[str, list[WindowEstimate]]
-    iterations: int = 0
+    events: list[BiasEvent]
+    rates: dict[str, dict[str, float]]
+    last_labels: list[tuple[str, str]]
+    last_estimate: FloatArray
+    last_covariance: FloatArray
+    largest_move: float
+    summaries: list[WindowSummary]
     timing_s: dict[str, float] = field(default_factory=dict)
-    rates: dict[str, dict[str, float]] = field(default_factory=dict)  # per sqrt(s), SI
+    step_false_alarm: float = DEFAULT_STEP_FALSE_ALARM
 
     def last(self, radar_id: str) -> WindowEstimate:
         """The radar's last window: the correction to apply from now on."""
         return self.series[radar_id][-1]
 
 
-def random_walk_rate(time_s: FloatArray, estimate: FloatArray, variance: FloatArray) -> float:
-    """Maximum-likelihood random-walk rate ``q`` [unit per sqrt(s)] of one term's chain.
+@dataclass
+class _Chain:
+    """One radar's windows: which summaries, and where its terms sit in each."""
 
-    The windows' *independent* estimates ``y_k`` (each from its own window's data,
-    variance ``R_k``) of a term following ``x_k = x_{k-1} + w_k``, ``w_k ~ N(0, q^2
-    (t_k - t_{k-1}))``: the Kalman filter's innovations ``nu_k`` (variance ``S_k``)
-    give ``log L(q) = -1/2 sum (log S_k + nu_k^2 / S_k)``, maximised over ``log q``
-    (a grid, then a bounded scalar search).  0 when the windows agree within their
-    noise (a constant bias).
+    radar_id: str
+    names: tuple[str, ...]
+    entries: list[tuple[int, list[int | None]]]  # (summary number, position per name)
+
+    def independent(self, summaries: Sequence[WindowSummary]
+                    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Middles, estimates and variances of each window alone (nan where absent)."""
+        n, m = len(self.entries), len(self.names)
+        middles = np.empty(n)
+        values = np.full((n, m), np.nan)
+        variances = np.full((n, m), np.nan)
+        for row, (s, positions) in enumerate(self.entries):
+            middles[row] = summaries[s].middle_s
+            for col, pos in enumerate(positions):
+                if pos is not None:
+                    values[row, col] = summaries[s].estimate[pos]
+                    variances[row, col] = summaries[s].covariance[pos, pos]
+        return middles, values, variances
+
+
+def _chains(summaries: Sequence[WindowSummary]) -> dict[str, _Chain]:
+    names: dict[str, set[str]] = {}
+    for summary in summaries:
+        for rid, name in summary.labels:
+            names.setdefault(rid, set()).add(name)
+    chains = {rid: _Chain(rid, tuple(n for n in TERM_NAMES if n in found), [])
+              for rid, found in names.items()}
+    for s, summary in enumerate(summaries):
+        where = {label: i for i, label in enumerate(summary.labels)}
+        for rid in dict.fromkeys(rid for rid, _ in summary.labels):
+            chain = chains[rid]
+            chain.entries.append((s, [where.get((rid, name)) for name in chain.names]))
+    return chains
+
+
+def declared_cuts(middles: FloatArray, starts: FloatArray, ends: FloatArray,
+                  break_times_s: Sequence[float]) -> list[int]:
+    """Links of a chain cut by declared change times.
+
+    A time on a window boundary (or in a gap between windows) cuts the link there;
+    a time inside a window isolates that window (cuts on both sides).
     """
-    from scipy.optimize import minimize_scalar
-
-    t, y, r = (np.asarray(v, dtype=float) for v in (time_s, estimate, variance))
-    keep = np.isfinite(y) & np.isfinite(r) & (r > 0)
-    t, y, r = t[keep], y[keep], r[keep]
-    if len(t) < 3:
-        return 0.0
-    dt = np.diff(t)
-
-    def negative_log_likelihood(log_q: float) -> float:
-        q2 = np.exp(2.0 * log_q)
-        x, p, total = y[0], r[0], 0.0
-        for k in range(1, len(y)):
-            p_pred = p + q2 * dt[k - 1]
-            s = p_pred + r[k]
-            nu = y[k] - x
-            total += 0.5 * (np.log(s) + nu * nu / s)
-            gain = p_pred / s
-            x, p = x + gain * nu, (1.0 - gain) * p_pred
-        return float(total)
-
-    # q from far below the noise (a constant) to far above the spread of the estimates.
-    scale = np.sqrt(np.median(r) / np.median(dt))
-    spread = np.sqrt(np.max(np.diff(y) ** 2 / dt) + np.median(r) / np.median(dt))
-    grid = np.linspace(np.log(1e-4 * scale), np.log(10.0 * max(spread, scale)), 60)
-    values = [negative_log_likelihood(g) for g in grid]
-    best = int(np.argmin(values))
-    if best == 0:
-        return 0.0
-    lo, hi = grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)]
-    found = minimize_scalar(negative_log_likelihood, bounds=(lo, hi), method="bounded")
-    return float(np.exp(found.x))
+    cuts: set[int] = set()
+    for when in break_times_s:
+        inside = np.flatnonzero((starts < when) & (when < ends))
+        if len(inside):
+            k = int(inside[0])
+            cuts.update(c for c in (k - 1, k) if 0 <= c < len(middles) - 1)
+            continue
+        after = int(np.searchsorted(starts, when, side="left"))
+        if 0 < after < len(middles):
+            cuts.add(after - 1)
+    return sorted(cuts)
 
 
-def _build(windows: list[Window], dataset: Dataset, terms: dict[str, RadarTerms],
-           priors: dict[str, FloatArray], have_adsb: bool, kernel: RobustKernel
-           ) -> tuple[FactorGraph, dict[str, list[tuple[Window, int]]]]:
-    """Every window's variables, weak priors and measurement factors; no chain yet."""
-    radar_ids = list(dataset.radar_ids)
+def smooth_windows(
+    summaries: Sequence[WindowSummary],
+    sites: Mapping[str, Site],
+    window_s: float,
+    *,
+    random_walk_per_sqrt_s: Mapping[str, float] | None = None,
+    estimate_rates: bool = True,
+    breaks: Mapping[str, Sequence[float]] | None = None,
+    detect_steps: bool = True,
+    step_false_alarm: float = DEFAULT_STEP_FALSE_ALARM,
+) -> WindowedCalibration:
+    """Chain the windows' summaries and smooth them (module docstring).
+
+    Parameters
+    ----------
+    summaries : sequence of WindowSummary
+        In time order (``None`` entries already dropped).
+    sites : mapping
+        The radars' sites (for the weak priors).
+    window_s : float
+        Window length [s].
+    random_walk_per_sqrt_s : mapping, optional
+        Rate per term name [SI per sqrt(s)] for every radar; these are not estimated.
+    estimate_rates : bool
+        Estimate the other rates from the data (else
+        :data:`DEFAULT_RANDOM_WALK_PER_SQRT_S`).
+    breaks : mapping, optional
+        Radar id -> times [s] of known changes (maintenance): the chain is cut there.
+    detect_steps : bool
+        Search for steps beyond the random walk.
+    step_false_alarm : float
+        Chance of one false step per radar and recording.
+
+    Raises
+    ------
+    EstimationError
+        When no window has anything to calibrate.
+    """
+    if not summaries:
+        raise EstimationError("nothing to calibrate in any window: no plot matched ADS-B and "
+                              "no two radars saw the same aircraft")
+    timing: dict[str, float] = {}
+    t0 = time.perf_counter()
+    given = dict(random_walk_per_sqrt_s or {})
+    breaks = dict(breaks or {})
+    chains = _chains(summaries)
+    analyses: dict[str, ChainAnalysis] = {}
+    rates: dict[str, dict[str, float]] = {}
+    for rid, chain in chains.items():
+        middles, values, variances = chain.independent(summaries)
+        starts = np.array([summaries[s].t_start_s for s, _ in chain.entries])
+        ends = np.array([summaries[s].t_end_s for s, _ in chain.entries])
+        given_rates = np.array([
+            given.get(name, np.nan if estimate_rates else DEFAULT_RANDOM_WALK_PER_SQRT_S[name])
+            for name in chain.names])
+        analysis = analyse_chain(
+            middles, values, variances, given_rates=given_rates,
+            declared_cuts=declared_cuts(middles, starts, ends, breaks.get(rid, ())),
+            detect_steps=detect_steps, false_alarm=step_false_alarm)
+        floor = RATE_FLOOR_FRACTION * np.array(
+            [DEFAULT_RANDOM_WALK_PER_SQRT_S[n] for n in chain.names])
+        is_given = np.isfinite(given_rates)
+        analysis.rates = np.where(is_given, analysis.rates, np.maximum(analysis.rates, floor))
+        analyses[rid] = analysis
+        rates[rid] = dict(zip(chain.names, analysis.rates.tolist(), strict=True))
+    timing["rates_and_steps_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fg, keys = _chain_graph(summaries, chains, analyses, sites)
+    result = fg.solve_linear()
+    timing["smoothing_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    every_key = [key for chain_keys in keys.values() for key in chain_keys]
+    marginals = dict(zip(every_key, fg.marginal_covariances(result.values, every_key),
+                         strict=True))
+    terms = {rid: RadarTerms(rid, chain.names, {}) for rid, chain in chains.items()}
+    series = {rid: [_window_estimate(summaries[s], rid, terms[rid], result.vector(key),
+                                     marginals[key])
+                    for (s, _), key in zip(chains[rid].entries, keys[rid], strict=True)]
+              for rid in chains}
+    events = [event for rid in chains
+              for event in _events(rid, chains[rid], keys[rid], analyses[rid], summaries,
+                                   fg, result, breaks.get(rid, ()))]
+    last_keys = [keys[rid][-1] for rid in chains]
+    last_labels = [(rid, name) for rid in chains for name in chains[rid].names]
+    last_covariance = fg.joint_covariance(result.values, last_keys)
+    last_estimate = np.concatenate([result.vector(k) for k in last_keys])
+    timing["marginals_s"] = time.perf_counter() - t0
+    return WindowedCalibration(
+        window_s, terms, series, sorted(events, key=lambda e: (e.time_s, e.radar_id)), rates,
+        last_labels, last_estimate, last_covariance,
+        _largest_move(summaries, chains, keys, result), list(summaries), timing,
+        step_false_alarm)
+
+
+def _chain_graph(summaries: Sequence[WindowSummary], chains: Mapping[str, _Chain],
+                 analyses: Mapping[str, ChainAnalysis], sites: Mapping[str, Site]
+                 ) -> tuple[FactorGraph, dict[str, list[int]]]:
+    """Variables, summaries, priors and random walks of every chain."""
     fg = FactorGraph()
-    chain: dict[str, list[tuple[Window, int]]] = {rid: [] for rid in radar_ids}
-    for w_number, window in enumerate(windows):
-        keys = {rid: symbol("w", w_number * len(radar_ids) + i)
-                for i, rid in enumerate(radar_ids)}
-        problem = Problem(terms, keys)
-        build_factors(window.dataset, problem, have_adsb, "pairwise", kernel,
-                      DEFAULT_ADSB_MAX_GAP_S, None, None)
-        variable = set(problem.variable_radars())
-        for rid in variable:
-            fg.add_variable(keys[rid], np.zeros(len(terms[rid].free)))
-            fg.add_prior(keys[rid], np.zeros(len(terms[rid].free)), priors[rid])
-            chain[rid].append((window, keys[rid]))
-        for factor in [*problem.adsb.values(), *problem.pairs]:
-            add_factor(fg, factor, variable)
-    return fg, chain
+    keys: dict[str, list[int]] = {}
+    counter = 0
+    embedding: dict[tuple[int, str], tuple[int, list[int | None]]] = {}
+    for rid, chain in chains.items():
+        keys[rid] = []
+        prior = prior_sigmas(sites[rid], RadarTerms(rid, chain.names, {}))
+        analysis = analyses[rid]
+        for row, (s, positions) in enumerate(chain.entries):
+            key = symbol("w", counter)
+            counter += 1
+            keys[rid].append(key)
+            embedding[(s, rid)] = (key, positions)
+            start = np.array([summaries[s].estimate[p] if p is not None else 0.0
+                              for p in positions])
+            fg.add_variable(key, start)
+            if row == 0 or (row - 1) in analysis.cuts:
+                fg.add_prior(key, np.zeros(len(chain.names)), prior)
+            else:
+                dt = summaries[s].middle_s - summaries[chain.entries[row - 1][0]].middle_s
+                block = np.diag(1.0 / (analysis.rates * np.sqrt(max(dt, 1e-9))))
+                fg.add_linear([keys[rid][row - 1], key], [-block, block],
+                              np.zeros(len(chain.names)))
+    for s, summary in enumerate(summaries):
+        if not summary.labels:
+            continue
+        information, vector = summary.data_information()
+        radars = list(dict.fromkeys(rid for rid, _ in summary.labels))
+        # Embed the summary's terms into each radar's chain vector (terms the window
+        # did not estimate get no information from it).
+        size = {rid: len(chains[rid].names) for rid in radars}
+        edges = np.concatenate([[0], np.cumsum([size[rid] for rid in radars])])
+        big = np.zeros((edges[-1], edges[-1]))
+        big_vector = np.zeros(edges[-1])
+        index = np.empty(len(summary.labels), dtype=int)
+        points = []
+        for r, rid in enumerate(radars):
+            _, positions = embedding[(s, rid)]
+            point = np.zeros(size[rid])
+            for col, pos in enumerate(positions):
+                if pos is not None:
+                    index[pos] = edges[r] + col
+                    point[col] = summary.estimate[pos]
+            points.append(point)
+        big[np.ix_(index, index)] = information
+        big_vector[index] = vector
+        fg.add_gaussian([embedding[(s, rid)][0] for rid in radars], big, big_vector, points)
+    return fg, keys
+
+
+def _window_estimate(summary: WindowSummary, rid: str, terms: RadarTerms, value: FloatArray,
+                     covariance: FloatArray) -> WindowEstimate:
+    sd = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    sigma = {CONTRACT_KEYS[name][0]: float(v) * CONTRACT_KEYS[name][1]
+             for name, v in zip(terms.free, sd, strict=True)}
+    return WindowEstimate(summary.t_start_s, summary.t_end_s, summary.n_plots.get(rid, 0),
+                          terms.bias(value), sigma, covariance)
+
+
+def _events(rid: str, chain: _Chain, keys: list[int], analysis: ChainAnalysis,
+            summaries: Sequence[WindowSummary], fg: FactorGraph, result: Any,
+            declared: Sequence[float]) -> list[BiasEvent]:
+    """One event per cut (an isolated window, cut on both sides, is one step in it)."""
+    events: list[BiasEvent] = []
+    cuts = list(analysis.cuts)
+    declared_links = set()
+    middles = np.array([summaries[s].middle_s for s, _ in chain.entries])
+    starts = np.array([summaries[s].t_start_s for s, _ in chain.entries])
+    ends = np.array([summaries[s].t_end_s for s, _ in chain.entries])
+    for when in declared:
+        declared_links.update(declared_cuts(middles, starts, ends, [when]))
+    i = 0
+    while i < len(cuts):
+        link = cuts[i]
+        isolated = i + 1 < len(cuts) and cuts[i + 1] == link + 1
+        before, after = link, link + (2 if isolated else 1)
+        a, b = keys[before], keys[after]
+        joint = fg.joint_covariance(result.values, [a, b])
+        m = len(chain.names)
+        change = result.vector(b) - result.vector(a)
+        change_cov = joint[:m, :m] + joint[m:, m:] - joint[:m, m:] - joint[m:, :m]
+        change_sd = np.sqrt(np.clip(np.diag(change_cov), 1e-300, None))
+        z = np.abs(change) / change_sd
+        moved = [j for j in range(m) if z[j] > 3.0] or [int(np.argmax(z))]
+        if isolated:
+            middle = result.vector(keys[link + 1])
+            j = moved[int(np.argmax(z[moved]))]
+            fraction = float(np.clip((middle[j] - result.vector(a)[j]) / change[j], 0.0, 1.0))
+            window = summaries[chain.entries[link + 1][0]]
+            when = window.t_end_s - fraction * (window.t_end_s - window.t_start_s)
+        else:
+            when = 0.5 * (ends[link] + starts[link + 1])
+        kind = "break" if link in declared_links else "step"
+        names = [chain.names[j] for j in moved]
+        events.append(BiasEvent(
+            rid, float(when), kind, [CONTRACT_KEYS[n][0] for n in names],
+            {CONTRACT_KEYS[n][0]: float(change[chain.names.index(n)]) * CONTRACT_KEYS[n][1]
+             for n in names},
+            {CONTRACT_KEYS[n][0]: float(change_sd[chain.names.index(n)]) * CONTRACT_KEYS[n][1]
+             for n in names},
+            analysis.statistics.get(link)))
+        i += 2 if isolated else 1
+    return events
+
+
+def _largest_move(summaries: Sequence[WindowSummary], chains: Mapping[str, _Chain],
+                  keys: Mapping[str, list[int]], result: Any) -> float:
+    largest = 0.0
+    for rid, chain in chains.items():
+        for (s, positions), key in zip(chain.entries, keys[rid], strict=True):
+            value = result.vector(key)
+            summary = summaries[s]
+            for col, pos in enumerate(positions):
+                if pos is not None:
+                    sd = np.sqrt(summary.covariance[pos, pos])
+                    largest = max(largest, abs(value[col] - summary.estimate[pos]) / sd)
+    return float(largest)
 
 
 def windowed_graph(
     dataset: Dataset,
     window_s: float,
     *,
-    use_adsb: bool = True,
-    random_walk_per_sqrt_s: Mapping[str, float] | None = None,
-    estimate_rates: bool = True,
-    robust: str = "huber",
-    max_iterations: int = 100,
+    options: WindowOptions = WindowOptions(),
+    **chain_options: Any,
 ) -> WindowedCalibration:
-    """Calibrate biases per time window, smoothed along the chain (module docstring).
+    """Calibrate biases per time window, in memory and in this process.
 
-    The random-walk rate of each radar's term is, in this order: the one given in
-    ``random_walk_per_sqrt_s``; with ``estimate_rates``, the maximum-likelihood rate
-    of the windows' independent estimates (:func:`random_walk_rate`, a first solve
-    without the chain), so that a real drift is followed rather than smoothed away;
-    else :data:`DEFAULT_RANDOM_WALK_PER_SQRT_S`.  The rates used are in
-    :attr:`WindowedCalibration.rates`.
-
-    Parameters
-    ----------
-    dataset : Dataset
-    window_s : float
-        Window length [s].
-    use_adsb : bool
-        Use the ADS-B reports (else cross-radar pairs only).
-    random_walk_per_sqrt_s : mapping, optional
-        Rate per term name (``range_offset``, ...) [SI per sqrt(s)], for every radar.
-    estimate_rates : bool
-        Estimate the rates not given from the data.
-    robust : str
-        Robust kernel of the measurement factors.
-    max_iterations : int
-        Levenberg-Marquardt limit.
-
-    Raises
-    ------
-    EstimationError
-        When no window has data for any radar.
-    ValueError
-        For pressure altitudes (not yet windowed) or a bad window.
+    :func:`summarise_window` on each of :func:`~graphcal.data.windows.split_windows`,
+    then :func:`smooth_windows` (``chain_options`` are its keyword arguments).
     """
-    if dataset.pressure_altitudes:
-        raise ValueError("pressure altitudes are not yet calibrated in windows; "
-                         "calibrate without --window")
-    given = dict(random_walk_per_sqrt_s or {})
-    timing: dict[str, float] = {}
     t0 = time.perf_counter()
-    have_adsb = use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0
-    terms = {rid: radar_terms(dataset.sites[rid], {}, False) for rid in dataset.radar_ids}
-    priors = {rid: prior_sigmas(dataset.sites[rid], terms[rid]) for rid in dataset.radar_ids}
-    kernel = RobustKernel(robust)
-    windows = list(split_windows(dataset, window_s))
-    fg, chain = _build(windows, dataset, terms, priors, have_adsb, kernel)
-    timing["factors_s"] = time.perf_counter() - t0
-    if not any(chain.values()):
-        raise EstimationError("nothing to calibrate in any window: no plot matched ADS-B and "
-                              "no two radars saw the same aircraft")
-    rates = {rid: {name: given.get(name, DEFAULT_RANDOM_WALK_PER_SQRT_S[name])
-                   for name in terms[rid].free} for rid in chain}
-    iterations = 0
-    if estimate_rates:
-        t0 = time.perf_counter()
-        independent = fg.optimize(max_iterations=max_iterations)
-        iterations += independent.iterations
-        keys = [key for links in chain.values() for _, key in links]
-        covariances = dict(zip(keys, fg.marginal_covariances(independent.values, keys),
-                               strict=True))
-        for rid, links in chain.items():
-            middles = np.array([w.middle_s for w, _ in links])
-            values = np.array([independent.vector(key) for _, key in links])
-            variances = np.array([np.diag(covariances[key]) for _, key in links])
-            for j, name in enumerate(terms[rid].free):
-                if name not in given and len(links) >= 3:
-                    rates[rid][name] = random_walk_rate(middles, values[:, j], variances[:, j])
-        timing["rates_s"] = time.perf_counter() - t0
-    for rid, links in chain.items():
-        n_free = len(terms[rid].free)
-        # A rate of 0 (a constant term) is held by a tight but finite walk.
-        floor = 1e-2 * np.array([DEFAULT_RANDOM_WALK_PER_SQRT_S[n] for n in terms[rid].free])
-        q = np.maximum(np.array([rates[rid][name] for name in terms[rid].free]), floor)
-        for (w_a, k_a), (w_b, k_b) in zip(links, links[1:], strict=False):
-            sigma = q * np.sqrt(max(w_b.middle_s - w_a.middle_s, 1e-9))
-            block = np.diag(1.0 / sigma)
-            fg.add_linear([k_a, k_b], [-block, block], np.zeros(n_free))
-    t0 = time.perf_counter()
-    result = fg.optimize(max_iterations=max_iterations)
-    iterations += result.iterations
-    timing["optimisation_s"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    all_keys = [key for links in chain.values() for _, key in links]
-    covariances = dict(zip(all_keys, fg.marginal_covariances(result.values, all_keys),
-                           strict=True))
-    series: dict[str, list[WindowEstimate]] = {}
-    for rid, links in chain.items():
-        entries = []
-        for window, key in links:
-            cov = covariances[key]
-            bias = terms[rid].bias(result.vector(key))
-            sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-            sigma = {CONTRACT_KEYS[name][0]: float(v) * CONTRACT_KEYS[name][1]
-                     for name, v in zip(terms[rid].free, sd, strict=True)}
-            n = int((window.dataset.plots["radar_id"] == rid).sum())
-            entries.append(WindowEstimate(window.t_start_s, window.t_end_s, n, bias, sigma,
-                                          cov))
-        if entries:
-            series[rid] = entries
-    timing["marginals_s"] = time.perf_counter() - t0
-    return WindowedCalibration(window_s, terms, series, iterations, timing,
-                               {rid: rates[rid] for rid in series})
+    summaries = [s for w in split_windows(dataset, window_s)
+                 if (s := summarise_window(w, options)) is not None]
+    elapsed = time.perf_counter() - t0
+    result = smooth_windows(summaries, dataset.sites, window_s, **chain_options)
+    result.timing_s["summaries_s"] = elapsed
+    return result
 
 
-__all__ = ["DEFAULT_RANDOM_WALK_PER_SQRT_S", "WindowEstimate", "WindowedCalibration",
-           "random_walk_rate", "windowed_graph"]
+__all__ = ["DEFAULT_RANDOM_WALK_PER_SQRT_S", "RATE_FLOOR_FRACTION", "BiasEvent",
+           "WindowEstimate", "WindowOptions", "WindowSummary", "WindowedCalibration",
+           "declared_cuts", "smooth_windows", "summarise_window", "windowed_graph"]
