@@ -125,6 +125,49 @@ def calibrate_command(
             "drifting bias. --no-model-checks skips them.",
         ),
     ] = True,
+    window: Annotated[
+        str | None,
+        typer.Option(
+            "--window", metavar="DURATION",
+            help="Biases over time: calibrate each window (e.g. 15min, 1h, 900s; aligned on "
+            "multiples of it) and chain the windows by random walks. The result's radars "
+            "are the last window's; it adds series and events (steps found).",
+        ),
+    ] = None,
+    drift: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--drift", metavar="KEY=RATE",
+            help="--window: random-walk rate of a bias, contract units per square root of "
+            "an hour (e.g. azimuth_bias_mrad=0.5, range_offset_m=2), for every radar; "
+            "repeatable. Rates not given are estimated from the data.",
+        ),
+    ] = None,
+    breaks: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--break", metavar="RADAR@TIME",
+            help="--window: a known change (maintenance) of a radar at TIME \\[s, dataset "
+            "time base]: its chain is cut there; repeatable.",
+        ),
+    ] = None,
+    steps: Annotated[
+        bool,
+        typer.Option(
+            "--steps/--no-steps",
+            help="--window: search for steps beyond the random walk (false alarms: 0.1 % "
+            "per radar and recording).",
+        ),
+    ] = True,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(
+            "--scheduler", metavar="synchronous|threads|processes|ADDRESS",
+            help="--window: where windows are calibrated: in this process (default), "
+            "threads, one process per core (Dask LocalCluster), or the address of a Dask "
+            "scheduler (tcp://host:8786).",
+        ),
+    ] = None,
     cat063: Annotated[
         Path | None,
         typer.Option(
@@ -150,6 +193,16 @@ def calibrate_command(
             method = "graph"
         try:
             fixed = _parse_fix_options(fix or [])
+            windowed: dict = {}
+            if window is not None:
+                windowed = {"window": window, "scheduler": scheduler,
+                            "drift": _parse_drift_options(drift or []),
+                            "breaks": _parse_break_options(breaks or []),
+                            "detect_steps": steps}
+            elif drift or breaks or scheduler is not None or not steps:
+                given = "--drift" if drift else "--break" if breaks else (
+                    "--scheduler" if scheduler is not None else "--no-steps")
+                raise ValueError(f"{given} applies to calibrations over time: give --window")
             with progress_bar(_progress_label(method, select)) as callback:
                 cal = run_calibration(
                     dataset, method, max_gap_s=max_gap_s, cross=cross, robust=robust,
@@ -157,7 +210,8 @@ def calibrate_command(
                     max_iterations=max_iterations, time_offset=time_offset,
                     iterations=iterations, linearise=linearise, select=select, budget=budget,
                     select_unit=select_unit, segment_s=segment_s, select_seed=select_seed,
-                    model_checks=model_checks, progress=callback,
+                    model_checks=model_checks and window is None, progress=callback,
+                    **windowed,
                 )
         except ValueError as exc:
             fail(str(exc), EXIT_BAD_INPUT)
@@ -222,6 +276,35 @@ def _radar_codes(sites) -> dict[str, tuple[int, int]]:
         rid: (int(site.sac), int(site.sic)) for rid, site in sites.items()
         if getattr(site, "sac", None) is not None and getattr(site, "sic", None) is not None
     }
+
+
+def _parse_drift_options(items: list[str]) -> dict[str, float]:
+    """``--drift KEY=RATE`` -> ``{key: rate}`` (contract units per sqrt(hour))."""
+    rates = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ValueError(f"--drift {item!r}: expected KEY=RATE, e.g. azimuth_bias_mrad=0.5")
+        try:
+            rates[key.strip()] = float(text)
+        except ValueError:
+            raise ValueError(f"--drift {item!r}: rate '{text}' is not a number") from None
+    return rates
+
+
+def _parse_break_options(items: list[str]) -> dict[str, list[float]]:
+    """``--break RADAR@TIME`` -> ``{radar: [time_s, ...]}``."""
+    breaks: dict[str, list[float]] = {}
+    for item in items:
+        rid, sep, text = item.rpartition("@")
+        if not sep or not rid:
+            raise ValueError(f"--break {item!r}: expected RADAR@TIME, e.g. NORD@43200")
+        try:
+            breaks.setdefault(rid, []).append(float(text))
+        except ValueError:
+            raise ValueError(f"--break {item!r}: time '{text}' is not a number of "
+                             "seconds") from None
+    return breaks
 
 
 def _parse_fix_options(items: list[str]) -> dict[str, float]:

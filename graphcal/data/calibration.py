@@ -274,6 +274,8 @@ class Calibration:
     fixed: dict[tuple[str, str], float] = field(default_factory=dict)
     information: NDArray[np.float64] | None = field(default=None, repr=False, compare=False)
     atmosphere: HeightModelEstimate | None = None
+    series: dict[str, Any] | None = field(default=None, repr=False)
+    events: list[dict[str, Any]] | None = None
 
     # ----------------------------------------------------------------- queries
     def _position(self, radar_id: str, name: str) -> int | None:
@@ -546,6 +548,10 @@ class Calibration:
             atmosphere = None
             if data.get("atmosphere") is not None:
                 atmosphere = HeightModelEstimate.from_dict(data["atmosphere"])
+            where = "series"
+            series = _read_series(data.get("series"))
+            where = "events"
+            events = None if series is None else [dict(e) for e in data.get("events") or []]
         except (TypeError, ValueError, KeyError) as exc:
             if isinstance(exc, ResultError):
                 raise
@@ -564,6 +570,8 @@ class Calibration:
             info=info,
             fixed=fixed,
             atmosphere=atmosphere,
+            series=series,
+            events=events,
         )
 
     @classmethod
@@ -632,6 +640,9 @@ class Calibration:
         document: dict[str, Any] = {"method": self.method, "radars": radars}
         if self.atmosphere is not None:  # contract v2; absent from version-1 results
             document["atmosphere"] = self.atmosphere.to_dict()
+        if self.series is not None:  # contract v2 --window
+            document["series"] = self.series
+            document["events"] = list(self.events or [])
         return _jsonable({
             **document,
             "covariance": {
@@ -652,6 +663,30 @@ class Calibration:
         from graphcal.core.atomic import atomic_write_text
 
         atomic_write_text(Path(path), self.to_json() + "\n")
+
+
+def _read_series(value: Any) -> dict[str, Any] | None:
+    """A result's ``series`` block, checked: a window length and, per radar, windows
+    with their span and finite values (``KeyError``/``ValueError`` otherwise)."""
+    if value is None:
+        return None
+    window_s = float(value["window_s"])
+    if not (np.isfinite(window_s) and window_s > 0):
+        raise ValueError(f"window_s must be a positive duration, not {window_s}")
+    radars = {}
+    for rid, windows in dict(value["radars"]).items():
+        entries = []
+        for entry in windows:
+            entry = dict(entry)
+            for key in ("t_start_s", "t_end_s"):
+                entry[key] = float(entry[key])
+            for key, number in entry.items():
+                if isinstance(number, float) and not np.isfinite(number):
+                    raise ValueError(f"{rid} window at {entry['t_start_s']} s: {key} is "
+                                     "not finite")
+            entries.append(entry)
+        radars[str(rid)] = entries
+    return {**dict(value), "window_s": window_s, "radars": radars}
 
 
 def _get_covariance(self: Calibration) -> JointCovariance:

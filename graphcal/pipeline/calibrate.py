@@ -123,6 +123,11 @@ def calibrate(
     select_seed: int = 0,
     bound: bool | None = None,
     model_checks: bool = True,
+    window: float | str | None = None,
+    scheduler: str | None = None,
+    drift: Mapping[str, float] | None = None,
+    breaks: Mapping[str, list[float]] | None = None,
+    detect_steps: bool = True,
     progress: Progress | None = None,
 ) -> Calibration:
     """Estimate every radar's biases: select, solve, bound and judge, once.
@@ -176,6 +181,13 @@ def calibrate(
         against ADS-B or, without it (or with ``use_adsb=False``), against the
         other radars' plots.  Records ``info["model_checks"]`` and adds one
         warning per radar whose residuals show structure beyond chance.
+    window : float or str, optional
+        Biases over time (contract v2 ``--window``): a window length in seconds or
+        as ``"15min"``, ``"1h"``; ``graph`` only, see
+        :func:`graphcal.pipeline.windowed.calibrate_windows`, which also takes
+        ``scheduler``, ``drift`` (contract units per sqrt(hour)), ``breaks``
+        (radar id -> times [s]) and ``detect_steps``.  The bound, the model checks
+        and a selection are not computed per window.
     progress : callable, optional
         ``progress(stage, done, total)``.
 
@@ -183,7 +195,8 @@ def calibrate(
     -------
     Calibration
         With ``info["selection"]`` when selecting, the bound when asked and
-        ``info["model_checks"]`` unless turned off.
+        ``info["model_checks"]`` unless turned off; with ``window``, the last
+        window's biases and the ``series`` and ``events``.
 
     Raises
     ------
@@ -206,6 +219,16 @@ def calibrate(
     options = _method_options(method, given, dataset.sites)
     if max_gap_s is not None:
         options["max_gap_s"] = max_gap_s
+    if window is not None:
+        return _calibrate_windows(dataset, method, window, options, select=select,
+                                  bound=bound, scheduler=scheduler, drift=drift,
+                                  breaks=breaks, detect_steps=detect_steps, progress=progress)
+    windowed_only = {"scheduler": scheduler, "drift": drift, "breaks": breaks}
+    for name, value in windowed_only.items():
+        if value:
+            raise ValueError(f"{name} applies to calibrations over time: give window as well")
+    if not detect_steps:
+        raise ValueError("detect_steps applies to calibrations over time: give window as well")
     if budget is not None and select is None:
         raise ValueError("budget applies to a selection: give select as well")
     selection = None
@@ -251,6 +274,35 @@ def calibrate(
         timing["model_checks_s"] = cal.info["model_checks"]["seconds"]
         timing["total_s"] = time.perf_counter() - start
     return cal
+
+
+def _calibrate_windows(dataset: Dataset, method: str, window: float | str,
+                       options: dict[str, Any], *, select: str | None, bound: bool | None,
+                       progress: Progress | None, **chain: Any) -> Calibration:
+    """``calibrate(window=...)``: the graph per window, chained (pipeline.windowed)."""
+    from graphcal.core.durations import parse_duration
+    from graphcal.pipeline.windowed import calibrate_windows
+    from graphcal.solvers.windows import WindowOptions
+
+    if method != "graph":
+        raise ValueError(f"window applies to the graph method, not {method}")
+    if select is not None:
+        raise ValueError("select is not available with window: each window uses all its data")
+    if bound:
+        raise ValueError("the Cramér-Rao bound is not computed per window; drop bound")
+    if options.get("init", "auto") != "auto":
+        raise ValueError("init applies to one batch; each window starts from its own "
+                         "closed-form estimate")
+    if options.get("time_offset") is not None:
+        raise ValueError("time_offset: with window, time offsets are estimated in every "
+                         "window with ADS-B")
+    window_options = WindowOptions(
+        use_adsb=options["use_adsb"], cross=options["cross"], robust=options["robust"],
+        robust_scale=options["robust_scale"], fixed=options.get("fixed") or {},
+        max_iterations=options["max_iterations"],
+        **({"max_gap_s": options["max_gap_s"]} if "max_gap_s" in options else {}))
+    return calibrate_windows(dataset, parse_duration(window), options=window_options,
+                             progress=progress, **chain)
 
 
 def _check_model(cal: Calibration, dataset: Dataset, *, use_adsb: bool,

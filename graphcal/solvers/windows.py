@@ -8,11 +8,13 @@ Contract v2's ``--window``.  The recording is cut into windows
    estimator: aligned, paired, solved with weak priors, its nuisance variables (the
    height model of pressure altitudes, target states) eliminated, its covariance
    corrected for plots shared between pairs.  What is kept is a Gaussian on the
-   window's bias variables: its estimate ``y_k`` and covariance ``P_k``.  With the
+   window's bias variables: its estimate ``y_k`` and covariance ``P_k``.  A radar
+   with fewer than :data:`MIN_WINDOW_PLOTS` plots in a window is left out of it.  With the
    weak priors ``Pi`` (mean 0) taken out again, the window's data say
    ``1/2 d^T L_k d - d^T eta_k`` about ``d = x - y_k``, with ``L_k = P_k^-1 - Pi^-1``
    and ``eta_k = Pi^-1 y_k`` (the gradient the priors balanced).  The time offsets
-   are estimated in every window with ADS-B.
+   are estimated in every window with ADS-B where its traffic determines them
+   (the ``graph`` estimator's automatic choice); the chain pools them.
 2. **Rates and steps** (:func:`graphcal.solvers.drift.analyse_chain`).  From each
    radar's chain of independent window estimates: each term's random-walk rate
    (maximum likelihood), and the steps beyond it.
@@ -39,7 +41,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -71,6 +73,10 @@ DEFAULT_RANDOM_WALK_PER_SQRT_S: dict[str, float] = {
     "azimuth_sin": 0.02e-3 / 60.0,
     "azimuth_cos": 0.02e-3 / 60.0,
 }
+
+#: A radar with fewer plots in a window is left out of that window: so few plots
+#: do not determine its biases (and a time offset from them is far from Gaussian).
+MIN_WINDOW_PLOTS = 100
 
 #: Floor of an estimated rate, as a fraction of the default.
 RATE_FLOOR_FRACTION = 1e-2
@@ -156,12 +162,19 @@ def summarise_window(window: Window, options: WindowOptions = WindowOptions()
     start = time.perf_counter()
     dataset = window.dataset
     have_adsb = bool(options.use_adsb and dataset.adsb is not None and len(dataset.adsb))
+    counts = dataset.plots["radar_id"].value_counts()
+    few = set(counts.index[counts < MIN_WINDOW_PLOTS])
+    if few:
+        dataset = replace(dataset, plots=dataset.plots[~dataset.plots["radar_id"].isin(few)])
+    if dataset.plots.empty:
+        return None
     try:
         cal = graph(dataset, cross=options.cross, robust=options.robust,
                     robust_scale=options.robust_scale, use_adsb=options.use_adsb,
                     fixed=dict(options.fixed), max_iterations=options.max_iterations,
                     max_gap_s=options.max_gap_s, pair_max_gap_s=options.pair_max_gap_s,
-                    time_offset=have_adsb and options.cross != "target-state")
+                    time_offset=None if have_adsb and options.cross != "target-state"
+                    else False)
     except EstimationError:
         return None
     labels = list(cal.labels)
@@ -553,6 +566,6 @@ def windowed_graph(
     return result
 
 
-__all__ = ["DEFAULT_RANDOM_WALK_PER_SQRT_S", "RATE_FLOOR_FRACTION", "BiasEvent",
+__all__ = ["DEFAULT_RANDOM_WALK_PER_SQRT_S", "MIN_WINDOW_PLOTS", "RATE_FLOOR_FRACTION", "BiasEvent",
            "WindowEstimate", "WindowOptions", "WindowSummary", "WindowedCalibration",
            "declared_cuts", "smooth_windows", "summarise_window", "windowed_graph"]

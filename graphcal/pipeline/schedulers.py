@@ -1,0 +1,145 @@
+"""Where the window map runs: in this process, or on Dask (``calibrate --scheduler``).
+
+Each window's summary (:func:`graphcal.solvers.windows.summarise_window`) is
+independent work.  :func:`map_windows` runs it over the windows as they are read:
+
+* ``synchronous`` (default): one after the other, in this process (no Dask).
+* ``threads``: a Dask ``distributed`` cluster of threads in this process.
+* ``processes``: a ``distributed`` ``LocalCluster`` of one single-threaded worker
+  process per core.
+* an address (``tcp://host:8786``, ``tls://...``, ``host:port``): the workers of an
+  existing cluster, so a site with many machines runs the same command (start
+  ``dask scheduler`` on one machine and ``dask worker tcp://host:8786`` on each of
+  the others, with graphcal installed on all).
+
+At most two windows per worker thread are in flight, so memory stays bounded by a
+few windows however long the recording.  The results come back in window order and
+do not depend on the scheduler.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
+
+#: The scheduler names; anything else is taken as a cluster address.
+SCHEDULERS = ("synchronous", "threads", "processes")
+
+Progress = Callable[..., None]
+
+
+def check_scheduler(scheduler: str | None) -> str:
+    """The scheduler's name (``synchronous`` for ``None``) or a plausible address.
+
+    Raises
+    ------
+    ValueError
+        For a name that is neither a scheduler nor an address, naming the choices.
+    """
+    if scheduler is None or scheduler == "":
+        return "synchronous"
+    if scheduler in SCHEDULERS or "://" in scheduler or ":" in scheduler:
+        return scheduler
+    raise ValueError(
+        f"unknown scheduler '{scheduler}': use synchronous, threads, processes, or the "
+        "address of a Dask scheduler (e.g. tcp://10.0.0.5:8786)")
+
+
+def _client(scheduler: str) -> Any:
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError as exc:  # pragma: no cover - distributed is a dependency
+        raise ValueError(f"--scheduler {scheduler} needs Dask distributed: {exc}") from None
+    cores = os.cpu_count() or 1
+    if scheduler == "threads":
+        cluster = LocalCluster(n_workers=1, threads_per_worker=cores, processes=False,
+                               dashboard_address=None)
+        return Client(cluster)
+    if scheduler == "processes":
+        cluster = LocalCluster(n_workers=cores, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        return Client(cluster)
+    try:
+        return Client(scheduler, timeout="10s")
+    except OSError as exc:
+        raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+
+
+def map_windows(
+    function: Callable[..., Any],
+    items: Iterable[Any],
+    *,
+    scheduler: str | None = None,
+    args: tuple[Any, ...] = (),
+    progress: Progress | None = None,
+    total: int | None = None,
+) -> Iterator[Any]:
+    """``function(item, *args)`` for every item, in item order.
+
+    Parameters
+    ----------
+    function : callable
+        A module-level function (it travels to worker processes by name).
+    items : iterable
+        The windows, consumed lazily.
+    scheduler : str, optional
+        See the module docstring.
+    args : tuple
+        Extra arguments, the same for every item.
+    progress : callable, optional
+        ``progress("windows", done, total)`` after each result.
+    total : int, optional
+        Number of items, for the progress.
+    """
+    scheduler = check_scheduler(scheduler)
+    if scheduler == "synchronous":
+        for done, item in enumerate(items, start=1):
+            result = function(item, *args)
+            if progress is not None:
+                progress("windows", done, total or done)
+            yield result
+        return
+    yield from _map_on_dask(function, items, scheduler, args, progress, total)
+
+
+def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: str,
+                 args: tuple[Any, ...], progress: Progress | None, total: int | None
+                 ) -> Iterator[Any]:
+    from distributed import wait
+
+    client = _client(scheduler)
+    try:
+        threads = max(sum(client.nthreads().values()), 1)
+        scattered = [client.scatter(a, broadcast=True) for a in args]
+        pending: dict[Any, int] = {}
+        results: dict[int, Any] = {}
+        next_out = done = 0
+        for number, item in enumerate(items):
+            pending[client.submit(function, item, *scattered, pure=False)] = number
+            while len(pending) >= 2 * threads:
+                finished, _ = wait(list(pending), return_when="FIRST_COMPLETED")
+                for future in finished:
+                    results[pending.pop(future)] = future.result()
+                    done += 1
+                    if progress is not None:
+                        progress("windows", done, total or done)
+            while next_out in results:
+                yield results.pop(next_out)
+                next_out += 1
+        for future, number in list(pending.items()):
+            results[number] = future.result()
+            done += 1
+            if progress is not None:
+                progress("windows", done, total or done)
+        while next_out in results:
+            yield results.pop(next_out)
+            next_out += 1
+    finally:
+        cluster = getattr(client, "cluster", None)
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+__all__ = ["SCHEDULERS", "check_scheduler", "map_windows"]

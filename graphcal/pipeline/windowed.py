@@ -1,0 +1,220 @@
+"""One calibration over time windows (``graphcal calibrate --window``, contract v2).
+
+The dataset is cut into windows; each window is reduced to a Gaussian summary on its
+biases (:func:`graphcal.solvers.windows.summarise_window`) by the chosen scheduler
+(:mod:`graphcal.pipeline.schedulers`); the summaries are chained and smoothed
+(:func:`graphcal.solvers.windows.smooth_windows`), with each term's random-walk rate
+estimated or given (``--drift``), steps searched for and known changes declared
+(``--break``).  The result is a :class:`~graphcal.data.calibration.Calibration` whose
+``radars`` block, covariance and atmosphere are the last window's (the correction to
+apply from now on) and which carries the contract's ``series`` and ``events``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY_NAMES, NAME_FROM_KEY, PARAMETER_NAMES
+from graphcal.data.calibration import Calibration
+from graphcal.data.dataset import Dataset
+from graphcal.data.windows import split_windows, window_index
+from graphcal.model.information import observability
+from graphcal.model.parameters import RadarTerms, prior_sigmas
+from graphcal.noise import filled_with_notes
+from graphcal.pipeline.schedulers import check_scheduler, map_windows
+from graphcal.solvers.drift import DEFAULT_STEP_FALSE_ALARM
+from graphcal.solvers.windows import (
+    WindowedCalibration,
+    WindowEstimate,
+    WindowOptions,
+    smooth_windows,
+    summarise_window,
+)
+
+Progress = Callable[..., None]
+
+#: A smoothed window further than this from its summary's linearisation point, in
+#: that window's own sigmas, is worth a warning (the summaries are not re-linearised).
+LARGEST_MOVE_WARNING_SIGMA = 10.0
+
+
+def parse_drift(items: Mapping[str, float]) -> dict[str, float]:
+    """``{"azimuth_bias_mrad": 0.5}`` (contract units per sqrt(hour)) -> SI per sqrt(s).
+
+    Raises
+    ------
+    ValueError
+        For an unknown key or a negative or non-finite rate.
+    """
+    rates = {}
+    for key, value in items.items():
+        name = NAME_FROM_KEY.get(key)
+        if name is None:
+            known = ", ".join(CONTRACT_KEYS[n][0] for n in CONTRACT_KEYS)
+            raise ValueError(f"--drift {key}: unknown bias key; use one of {known}")
+        value = float(value)
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"--drift {key}={value}: a rate must be finite and >= 0")
+        rates[name] = value / CONTRACT_KEYS[name][1] / 60.0
+    return rates
+
+
+def calibrate_windows(
+    dataset: Dataset,
+    window_s: float,
+    *,
+    scheduler: str | None = None,
+    drift: Mapping[str, float] | None = None,
+    breaks: Mapping[str, Sequence[float]] | None = None,
+    detect_steps: bool = True,
+    step_false_alarm: float = DEFAULT_STEP_FALSE_ALARM,
+    options: WindowOptions | None = None,
+    progress: Progress | None = None,
+) -> Calibration:
+    """Calibrate ``dataset`` in windows of ``window_s`` seconds (module docstring).
+
+    Parameters
+    ----------
+    dataset : Dataset
+    window_s : float
+        Window length [s]; windows are aligned on multiples of it.
+    scheduler : str, optional
+        ``synchronous`` (default), ``threads``, ``processes`` or a Dask address.
+    drift : mapping, optional
+        Random-walk rates in contract units per sqrt(hour) (``{"range_offset_m": 2}``),
+        used as given; the other rates are estimated.
+    breaks : mapping, optional
+        Radar id -> times [s] of known changes.
+    detect_steps : bool
+        Search for steps beyond the random walk.
+    step_false_alarm : float
+        Chance of one false step per radar and recording.
+    options : WindowOptions, optional
+        How each window is calibrated (default: :class:`WindowOptions`'s defaults).
+    progress : callable, optional
+        ``progress(stage, done, total)``.
+
+    Raises
+    ------
+    ValueError
+        Bad option (unknown radar in ``breaks``, unknown drift key, bad scheduler).
+    EstimationError
+        No window has anything to calibrate.
+    """
+    start = time.perf_counter()
+    scheduler = check_scheduler(scheduler)
+    rates = parse_drift(drift or {})
+    for rid in breaks or {}:
+        if rid not in dataset.sites:
+            raise ValueError(f"--break {rid}@...: unknown radar; known: "
+                             f"{', '.join(dataset.radar_ids)}")
+    dataset, sigma_info, sigma_warnings = filled_with_notes(dataset)
+    n_windows = len(np.unique(window_index(dataset.plots["time_s"].to_numpy(float),
+                                           window_s)))
+    summaries = [s for s in map_windows(summarise_window, split_windows(dataset, window_s),
+                                        scheduler=scheduler,
+                                        args=(options or WindowOptions(),),
+                                        progress=progress, total=n_windows)
+                 if s is not None]
+    elapsed = time.perf_counter() - start
+    if progress is not None:
+        progress("smoothing the chain", 0, 1)
+    result = smooth_windows(summaries, dataset.sites, window_s,
+                            random_walk_per_sqrt_s=rates, breaks=breaks,
+                            detect_steps=detect_steps, step_false_alarm=step_false_alarm)
+    result.timing_s["summaries_s"] = elapsed
+    result.timing_s["total_s"] = time.perf_counter() - start
+    cal = to_calibration(result, dataset)
+    if sigma_info is not None:
+        cal.info["estimated_sigmas"] = sigma_info
+        cal.warnings.extend(sigma_warnings)
+    cal.info["windows"]["scheduler"] = scheduler
+    cal.info["windows"]["windows_without_data"] = n_windows - len(summaries)
+    return cal
+
+
+def series_entry(window: WindowEstimate, terms: RadarTerms, eccentric: bool) -> dict[str, Any]:
+    """One window of the contract's ``series``: values and sigmas in contract units."""
+    entry: dict[str, Any] = {"t_start_s": window.t_start_s, "t_end_s": window.t_end_s,
+                             "n_plots": int(window.n_plots)}
+    names = [*PARAMETER_NAMES, "time_offset", *(ECCENTRICITY_NAMES if eccentric else ())]
+    for name in names:
+        key, factor = CONTRACT_KEYS[name]
+        if name in terms.free:
+            entry[key] = window.bias.value(name) * factor
+        elif name != "time_offset":  # null where not estimated (2-D elevation, ...)
+            entry[key] = None
+    entry["sigma"] = dict(window.sigma)
+    return entry
+
+
+def to_calibration(result: WindowedCalibration, dataset: Dataset) -> Calibration:
+    """The windowed result as a :class:`Calibration`: the last window, plus ``series``
+    and ``events``."""
+    radar_ids = list(result.series)
+    labels = list(result.last_labels)
+    prior = np.concatenate([
+        prior_sigmas(dataset.sites[rid], RadarTerms(rid, (name,), {})) for rid, name in labels])
+    information = np.linalg.inv(result.last_covariance)
+    data_information = 0.5 * (information + information.T) - np.diag(prior ** -2.0)
+    eccentric = any(name in ECCENTRICITY_NAMES for _, name in labels)
+    series = {
+        "window_s": result.window_s,
+        "radars": {rid: [series_entry(w, result.terms[rid], eccentric)
+                         for w in windows] for rid, windows in result.series.items()},
+    }
+    warnings = list(dataset.cleaning.warnings) if dataset.cleaning is not None else []
+    counted = Counter(w for s in result.summaries for w in s.warnings)
+    n = len(result.summaries)
+    warnings += [f"{text} (in {count} of {n} windows)" if n > 1 else text
+                 for text, count in counted.items()]
+    for event in result.events:
+        sizes = ", ".join(f"{key} {event.size[key]:+.4g} ± {event.sigma[key]:.2g}"
+                          for key in event.parameters)
+        what = "declared change" if event.kind == "break" else "step"
+        warnings.append(f"{event.radar_id}: {what} at {event.time_s:.0f} s: {sizes}")
+    if result.largest_move > LARGEST_MOVE_WARNING_SIGMA:
+        warnings.append(
+            f"the smoothed chain moved a window's biases {result.largest_move:.0f} sigma from "
+            "where its summary was linearised; shorter windows or --drift may fit better")
+    last = {rid: windows[-1] for rid, windows in result.series.items()}
+    last_summary = result.summaries[-1]
+    info: dict[str, Any] = {
+        "windows": {
+            "window_s": result.window_s,
+            "n_windows": len(result.summaries),
+            "random_walk_per_sqrt_h": {
+                rid: {CONTRACT_KEYS[name][0]: rate * 60.0 * CONTRACT_KEYS[name][1]
+                      for name, rate in terms.items()}
+                for rid, terms in result.rates.items()},
+            "step_false_alarm_per_radar": result.step_false_alarm,
+            "largest_move_sigma": result.largest_move,
+        },
+        "timing_s": dict(result.timing_s),
+    }
+    cal = Calibration(
+        method="graph",
+        radar_ids=radar_ids,
+        is_3d={rid: dataset.sites[rid].is_3d for rid in radar_ids},
+        labels=labels,
+        estimate=np.asarray(result.last_estimate, dtype=float),
+        covariance=np.asarray(result.last_covariance, dtype=float),
+        n_plots={rid: int(w.n_plots) for rid, w in last.items()},
+        observability=observability(data_information),
+        warnings=warnings,
+        info=info,
+        information=data_information,
+        atmosphere=last_summary.atmosphere,
+        series=series,
+        events=[event.to_dict() for event in result.events],
+    )
+    return cal
+
+
+__all__ = ["LARGEST_MOVE_WARNING_SIGMA", "calibrate_windows", "parse_drift", "series_entry",
+           "to_calibration"]

@@ -1,0 +1,140 @@
+"""Calibration over time windows through the pipeline and the command line: the result
+JSON's series and events (contract v2), the options, and the schedulers."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from graphcal.cli.app import app
+from graphcal.data.calibration import Calibration
+from graphcal.io.folder import write_dataset
+from graphcal.pipeline.calibrate import calibrate
+from graphcal.pipeline.windowed import parse_drift
+from graphcal.simulation.scenario import parse_scenario
+from graphcal.simulation.simulate import simulate
+from tests.paths import SCENARIOS
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def stepping():
+    """The demo network for one hour, SUD's range offset stepping 60 m at 2000 s."""
+    with open(SCENARIOS / "demo_network.toml", "rb") as f:
+        doc = tomllib.load(f)
+    doc["scenario"]["duration_s"] = 3600.0
+    doc["traffic"]["start_time_s"] = [0.0, 1800.0]
+    doc["radar"][1]["step"] = [{"time_s": 2000.0, "range_offset_m": 60.0}]
+    scenario = parse_scenario(doc)
+    return scenario, simulate(scenario, np.random.default_rng(5))
+
+
+@pytest.fixture(scope="module")
+def windowed(stepping):
+    _, sim = stepping
+    return calibrate(sim.dataset, window="15min")
+
+
+def test_the_result_is_the_last_window_with_series_and_events(stepping, windowed) -> None:
+    scenario, sim = stepping
+    cal = windowed
+    document = cal.to_dict()
+    assert document["series"]["window_s"] == 900.0
+    for rid, entries in document["series"]["radars"].items():
+        assert [e["t_start_s"] for e in entries] == sorted(e["t_start_s"] for e in entries)
+        last = entries[-1]
+        assert document["radars"][rid]["range_offset_m"] == pytest.approx(
+            last["range_offset_m"], rel=1e-9)
+        assert document["radars"][rid]["sigma"]["range_offset_m"] == pytest.approx(
+            last["sigma"]["range_offset_m"], rel=1e-6)
+        assert set(last) >= {"t_start_s", "t_end_s", "n_plots", "range_offset_m",
+                             "range_gain", "azimuth_bias_mrad", "elevation_bias_mrad",
+                             "sigma"}
+    # SUD's step: one event of kind "step" in range offset, in the window holding 2000 s.
+    (event,) = [e for e in document["events"] if e["radar_id"] == "SUD"]
+    assert event["kind"] == "step" and "range_offset_m" in event["parameters"]
+    assert 900.0 <= event["time_s"] <= 2700.0
+    assert abs(event["size"]["range_offset_m"] - 60.0) < 3 * event["sigma"]["range_offset_m"]
+    # The last window's SUD range offset is the stepped one.
+    truth = scenario.radars[1].schedule.mean(2700.0, 3600.0)
+    assert document["radars"]["SUD"]["range_offset_m"] == pytest.approx(
+        truth.range_offset_m, abs=4 * document["radars"]["SUD"]["sigma"]["range_offset_m"])
+
+
+def test_series_and_events_survive_the_json_round_trip(windowed) -> None:
+    text = windowed.to_json()
+    again = Calibration.from_dict(json.loads(text))
+    assert again.series == json.loads(text)["series"]
+    assert again.events == json.loads(text)["events"]
+    assert again.to_dict() == json.loads(text)
+
+
+def test_a_result_without_windows_has_neither_key(stepping) -> None:
+    _, sim = stepping
+    document = calibrate(sim.dataset, model_checks=False, bound=False).to_dict()
+    assert "series" not in document and "events" not in document
+
+
+def test_drift_rates_are_read_per_square_root_of_an_hour() -> None:
+    rates = parse_drift({"azimuth_bias_mrad": 0.6, "range_offset_m": 3.0})
+    assert rates["azimuth_bias"] == pytest.approx(0.6e-3 / 60.0)
+    assert rates["range_offset"] == pytest.approx(3.0 / 60.0)
+    with pytest.raises(ValueError, match="unknown bias key"):
+        parse_drift({"azimuth_mrad": 1.0})
+    with pytest.raises(ValueError, match=">= 0"):
+        parse_drift({"range_offset_m": -1.0})
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"method": "wls", "window": "15min"}, "graph method"),
+    ({"drift": {"range_offset_m": 1.0}}, "give window"),
+    ({"window": "15min", "breaks": {"NOPE": [100.0]}}, "unknown radar"),
+    ({"window": "fortnight"}, "not a duration"),
+    ({"window": "15min", "scheduler": "somewhere"}, "unknown scheduler"),
+    ({"window": "15min", "select": "greedy"}, "select is not available"),
+])
+def test_bad_window_options_are_refused(stepping, options, message) -> None:
+    _, sim = stepping
+    with pytest.raises(ValueError, match=message):
+        calibrate(sim.dataset, **options)
+
+
+def test_processes_give_the_same_series_as_this_process(stepping, windowed) -> None:
+    """The window map on a Dask LocalCluster of worker processes: the same series
+    (within 0.01 sigma) as in this process."""
+    pytest.importorskip("distributed")
+    _, sim = stepping
+    other = calibrate(sim.dataset, window="15min", scheduler="processes")
+    for rid, entries in windowed.series["radars"].items():
+        for mine, theirs in zip(entries, other.series["radars"][rid], strict=True):
+            for key, sigma in mine["sigma"].items():
+                assert abs(mine[key] - theirs[key]) <= 0.01 * sigma, (rid, key)
+    assert other.info["windows"]["scheduler"] == "processes"
+
+
+def test_command_line_window_drift_and_break(stepping, tmp_path: Path) -> None:
+    _, sim = stepping
+    folder = tmp_path / "ds"
+    write_dataset(sim.dataset, folder)
+    out = tmp_path / "result.json"
+    result = runner.invoke(app, ["calibrate", str(folder), "--window", "15min",
+                                 "--drift", "azimuth_bias_mrad=0.1", "--break", "SUD@1800",
+                                 "--no-steps", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    document = json.loads(out.read_text())
+    assert document["info"]["windows"]["random_walk_per_sqrt_h"]["NORD"][
+        "azimuth_bias_mrad"] == pytest.approx(0.1)
+    (event,) = document["events"]
+    assert event["radar_id"] == "SUD" and event["kind"] == "break"
+    assert event["time_s"] == 1800.0
+    bad = runner.invoke(app, ["calibrate", str(folder), "--drift", "range_offset_m=1"])
+    assert bad.exit_code == 2 and "--window" in bad.output
+    bad = runner.invoke(app, ["calibrate", str(folder), "--window", "15min",
+                              "--break", "SUD1800"])
+    assert bad.exit_code == 2 and "RADAR@TIME" in bad.output
