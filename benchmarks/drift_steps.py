@@ -61,7 +61,7 @@ def scenario(hours: float, rng: np.random.Generator):
 
 def judge(sc, cal, step_time: float, window_s: float) -> dict:
     """z of every window estimate, the step's placement, events elsewhere."""
-    z = []
+    z, outliers = [], []
     for radar in sc.radars:
         for entry in cal.series["radars"].get(radar.id, []):
             truth = radar.schedule.mean(entry["t_start_s"], entry["t_end_s"])
@@ -69,6 +69,9 @@ def judge(sc, cal, step_time: float, window_s: float) -> dict:
                 name = NAME_FROM_KEY[key]
                 value = entry[key]
                 z.append((value - truth.value(name) * CONTRACT_KEYS[name][1]) / sigma)
+                if abs(z[-1]) > 4.0:
+                    outliers.append(f"{radar.id} {entry['t_start_s']:.0f} s {key} "
+                                    f"z {z[-1]:+.1f}")
     z = np.array(z)
     sud = [e for e in cal.events if e["radar_id"] == "SUD"]
     found = [e for e in sud if abs(e["time_s"] - step_time) <= window_s]
@@ -85,6 +88,7 @@ def judge(sc, cal, step_time: float, window_s: float) -> dict:
         "extra_sud_events": len(sud) - len(found),
         "events_on_constant": sum(e["radar_id"] in CONSTANT for e in others),
         "events_on_drifting": sum(e["radar_id"] in DRIFTS for e in others),
+        "beyond_4_sigma": outliers,
     }
 
 
@@ -116,7 +120,8 @@ def main(argv: list[str] | None = None) -> None:
               + (f" ({row['step_time_error_s']:+.0f} s, {row['step_size_m']:.1f} ± "
                  f"{row['step_sigma_m']:.1f} m)" if row["step_found"] else "")
               + f"; events on constant radars {row['events_on_constant']}, on drifting "
-              f"{row['events_on_drifting']}, extra on SUD {row['extra_sud_events']}",
+              f"{row['events_on_drifting']}, extra on SUD {row['extra_sud_events']}"
+              + "".join(f"\n    beyond 4 sigma: {o}" for o in row["beyond_4_sigma"]),
               flush=True)
     n = sum(r["n_estimates"] for r in rows)
     within = sum(r["within_3_sigma"] * r["n_estimates"] for r in rows) / n

@@ -187,6 +187,48 @@ class FactorGraph:
         return [np.asarray(marginals.marginalCovariance(int(k)), dtype=float) for k in keys]
 
 
+class IncrementalGraph(FactorGraph):
+    """A factor graph solved incrementally with GTSAM's ``ISAM2``.
+
+    Variables and factors are added with the :class:`FactorGraph` methods; they wait
+    until :meth:`update`, which hands them to ISAM2 and updates the estimate (only the
+    part of the Bayes tree they touch is re-factored).  Suited to linear factors
+    (random walks, Gaussian summaries, priors): one update gives the exact solution.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._isam = gtsam.ISAM2(gtsam.ISAM2Params())
+        self._known: set[int] = set()
+
+    def has_variable(self, key: int) -> bool:
+        """Whether ``key`` is a variable (added, or waiting for :meth:`update`)."""
+        return int(key) in self._known or super().has_variable(key)
+
+    def update(self) -> None:
+        """Hand the waiting variables and factors to ISAM2 and update the estimate."""
+        self._isam.update(self._graph, self._values)
+        self._known.update(int(k) for k in self._values.keys())
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._values = gtsam.Values()
+
+    def vector(self, key: int) -> FloatArray:
+        """The current estimate of variable ``key``."""
+        return np.asarray(self._isam.calculateEstimateVector(int(key)), dtype=float)
+
+    def covariance(self, key: int) -> FloatArray:
+        """The marginal covariance of ``key`` given everything added so far."""
+        return np.asarray(self._isam.marginalCovariance(int(key)), dtype=float)
+
+    def joint_covariance_of(self, keys: Sequence[int]) -> FloatArray:
+        """The joint marginal covariance of ``keys``."""
+        key_vector = gtsam.KeyVector()
+        for k in keys:
+            key_vector.append(int(k))
+        joint = self._isam.jointMarginalCovariance(key_vector)
+        return np.block([[joint.at(int(a), int(b)) for b in keys] for a in keys])
+
+
 @dataclass
 class OptimizationResult:
     """Outcome of a Levenberg-Marquardt run."""
