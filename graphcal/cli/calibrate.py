@@ -239,6 +239,14 @@ def calibrate_command(
             return
         truth_path = truth if truth is not None else dataset_dir / "truth.json"
         truth_data = load_result(truth_path) if truth_path.exists() else None
+        if truth_data is not None and cal.series is not None:
+            from graphcal.data.bias_schedule import truth_over_windows
+
+            spans = {rid: (entries[-1]["t_start_s"], entries[-1]["t_end_s"])
+                     for rid, entries in cal.series["radars"].items()}
+            truth_data = truth_over_windows(truth_data, spans)
+        if cal.series is not None:
+            _print_windows(cal)
         console.print(calibration_table(cal, truth_data))
         obs = cal.observability
         console.print(
@@ -250,6 +258,22 @@ def calibrate_command(
             warnings = [w for w in dataset.cleaning.warnings if w not in warnings] + warnings
         for warning in warnings:
             console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
+
+
+def _print_windows(cal) -> None:
+    """One line on the windows: how many, their span, and that the table is the last."""
+    from graphcal.core.durations import format_duration
+
+    series = cal.series
+    entries = [e for windows in series["radars"].values() for e in windows]
+    first = min(e["t_start_s"] for e in entries)
+    last = max(e["t_end_s"] for e in entries)
+    last_start = max(e["t_start_s"] for e in entries)
+    console.print(
+        f"{cal.info['windows']['n_windows']} windows of {format_duration(series['window_s'])}, "
+        f"{first:.0f}-{last:.0f} s. Below: the last window ({last_start:.0f}-{last:.0f} s); "
+        "every window and the steps: --out JSON.",
+        highlight=False)
 
 
 def _progress_label(method: str, select: str | None) -> str:

@@ -18,13 +18,14 @@ window's middle, and a step at ``t_k`` inside the window counts with the share
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from graphcal.data.bias import RadarBias
+from graphcal.data.bias import CONTRACT_KEYS, RadarBias
 
 FloatArray = NDArray[np.float64]
 
@@ -125,4 +126,61 @@ class BiasSchedule:
                             for name, v in _scaled_sum(parts, self.initial).items()})
 
 
-__all__ = ["VARYING_TERMS", "BiasSchedule", "BiasStep"]
+#: Term name -> RadarBias field.
+_FIELDS: dict[str, str] = {
+    "range_offset": "range_offset_m", "range_gain": "range_gain",
+    "azimuth_bias": "azimuth_bias_rad", "elevation_bias": "elevation_bias_rad",
+    "time_offset": "time_offset_s", "azimuth_sin": "azimuth_sin_rad",
+    "azimuth_cos": "azimuth_cos_rad",
+}
+
+
+def _bias_from_contract(entry: Mapping[str, Any], per: float = 1.0) -> RadarBias:
+    """A RadarBias (SI) from contract-keyed values divided by ``per`` (null/missing: 0)."""
+    values = {}
+    for name, (key, factor) in CONTRACT_KEYS.items():
+        value = entry.get(key)
+        if value is not None:
+            values[_FIELDS[name]] = float(value) / factor / per
+    return RadarBias(**values)
+
+
+def schedules_from_truth(truth: Mapping[str, Any]) -> dict[str, BiasSchedule]:
+    """Each radar's :class:`BiasSchedule` from a simulation's ``truth.json`` document:
+    its ``radars`` (the biases at time 0, contract units) and its ``drift`` block (rates
+    per hour and steps), when present."""
+    drift = truth.get("drift") or {}
+    schedules = {}
+    for rid, entry in (truth.get("radars") or {}).items():
+        own = drift.get(rid) or {}
+        rates = _bias_from_contract(own.get("per_h") or {}, per=3600.0)
+        steps = tuple(BiasStep(float(step["time_s"]),
+                               _bias_from_contract({k: v for k, v in step.items()
+                                                    if k != "time_s"}))
+                      for step in own.get("steps") or [])
+        schedules[rid] = BiasSchedule(_bias_from_contract(entry), rates, steps)
+    return schedules
+
+
+def truth_over_windows(truth: Mapping[str, Any], spans: Mapping[str, tuple[float, float]]
+                       ) -> dict[str, Any]:
+    """``truth`` with each radar's biases replaced by their mean over its span
+    ``(t_start_s, t_end_s)`` (contract units): what a windowed result's last window
+    estimates.  Radars without a span keep their entry."""
+    schedules = schedules_from_truth(truth)
+    radars = {}
+    for rid, entry in (truth.get("radars") or {}).items():
+        if rid not in spans:
+            radars[rid] = entry
+            continue
+        mean = schedules[rid].mean(*spans[rid])
+        new = dict(entry)
+        for name, (key, factor) in CONTRACT_KEYS.items():
+            if entry.get(key) is not None:
+                new[key] = mean.value(name) * factor
+        radars[rid] = new
+    return {**truth, "radars": radars}
+
+
+__all__ = ["VARYING_TERMS", "BiasSchedule", "BiasStep", "schedules_from_truth",
+           "truth_over_windows"]
