@@ -50,3 +50,35 @@ def test_bad_schedules_are_refused() -> None:
                                          BiasStep(5.0, RadarBias(1.0))))
     with pytest.raises(ValueError, match="empty window"):
         SCHEDULE.mean(10.0, 10.0)
+
+
+def test_truth_json_gives_back_the_simulated_schedules() -> None:
+    """A simulation's truth.json (biases at time 0 plus the drift block) read back with
+    schedules_from_truth: the same window means as the scenario's own schedules."""
+    import json
+    import tomllib
+
+    from graphcal.data.bias_schedule import schedules_from_truth, truth_over_windows
+    from graphcal.simulation.scenario import parse_scenario
+    from graphcal.simulation.simulate import simulate, truth_document
+    from tests.paths import SCENARIOS
+
+    with open(SCENARIOS / "demo_drift.toml", "rb") as f:
+        doc = tomllib.load(f)
+    doc["scenario"]["duration_s"] = 600.0
+    doc["traffic"]["n_aircraft"] = 3
+    doc["traffic"]["start_time_s"] = [0.0, 10.0]
+    doc["radar"][1]["step"][0]["time_s"] = 300.0
+    scenario = parse_scenario(doc)
+    truth = json.loads(json.dumps(truth_document(simulate(scenario, np.random.default_rng(0)))))
+    schedules = schedules_from_truth(truth)
+    for radar in scenario.radars:
+        for span in [(0.0, 200.0), (250.0, 400.0), (3600.0, 5400.0)]:
+            mine, theirs = schedules[radar.id].mean(*span), radar.schedule.mean(*span)
+            for name in ("range_offset", "range_gain", "azimuth_bias", "elevation_bias"):
+                assert mine.value(name) == pytest.approx(theirs.value(name), abs=1e-12)
+    over = truth_over_windows(truth, {"SUD": (0.0, 600.0)})
+    # SUD steps +60 m at 300 s: half the window after it.
+    assert over["radars"]["SUD"]["range_offset_m"] == pytest.approx(
+        truth["radars"]["SUD"]["range_offset_m"] + 30.0)
+    assert over["radars"]["NORD"] == truth["radars"]["NORD"]
