@@ -88,4 +88,32 @@ def split_windows(dataset: Dataset, window_s: float,
         yield Window(k, float(start), float(end), part)
 
 
-__all__ = ["DEFAULT_ADSB_MARGIN_S", "Window", "split_windows", "window_index"]
+def split_window(window: Window, times_s: list[float] | tuple[float, ...],
+                 adsb_margin_s: float = DEFAULT_ADSB_MARGIN_S) -> list[Window]:
+    """A window cut at the given times into consecutive parts (same ``index``).
+
+    Used where a bias steps inside a window: each part then has one bias.  Times
+    outside the window are ignored; a part without plots is left out.
+    """
+    edges = [window.t_start_s, *sorted(t for t in set(times_s)
+                                       if window.t_start_s < t < window.t_end_s),
+             window.t_end_s]
+    plots = window.dataset.plots
+    time_s = plots["time_s"].to_numpy(dtype=float)
+    adsb = window.dataset.adsb
+    adsb_time = None if adsb is None else adsb["time_s"].to_numpy(dtype=float)
+    parts = []
+    for start, end in zip(edges, edges[1:], strict=False):
+        inside = (time_s >= start) & (time_s < end)
+        if not inside.any():
+            continue
+        part_adsb = None
+        if adsb is not None and adsb_time is not None:
+            part_adsb = adsb.loc[(adsb_time >= start - adsb_margin_s)
+                                 & (adsb_time < end + adsb_margin_s)]
+        parts.append(Window(window.index, float(start), float(end),
+                            replace(window.dataset, plots=plots.loc[inside], adsb=part_adsb)))
+    return parts
+
+
+__all__ = ["DEFAULT_ADSB_MARGIN_S", "Window", "split_window", "split_windows", "window_index"]

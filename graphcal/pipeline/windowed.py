@@ -22,7 +22,7 @@ import numpy as np
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY_NAMES, NAME_FROM_KEY, PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
-from graphcal.data.windows import split_windows, window_index
+from graphcal.data.windows import Window, split_window, split_windows, window_index
 from graphcal.model.information import observability
 from graphcal.model.parameters import RadarTerms, prior_sigmas
 from graphcal.noise import filled_with_notes
@@ -37,6 +37,12 @@ from graphcal.solvers.windows import (
 )
 
 Progress = Callable[..., None]
+
+#: A step inside a window is located to within this [s] (_locate_step) ...
+STEP_TIME_TOLERANCE_S = 30.0
+
+#: ... starting from a grid of this many candidate times over the window.
+STEP_GRID_POINTS = 7
 
 #: A smoothed window further than this from its summary's linearisation point, in
 #: that window's own sigmas, is worth a warning (the summaries are not re-linearised).
@@ -116,17 +122,47 @@ def calibrate_windows(
     dataset, sigma_info, sigma_warnings = filled_with_notes(dataset)
     n_windows = len(np.unique(window_index(dataset.plots["time_s"].to_numpy(float),
                                            window_s)))
+    options = options or WindowOptions()
     summaries = [s for s in map_windows(summarise_window, split_windows(dataset, window_s),
-                                        scheduler=scheduler,
-                                        args=(options or WindowOptions(),),
+                                        scheduler=scheduler, args=(options,),
                                         progress=progress, total=n_windows)
                  if s is not None]
     elapsed = time.perf_counter() - start
     if progress is not None:
         progress("smoothing the chain", 0, 1)
-    result = smooth_windows(summaries, dataset.sites, window_s,
-                            random_walk_per_sqrt_s=rates, breaks=breaks,
-                            detect_steps=detect_steps, step_false_alarm=step_false_alarm)
+    chain = {"random_walk_per_sqrt_s": rates, "breaks": breaks,
+             "detect_steps": detect_steps, "step_false_alarm": step_false_alarm}
+    result = smooth_windows(summaries, dataset.sites, window_s, **chain)
+    cuts = _changes_inside_windows(result, breaks or {}, window_s)
+    if cuts:
+        # A bias that changes inside a window does not fit one value there: the window
+        # is cut at the change (a found step's time located by _locate_step) and its
+        # parts calibrated, then the chain smoothed again.
+        t0 = time.perf_counter()
+        windows = {w.index: w for w in split_windows(dataset, window_s) if w.index in cuts}
+        located: dict[int, list[tuple[float, str, float | None]]] = {}
+        for index, entries in cuts.items():
+            located[index] = []
+            for when, rid, statistic in entries:
+                if statistic is not None:
+                    others = [t for t, r, _ in entries if (t, r) != (when, rid)]
+                    when = _locate_step(windows[index], others, options)
+                located[index].append((when, rid, statistic))
+        parts = [part for index in sorted(windows)
+                 for part in split_window(windows[index], [t for t, _, _ in located[index]])]
+        part_summaries = [s for s in map_windows(summarise_window, parts, scheduler=scheduler,
+                                                 args=(options,), progress=progress,
+                                                 total=len(parts)) if s is not None]
+        summaries = sorted([s for s in summaries if s.index not in cuts] + part_summaries,
+                           key=lambda s: (s.t_start_s, s.t_end_s))
+        found: dict[str, list[tuple[float, float | None]]] = {}
+        for entries in located.values():
+            for when, rid, statistic in entries:
+                if statistic is not None:
+                    found.setdefault(rid, []).append((when, statistic))
+        result = smooth_windows(summaries, dataset.sites, window_s, found_steps=found,
+                                **chain)
+        elapsed += time.perf_counter() - t0
     result.timing_s["summaries_s"] = elapsed
     result.timing_s["total_s"] = time.perf_counter() - start
     cal = to_calibration(result, dataset)
@@ -136,6 +172,61 @@ def calibrate_windows(
     cal.info["windows"]["scheduler"] = scheduler
     cal.info["windows"]["windows_without_data"] = n_windows - len(summaries)
     return cal
+
+
+def _split_cost(window: Window, times: Sequence[float], options: WindowOptions) -> float:
+    """The window's total cost when cut at ``times`` and each part calibrated alone."""
+    total = 0.0
+    for part in split_window(window, list(times)):
+        summary = summarise_window(part, options)
+        total += summary.cost if summary is not None else 0.0
+    return total
+
+
+def _locate_step(window: Window, others: Sequence[float], options: WindowOptions) -> float:
+    """The time of a step inside ``window``: where cutting it fits its data best.
+
+    The window is cut at a candidate time (and at the ``others`` changes inside it),
+    each part calibrated on its own, and the parts' costs added: plots on the wrong
+    side of the cut misfit by the step, so the total is least at the step.  A grid of
+    :data:`STEP_GRID_POINTS` times, then a golden-section search between the best
+    point's neighbours, down to :data:`STEP_TIME_TOLERANCE_S`.
+    """
+    a, b = window.t_start_s, window.t_end_s
+    grid = np.linspace(a, b, STEP_GRID_POINTS + 2)[1:-1]
+    costs = [_split_cost(window, [t, *others], options) for t in grid]
+    best = int(np.argmin(costs))
+    low = grid[best - 1] if best > 0 else a + 1.0
+    high = grid[best + 1] if best + 1 < len(grid) else b - 1.0
+    golden = (np.sqrt(5.0) - 1.0) / 2.0
+    x1, x2 = high - golden * (high - low), low + golden * (high - low)
+    f1 = _split_cost(window, [x1, *others], options)
+    f2 = _split_cost(window, [x2, *others], options)
+    while high - low > STEP_TIME_TOLERANCE_S:
+        if f1 <= f2:
+            high, x2, f2 = x2, x1, f1
+            x1 = high - golden * (high - low)
+            f1 = _split_cost(window, [x1, *others], options)
+        else:
+            low, x1, f1 = x1, x2, f2
+            x2 = low + golden * (high - low)
+            f2 = _split_cost(window, [x2, *others], options)
+    candidates = [(costs[best], float(grid[best])), (f1, float(x1)), (f2, float(x2))]
+    return min(candidates)[1]
+
+
+def _changes_inside_windows(result: WindowedCalibration, breaks: Mapping[str, Sequence[float]],
+                            window_s: float) -> dict[int, list[tuple[float, str, float | None]]]:
+    """Window index -> ``(time, radar, statistic)`` of the steps found and the breaks
+    declared strictly inside it (``statistic`` is ``None`` for a declared break)."""
+    inside: dict[int, list[tuple[float, str, float | None]]] = {}
+    changes = [(e.time_s, e.radar_id, e.statistic) for e in result.events if e.kind == "step"]
+    changes += [(float(t), rid, None) for rid, times in breaks.items() for t in times]
+    for when, rid, statistic in changes:
+        index = int(np.floor(when / window_s))
+        if index * window_s < when < (index + 1) * window_s:
+            inside.setdefault(index, []).append((when, rid, statistic))
+    return inside
 
 
 def series_entry(window: WindowEstimate, terms: RadarTerms, eccentric: bool) -> dict[str, Any]:

@@ -123,6 +123,8 @@ class WindowSummary:
         The window's height model of pressure altitudes.
     elapsed_s : float
         Time the summary took.
+    cost : float
+        The window's final robust cost ``1/2 sum e^2`` (whitened errors, priors included).
     """
 
     index: int
@@ -136,6 +138,7 @@ class WindowSummary:
     warnings: list[str] = field(default_factory=list)
     atmosphere: HeightModelEstimate | None = None
     elapsed_s: float = 0.0
+    cost: float = 0.0
 
     @property
     def middle_s(self) -> float:
@@ -185,7 +188,8 @@ def summarise_window(window: Window, options: WindowOptions = WindowOptions()
         window.index, window.t_start_s, window.t_end_s, labels,
         np.asarray(cal.estimate, dtype=float), np.asarray(cal.covariance, dtype=float),
         prior, {rid: int(cal.n_plots.get(rid, 0)) for rid in cal.radar_ids},
-        list(cal.warnings), cal.atmosphere, time.perf_counter() - start)
+        list(cal.warnings), cal.atmosphere, time.perf_counter() - start,
+        float(cal.info.get("final_error", 0.0)))
 
 
 # --------------------------------------------------------------------------- the chain
@@ -338,6 +342,7 @@ def smooth_windows(
     breaks: Mapping[str, Sequence[float]] | None = None,
     detect_steps: bool = True,
     step_false_alarm: float = DEFAULT_STEP_FALSE_ALARM,
+    found_steps: Mapping[str, Sequence[tuple[float, float | None]]] | None = None,
 ) -> WindowedCalibration:
     """Chain the windows' summaries and smooth them (module docstring).
 
@@ -360,6 +365,14 @@ def smooth_windows(
         Search for steps beyond the random walk.
     step_false_alarm : float
         Chance of one false step per radar and recording.
+    found_steps : mapping, optional
+        Radar id -> ``(time_s, statistic)`` of steps found by an earlier pass, whose
+        window has since been split at that time (parts of one window share its
+        ``index``): the chain is cut there and the event keeps kind ``"step"``.
+
+    The parts of a split window are merged back in the series (the duration-weighted
+    mean of the parts, with its covariance from their joint marginal), except in
+    the last window, whose last part is what applies from now on.
 
     Raises
     ------
@@ -373,6 +386,11 @@ def smooth_windows(
     t0 = time.perf_counter()
     given = dict(random_walk_per_sqrt_s or {})
     breaks = dict(breaks or {})
+    known: dict[str, list[tuple[float, str, float | None]]] = {}
+    for rid, times in breaks.items():
+        known.setdefault(rid, []).extend((float(t), "break", None) for t in times)
+    for rid, steps in (found_steps or {}).items():
+        known.setdefault(rid, []).extend((float(t), "step", stat) for t, stat in steps)
     chains = _chains(summaries)
     analyses: dict[str, ChainAnalysis] = {}
     rates: dict[str, dict[str, float]] = {}
@@ -385,7 +403,8 @@ def smooth_windows(
             for name in chain.names])
         analysis = analyse_chain(
             middles, values, variances, given_rates=given_rates,
-            declared_cuts=declared_cuts(middles, starts, ends, breaks.get(rid, ())),
+            declared_cuts=declared_cuts(middles, starts, ends,
+                                        [t for t, _, _ in known.get(rid, ())]),
             detect_steps=detect_steps, false_alarm=step_false_alarm)
         floor = RATE_FLOOR_FRACTION * np.array(
             [DEFAULT_RANDOM_WALK_PER_SQRT_S[n] for n in chain.names])
@@ -403,13 +422,12 @@ def smooth_windows(
     marginals = dict(zip(every_key, fg.marginal_covariances(result.values, every_key),
                          strict=True))
     terms = {rid: RadarTerms(rid, chain.names, {}) for rid, chain in chains.items()}
-    series = {rid: [_window_estimate(summaries[s], rid, terms[rid], result.vector(key),
-                                     marginals[key])
-                    for (s, _), key in zip(chains[rid].entries, keys[rid], strict=True)]
+    series = {rid: _series(rid, chains[rid], keys[rid], terms[rid], summaries, fg, result,
+                           marginals)
               for rid in chains}
     events = [event for rid in chains
               for event in _events(rid, chains[rid], keys[rid], analyses[rid], summaries,
-                                   fg, result, breaks.get(rid, ()))]
+                                   fg, result, known.get(rid, ()))]
     last_keys = [keys[rid][-1] for rid in chains]
     last_labels = [(rid, name) for rid in chains for name in chains[rid].names]
     last_covariance = fg.joint_covariance(result.values, last_keys)
@@ -485,18 +503,49 @@ def _window_estimate(summary: WindowSummary, rid: str, terms: RadarTerms, value:
                           terms.bias(value), sigma, covariance)
 
 
+def _series(rid: str, chain: _Chain, keys: list[int], terms: RadarTerms,
+            summaries: Sequence[WindowSummary], fg: FactorGraph, result: Any,
+            marginals: Mapping[int, FloatArray]) -> list[WindowEstimate]:
+    """The radar's windows; the parts of a split window merged (not in the last window)."""
+    groups: list[list[int]] = []
+    for row, (s, _) in enumerate(chain.entries):
+        if groups and summaries[chain.entries[groups[-1][-1]][0]].index == summaries[s].index:
+            groups[-1].append(row)
+        else:
+            groups.append([row])
+    out = []
+    for g, rows in enumerate(groups):
+        parts = [summaries[chain.entries[row][0]] for row in rows]
+        if len(rows) == 1 or g == len(groups) - 1:
+            row = rows[-1]
+            out.append(_window_estimate(parts[-1], rid, terms, result.vector(keys[row]),
+                                        marginals[keys[row]]))
+            continue
+        durations = np.array([p.t_end_s - p.t_start_s for p in parts])
+        weights = durations / durations.sum()
+        m = len(chain.names)
+        joint = fg.joint_covariance(result.values, [keys[row] for row in rows])
+        mix = np.kron(weights[None, :], np.eye(m))
+        value = mix @ np.concatenate([result.vector(keys[row]) for row in rows])
+        merged = replace(parts[0], t_end_s=parts[-1].t_end_s,
+                         n_plots={rid: sum(p.n_plots.get(rid, 0) for p in parts)})
+        out.append(_window_estimate(merged, rid, terms, value, mix @ joint @ mix.T))
+    return out
+
+
 def _events(rid: str, chain: _Chain, keys: list[int], analysis: ChainAnalysis,
             summaries: Sequence[WindowSummary], fg: FactorGraph, result: Any,
-            declared: Sequence[float]) -> list[BiasEvent]:
+            known: Sequence[tuple[float, str, float | None]]) -> list[BiasEvent]:
     """One event per cut (an isolated window, cut on both sides, is one step in it)."""
     events: list[BiasEvent] = []
     cuts = list(analysis.cuts)
-    declared_links = set()
     middles = np.array([summaries[s].middle_s for s, _ in chain.entries])
     starts = np.array([summaries[s].t_start_s for s, _ in chain.entries])
     ends = np.array([summaries[s].t_end_s for s, _ in chain.entries])
-    for when in declared:
-        declared_links.update(declared_cuts(middles, starts, ends, [when]))
+    by_link: dict[int, tuple[float, str, float | None]] = {}
+    for entry in known:
+        for link in declared_cuts(middles, starts, ends, [entry[0]]):
+            by_link[link] = entry
     i = 0
     while i < len(cuts):
         link = cuts[i]
@@ -518,7 +567,9 @@ def _events(rid: str, chain: _Chain, keys: list[int], analysis: ChainAnalysis,
             when = window.t_end_s - fraction * (window.t_end_s - window.t_start_s)
         else:
             when = 0.5 * (ends[link] + starts[link + 1])
-        kind = "break" if link in declared_links else "step"
+        kind, statistic = "step", analysis.statistics.get(link)
+        if link in by_link:
+            when, kind, statistic = by_link[link]
         names = [chain.names[j] for j in moved]
         events.append(BiasEvent(
             rid, float(when), kind, [CONTRACT_KEYS[n][0] for n in names],
@@ -526,7 +577,7 @@ def _events(rid: str, chain: _Chain, keys: list[int], analysis: ChainAnalysis,
              for n in names},
             {CONTRACT_KEYS[n][0]: float(change_sd[chain.names.index(n)]) * CONTRACT_KEYS[n][1]
              for n in names},
-            analysis.statistics.get(link)))
+            statistic))
         i += 2 if isolated else 1
     return events
 
