@@ -3,10 +3,10 @@
 One panel per radar (rows) and bias key (columns).  Each window of a run is drawn as
 its estimate, a horizontal segment over the window, inside its shaded ``± 2 sigma``
 band; consecutive windows of a run are joined at their middles.  Dashed lines mark
-the tolerance ``± tol`` (when it falls inside the panel's range; otherwise a note
-gives it), crosses and circles the windows flagged ``outside`` and ``possibly``
-(:func:`graphcal.pipeline.history.flag_tolerances`), and dotted vertical lines the
-detected events with their size.  Times are UTC when every run has an epoch, else
+the tolerance ``± tol`` when it falls inside the panel's range (otherwise a note in the
+panel's corner gives it), crosses and circles the windows flagged ``outside`` and
+``possibly`` (:func:`graphcal.pipeline.history.flag_tolerances`), and dotted vertical
+lines the detected events with their size.  Times are UTC when every run has an epoch, else
 hours on the datasets' time base.  matplotlib's Agg backend; written atomically.
 """
 
@@ -96,8 +96,9 @@ def _draw_reference_lines(ax: Any, rows: pd.DataFrame, unit: str) -> None:
         else:
             notes.append(f"±{tol:.3g}{'' if unit == 'fraction' else f' {unit}'}")
     if notes:
-        ax.set_title(f"tolerance {', '.join(notes)} off scale", loc="right", fontsize=7,
-                     color=TOLERANCE_COLOUR)
+        ax.text(0.02, 0.03, f"tolerance {', '.join(notes)}: off scale", transform=ax.transAxes,
+                fontsize=7, color=TOLERANCE_COLOUR, va="bottom", zorder=6,
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.5})
     ax.set_ylim(low, high)
 
 
