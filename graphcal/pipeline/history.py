@@ -394,14 +394,13 @@ def _sensor_models(value: Any, radar_ids: Sequence[str]) -> dict[str, str | None
     return out
 
 
-def _time_span(provenance: Mapping[str, Any], windows: list[_Window],
-               has_series: bool) -> tuple[float, float]:
-    """The run's time span: the provenance's, else (with windows) the windows' extent."""
+def _time_span(provenance: Mapping[str, Any], windows: list[_Window]) -> tuple[float, float]:
+    """The run's time span: the provenance's, else the extent of its series windows."""
     start = _number(provenance.get("t_start_s"), "provenance.t_start_s", optional=True)
     end = _number(provenance.get("t_end_s"), "provenance.t_end_s", optional=True)
-    if (start is None or end is None) and not (has_series and windows):
-        raise HistoryError("a run without series needs its time span: give t_start_s and "
-                           "t_end_s", field="provenance")
+    if (start is None or end is None) and not windows:
+        raise HistoryError("a run without series windows needs its time span: give "
+                           "t_start_s and t_end_s", field="provenance")
     start = min(w.t_start_s for w in windows) if start is None else start
     end = max(w.t_end_s for w in windows) if end is None else end
     if end < start:
@@ -426,7 +425,7 @@ def _parse_run(result: Mapping[str, Any], provenance: Mapping[str, Any]) -> _Run
         window_s, windows = _series_windows(_mapping(series, "series"))
     else:
         window_s, windows = None, []
-    start, end = _time_span(provenance, windows, series is not None)
+    start, end = _time_span(provenance, windows)
     if series is None:
         windows = _single_windows(radars, start, end)
     events = _events(result.get("events"))
