@@ -14,6 +14,7 @@ from graphcal.cli.calibrate import calibrate_command
 from graphcal.cli.compare import compare_command
 from graphcal.cli.correct import correct_command
 from graphcal.cli.fuse import fuse_command
+from graphcal.cli.history import history_command
 from graphcal.cli.import_asterix import import_asterix_command
 from graphcal.cli.marginals import marginals_command
 from graphcal.cli.methods import methods_command
@@ -39,6 +40,7 @@ app.command(name="import-asterix")(import_asterix_command)
 app.command(name="observability")(observability_command)
 app.command(name="report")(report_command)
 app.command(name="correct")(correct_command)
+app.command(name="history")(history_command)
 
 
 def main() -> None:  # pragma: no cover - console entry point

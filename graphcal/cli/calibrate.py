@@ -168,6 +168,15 @@ def calibrate_command(
             "scheduler (tcp://host:8786).",
         ),
     ] = None,
+    history: Annotated[
+        Path | None,
+        typer.Option(
+            "--history", metavar="DB",
+            help="Also append this run (provenance and estimates, every window with "
+            "--window) to a calibration history database (SQLite; created when missing); "
+            "see 'graphcal history'.",
+        ),
+    ] = None,
     cat063: Annotated[
         Path | None,
         typer.Option(
@@ -185,6 +194,9 @@ def calibrate_command(
     from graphcal.reporting.tables import calibration_table
 
     with errors_to_exit():
+        if history is not None and not history.parent.resolve().is_dir():
+            fail(f"--history {history}: the folder {history.parent} does not exist",
+                 EXIT_BAD_INPUT)
         dataset = load_dataset(dataset_dir, clean=clean)
         if dataset.cleaning is not None:
             for line in dataset.cleaning.summary():
@@ -226,6 +238,11 @@ def calibrate_command(
             except ValueError as exc:
                 fail(f"--cat063 {cat063}: {exc}", EXIT_BAD_INPUT)
             err_console.print(f"wrote {cat063}", highlight=False)
+        if history is not None:
+            _append_history(history, cal, dataset, dataset_dir, {
+                "method": method, "window": window, "cross": cross, "robust": robust,
+                "adsb": adsb, "fix": fix or [], "drift": drift or [], "break": breaks or [],
+                "steps": steps, "clean": clean})
         if report is not None:
             from graphcal.reporting.html import write_report_for
 
@@ -258,6 +275,22 @@ def calibrate_command(
             warnings = [w for w in dataset.cleaning.warnings if w not in warnings] + warnings
         for warning in warnings:
             console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
+
+
+def _append_history(path: Path, cal, dataset, dataset_dir: Path, options: dict) -> None:
+    """``--history``: the run appended to the calibration history database."""
+    from graphcal.pipeline.history import append_run
+
+    times = dataset.plots["time_s"]
+    run_id = append_run(path, cal.to_dict(), provenance={
+        "dataset": str(dataset_dir.resolve()),
+        "options": options,
+        "t_start_s": float(times.min()),
+        "t_end_s": float(times.max()),
+        "sensor_models": {rid: site.model for rid, site in dataset.sites.items()
+                          if getattr(site, "model", None)},
+    })
+    err_console.print(f"appended run {run_id} to {path}", highlight=False)
 
 
 def _print_windows(cal) -> None:

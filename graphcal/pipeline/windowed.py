@@ -170,7 +170,7 @@ def calibrate_windows(
         cal.info["estimated_sigmas"] = sigma_info
         cal.warnings.extend(sigma_warnings)
     cal.info["windows"]["scheduler"] = scheduler
-    cal.info["windows"]["windows_without_data"] = n_windows - len(summaries)
+    cal.info["windows"]["windows_without_data"] = n_windows - cal.info["windows"]["n_windows"]
     return cal
 
 
@@ -261,7 +261,7 @@ def to_calibration(result: WindowedCalibration, dataset: Dataset) -> Calibration
     }
     warnings = list(dataset.cleaning.warnings) if dataset.cleaning is not None else []
     counted = Counter(w for s in result.summaries for w in s.warnings)
-    n = len(result.summaries)
+    n = len({s.index for s in result.summaries})
     warnings += [f"{text} (in {count} of {n} windows)" if n > 1 else text
                  for text, count in counted.items()]
     for event in result.events:
@@ -278,7 +278,7 @@ def to_calibration(result: WindowedCalibration, dataset: Dataset) -> Calibration
     info: dict[str, Any] = {
         "windows": {
             "window_s": result.window_s,
-            "n_windows": len(result.summaries),
+            "n_windows": n,
             "random_walk_per_sqrt_h": {
                 rid: {CONTRACT_KEYS[name][0]: rate * 60.0 * CONTRACT_KEYS[name][1]
                       for name, rate in terms.items()}

@@ -13,7 +13,7 @@ from graphcal.cli.app import app
 runner = CliRunner()
 
 COMMANDS = ["simulate", "calibrate", "noise", "fuse", "methods", "marginals", "compare",
-            "import-asterix", "observability", "report", "correct"]
+            "import-asterix", "observability", "report", "correct", "history"]
 
 
 def _commands() -> dict:
