@@ -138,6 +138,21 @@ def test_command_line_window_drift_and_break(stepping, tmp_path: Path) -> None:
     (event,) = document["events"]
     assert event["radar_id"] == "SUD" and event["kind"] == "break"
     assert event["time_s"] == 1800.0
+    db = tmp_path / "calib.db"
+    result = runner.invoke(app, ["calibrate", str(folder), "--window", "15min", "--no-steps",
+                                 "--history", str(db), "--out", str(tmp_path / "r2.json")])
+    assert result.exit_code == 0, result.output
+    from graphcal.pipeline.history import read_runs, read_series
+
+    (run,) = read_runs(db).itertuples()
+    assert run.window_s == 900.0
+    series = read_series(db, radar="SUD")
+    stored = series[series["key"] == "range_offset_m"].sort_values("t_start_s")
+    written = json.loads((tmp_path / "r2.json").read_text())["series"]["radars"]["SUD"]
+    assert stored["value"].tolist() == pytest.approx([w["range_offset_m"] for w in written])
+    missing = runner.invoke(app, ["calibrate", str(folder), "--history",
+                                  str(tmp_path / "nowhere" / "c.db")])
+    assert missing.exit_code == 2 and "does not exist" in missing.output
     bad = runner.invoke(app, ["calibrate", str(folder), "--drift", "range_offset_m=1"])
     assert bad.exit_code == 2 and "--window" in bad.output
     bad = runner.invoke(app, ["calibrate", str(folder), "--window", "15min",
