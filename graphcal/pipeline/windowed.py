@@ -15,9 +15,11 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY_NAMES, NAME_FROM_KEY, PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
@@ -133,35 +135,41 @@ def calibrate_windows(
     chain = {"random_walk_per_sqrt_s": rates, "breaks": breaks,
              "detect_steps": detect_steps, "step_false_alarm": step_false_alarm}
     result = smooth_windows(summaries, dataset.sites, window_s, **chain)
-    cuts = _changes_inside_windows(result, breaks or {}, window_s)
-    if cuts:
-        # A bias that changes inside a window does not fit one value there: the window
-        # is cut at the change (a found step's time located by _locate_step) and its
-        # parts calibrated, then the chain smoothed again.
+    changes = _changes(result, breaks or {})
+    if changes:
+        # A bias that changes inside a window does not fit one value there.  Each step
+        # found is located (_locate_step, over its window or the two windows around the
+        # boundary where it was found); a window holding a change is cut there and its
+        # parts calibrated; then the chain is smoothed again.
         t0 = time.perf_counter()
-        windows = {w.index: w for w in split_windows(dataset, window_s) if w.index in cuts}
-        located: dict[int, list[tuple[float, str, float | None]]] = {}
-        for index, entries in cuts.items():
-            located[index] = []
-            for when, rid, statistic in entries:
-                if statistic is not None:
-                    others = [t for t, r, _ in entries if (t, r) != (when, rid)]
-                    when = _locate_step(windows[index], others, options)
-                located[index].append((when, rid, statistic))
-        parts = [part for index in sorted(windows)
-                 for part in split_window(windows[index], [t for t, _, _ in located[index]])]
+        windows = {w.index: w for w in split_windows(dataset, window_s)}
+        located = []
+        for when, rid, statistic in changes:
+            if statistic is not None:
+                span = _span_around(windows, when, window_s)
+                if span is not None:
+                    others = [t for t, r, _ in changes if r != rid
+                              and span.t_start_s < t < span.t_end_s]
+                    when = _snap(_locate_step(span, others, options), window_s)
+            located.append((when, rid, statistic))
+        cuts: dict[int, list[tuple[float, str, float | None]]] = {}
+        for when, rid, statistic in located:
+            index = int(np.floor(when / window_s))
+            if index * window_s < when < (index + 1) * window_s and index in windows:
+                cuts.setdefault(index, []).append((when, rid, statistic))
+        located_steps: dict[str, list[tuple[float, float | None]]] = {}
+        for when, rid, statistic in located:
+            if statistic is not None:
+                located_steps.setdefault(rid, []).append((when, statistic))
+        parts = [part for index in sorted(cuts)
+                 for part in split_window(windows[index], [t for t, _, _ in cuts[index]])]
         part_summaries = [s for s in map_windows(summarise_window, parts, scheduler=scheduler,
                                                  args=(options,), progress=progress,
                                                  total=len(parts)) if s is not None]
         summaries = sorted([s for s in summaries if s.index not in cuts] + part_summaries,
                            key=lambda s: (s.t_start_s, s.t_end_s))
-        found: dict[str, list[tuple[float, float | None]]] = {}
-        for entries in located.values():
-            for when, rid, statistic in entries:
-                if statistic is not None:
-                    found.setdefault(rid, []).append((when, statistic))
-        result = smooth_windows(summaries, dataset.sites, window_s, found_steps=found,
-                                **chain)
+        result = smooth_windows(summaries, dataset.sites, window_s,
+                                found_steps=located_steps, **chain)
         elapsed += time.perf_counter() - t0
     result.timing_s["summaries_s"] = elapsed
     result.timing_s["total_s"] = time.perf_counter() - start
@@ -215,18 +223,36 @@ def _locate_step(window: Window, others: Sequence[float], options: WindowOptions
     return min(candidates)[1]
 
 
-def _changes_inside_windows(result: WindowedCalibration, breaks: Mapping[str, Sequence[float]],
-                            window_s: float) -> dict[int, list[tuple[float, str, float | None]]]:
-    """Window index -> ``(time, radar, statistic)`` of the steps found and the breaks
-    declared strictly inside it (``statistic`` is ``None`` for a declared break)."""
-    inside: dict[int, list[tuple[float, str, float | None]]] = {}
+def _changes(result: WindowedCalibration, breaks: Mapping[str, Sequence[float]]
+             ) -> list[tuple[float, str, float | None]]:
+    """``(time, radar, statistic)`` of the steps found and the breaks declared
+    (``statistic`` is ``None`` for a declared break)."""
     changes = [(e.time_s, e.radar_id, e.statistic) for e in result.events if e.kind == "step"]
-    changes += [(float(t), rid, None) for rid, times in breaks.items() for t in times]
-    for when, rid, statistic in changes:
-        index = int(np.floor(when / window_s))
-        if index * window_s < when < (index + 1) * window_s:
-            inside.setdefault(index, []).append((when, rid, statistic))
-    return inside
+    return changes + [(float(t), rid, None) for rid, times in breaks.items() for t in times]
+
+
+def _span_around(windows: Mapping[int, Window], when: float, window_s: float
+                 ) -> Window | None:
+    """The window holding ``when``, or both windows around it when it is a boundary."""
+    index = int(np.floor(when / window_s))
+    if index * window_s < when:
+        return windows.get(index)
+    before, after = windows.get(index - 1), windows.get(index)
+    if before is None or after is None:
+        return before or after
+    adsb = None
+    if before.dataset.adsb is not None and after.dataset.adsb is not None:
+        both = pd.concat([before.dataset.adsb, after.dataset.adsb])
+        adsb = both[~both.index.duplicated()]
+    plots = pd.concat([before.dataset.plots, after.dataset.plots])
+    return Window(before.index, before.t_start_s, after.t_end_s,
+                  replace(before.dataset, plots=plots, adsb=adsb))
+
+
+def _snap(when: float, window_s: float) -> float:
+    """A time within :data:`STEP_TIME_TOLERANCE_S` of a window boundary, on it."""
+    boundary = round(when / window_s) * window_s
+    return float(boundary) if abs(when - boundary) < STEP_TIME_TOLERANCE_S else when
 
 
 def series_entry(window: WindowEstimate, terms: RadarTerms, eccentric: bool) -> dict[str, Any]:
