@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from graphcal.core.errors import DatasetError
 from graphcal.data.dataset import ADSB_COLUMNS, PLOT_COLUMNS, SITES_FILE
-from graphcal.io.folder import check_folder, load_sites, table_files
+from graphcal.io.folder import check_folder, dataset_tables, load_sites
 from graphcal.io.table_files import (
     DEFAULT_CHUNK_ROWS,
     MISSING_TEXT,
@@ -268,7 +268,7 @@ def dataset_span(folder: str | Path) -> DatasetSpan:
     folder = Path(folder)
     check_folder(folder)
     sites = load_sites(folder / SITES_FILE)
-    plot_files, adsb_files = table_files(folder)
+    plot_files, adsb_files = dataset_tables(folder)
     plots = _table_span(plot_files, PLOT_COLUMNS)
     if plots.n_rows == 0:
         raise DatasetError("the table has no data rows",

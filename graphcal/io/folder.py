@@ -515,7 +515,7 @@ def check_folder(folder: Path) -> None:
         raise DatasetError("not a folder", path=folder)
 
 
-def table_files(folder: Path) -> tuple[list[Path], list[Path] | None]:
+def dataset_tables(folder: Path) -> tuple[list[Path], list[Path] | None]:
     """The files of a dataset folder's plots table and of its ADS-B table (or ``None``).
 
     Raises
@@ -565,7 +565,7 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
     folder = Path(folder)
     check_folder(folder)
     sites = load_sites(folder / SITES_FILE)
-    plot_files, adsb_files = table_files(folder)
+    plot_files, adsb_files = dataset_tables(folder)
     plots = _load_table(plot_files, PLOT_COLUMNS, lambda rows: validate_plots(rows, sites))
     if needs_elevation_scan(sites):
         sites = three_d_without_sigmas(sites, elevation_complete(plots), folder / SITES_FILE)

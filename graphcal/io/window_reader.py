@@ -81,10 +81,10 @@ from graphcal.data.windows import DEFAULT_ADSB_MARGIN_S, Window, window_index
 from graphcal.io.dataset_span import scan_times
 from graphcal.io.folder import (
     check_folder,
+    dataset_tables,
     load_plot_altitude,
     load_sites,
     needs_elevation_scan,
-    table_files,
     three_d_without_sigmas,
 )
 from graphcal.io.table_checks import ExtraCheck, validate_adsb, validate_plots
@@ -244,7 +244,7 @@ def iter_windows(
     folder = Path(folder)
     check_folder(folder)
     file_sites = load_sites(folder / SITES_FILE)
-    plot_files, adsb_files = table_files(folder)
+    plot_files, adsb_files = dataset_tables(folder)
     plot_altitude = load_plot_altitude(folder / SITES_FILE)
     sites = file_sites
     if needs_elevation_scan(file_sites):
