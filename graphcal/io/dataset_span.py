@@ -8,7 +8,9 @@ written without statistics) has its ``time_s`` column read, in chunks.
 :func:`scan_times` reads the ``time_s`` column of every file of a table and also
 says whether its rows come in time order (within a tolerance): what the
 window-by-window reader (:mod:`graphcal.io.window_reader`) needs to choose between
-reading the files once in order and sorting their rows by window first.
+reading the files once in order and sorting their rows by window first;
+:func:`first_time` says when a file in time order starts, from its statistics or its
+first rows.
 
 Times that are missing or not numbers are left out here (the validation of the
 full rows reports them); spans and counts are of data rows (blank CSV lines are
@@ -161,6 +163,24 @@ def _parse_times(values: pd.Series) -> NDArray[np.float64]:
     return pd.to_numeric(text, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
 
 
+def first_time(path: Path, required: tuple[str, ...], *, max_lateness_s: float,
+               chunk_rows: int = 1000) -> float:
+    """No row of a file in time order (to within ``max_lateness_s``) is earlier than this [s].
+
+    From a Parquet file's statistics when it has them (its smallest time), else its
+    first time less the tolerance; ``-inf`` when the first rows have no time.
+    """
+    if path.suffix == ".parquet":
+        found = parquet_times(path, required)
+        if found is not None:
+            return -math.inf if math.isnan(found.t_min_s) else found.t_min_s
+    for raw in read_rows(path, required, chunk_rows=chunk_rows, usecols=["time_s"]):
+        t = _parse_times(raw.frame["time_s"])
+        finite = t[np.isfinite(t)]
+        return float(finite[0]) - max_lateness_s if finite.size else -math.inf
+    return -math.inf
+
+
 def scan_times(files: Iterable[Path], required: tuple[str, ...], *, max_lateness_s: float,
                chunk_rows: int = DEFAULT_CHUNK_ROWS) -> TableSpan:
     """Read the ``time_s`` column of a table's files: span, count and time order.
@@ -209,8 +229,14 @@ def scan_times(files: Iterable[Path], required: tuple[str, ...], *, max_lateness
     return TableSpan(tuple(spans))
 
 
-def _parquet_times(path: Path, required: tuple[str, ...]) -> FileTimes | None:
-    """A Parquet file's row count and time span from its footer, ``None`` without statistics."""
+def parquet_times(path: Path, required: tuple[str, ...]) -> FileTimes | None:
+    """A Parquet file's row count and time span from its footer, ``None`` without statistics.
+
+    Raises
+    ------
+    DatasetError
+        If the file cannot be read or lacks a required column.
+    """
     handle: pq.ParquetFile = parquet_file(path)
     require_columns(path, parquet_columns(handle), required)
     metadata = handle.metadata
@@ -235,7 +261,7 @@ def _table_span(files: list[Path], required: tuple[str, ...]) -> TableSpan:
     """Statistics where a Parquet file has them, else the ``time_s`` column."""
     spans = []
     for path in files:
-        found = _parquet_times(path, required) if path.suffix == ".parquet" else None
+        found = parquet_times(path, required) if path.suffix == ".parquet" else None
         if found is None:
             found = scan_times([path], required, max_lateness_s=math.inf).files[0]
         spans.append(found)
@@ -277,4 +303,12 @@ def dataset_span(folder: str | Path) -> DatasetSpan:
     return DatasetSpan(folder, tuple(sites), plots, adsb)
 
 
-__all__ = ["DatasetSpan", "FileTimes", "TableSpan", "dataset_span", "scan_times"]
+__all__ = [
+    "DatasetSpan",
+    "FileTimes",
+    "TableSpan",
+    "dataset_span",
+    "first_time",
+    "parquet_times",
+    "scan_times",
+]

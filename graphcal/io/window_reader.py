@@ -26,9 +26,10 @@ Time order
       out of order is sorted by window through a temporary folder
       (:class:`~graphcal.io.table_stream.SpilledTable`: bounded memory, one more
       write and read of the table).
-    * ``"sorted"``: no first pass; the files, in name order, must be in time order
-      one after the other; a row out of order is a
-      :class:`~graphcal.core.errors.DatasetError` naming the file and the row.
+    * ``"sorted"``: no first pass: each file is taken to be in time order, and a
+      row out of order is a :class:`~graphcal.core.errors.DatasetError` naming the
+      file and the row.  Files may still overlap in time: each is opened when the
+      windows reach its start (a Parquet file's statistics, else its first row).
     * ``"any"``: always sort by window through the temporary folder.
 
 Cleaning (``clean=True``)
@@ -78,7 +79,7 @@ import pandas as pd
 from graphcal.data.cleaning import clean_dataset
 from graphcal.data.dataset import ADSB_COLUMNS, PLOT_COLUMNS, SITES_FILE, Dataset, Site
 from graphcal.data.windows import DEFAULT_ADSB_MARGIN_S, Window, window_index
-from graphcal.io.dataset_span import scan_times
+from graphcal.io.dataset_span import first_time, scan_times
 from graphcal.io.folder import (
     check_folder,
     dataset_tables,
@@ -114,8 +115,10 @@ def _open_table(files: list[Path], required: tuple[str, ...], validate: Validato
     """The table read in order when it can be, else sorted by window (module docstring)."""
     empty = empty_table(files, required, validate)
     if order == "sorted":
-        return OrderedTable([TableSource(files, required, validate, chunk_rows,
-                                         max_lateness_s)], empty)
+        sources = [TableSource([path], required, validate, chunk_rows, max_lateness_s,
+                               first_time(path, required, max_lateness_s=max_lateness_s))
+                   for path in files]
+        return OrderedTable(sources, empty)
     if order == "auto":
         span = scan_times(files, required, max_lateness_s=max_lateness_s,
                           chunk_rows=chunk_rows)
