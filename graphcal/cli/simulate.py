@@ -16,26 +16,45 @@ def simulate_command(
     seed: Annotated[int, typer.Option(help="Seed of the random generator.")] = 0,
     fmt: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
+    chunk: Annotated[str | None, typer.Option(
+        "--chunk", help="Simulate and write in chunks of this much time (e.g. 1h), holding "
+                        "one chunk in memory: for long scenarios.")] = None,
 ) -> None:
     """Simulate a scenario into a dataset folder plus truth.json."""
     import numpy as np
 
+    from graphcal.core.durations import parse_duration
     from graphcal.simulation.scenario import load_scenario
     from graphcal.simulation.simulate import simulate as run_simulation
     from graphcal.simulation.simulate import write_simulation
+    from graphcal.simulation.stream import simulate_to_folder
 
     if fmt not in ("csv", "parquet"):
         fail(f"--format must be csv or parquet, not '{fmt}'", EXIT_BAD_INPUT)
+    chunk_s = None
+    if chunk is not None:
+        try:
+            chunk_s = parse_duration(chunk)
+        except ValueError as exc:
+            fail(f"--chunk: {exc}", EXIT_BAD_INPUT)
     with errors_to_exit():
         spec = load_scenario(scenario)
         rng = np.random.default_rng(seed)
         with progress_bar("simulating") as callback:
-            result = run_simulation(spec, rng, progress=callback)
-        write_simulation(result, out, fmt=fmt, overwrite=overwrite)
-    n_adsb = 0 if result.dataset.adsb is None else len(result.dataset.adsb)
+            if chunk_s is None:
+                result = run_simulation(spec, rng, progress=callback)
+            else:
+                streamed = simulate_to_folder(spec, rng, out, fmt=fmt, chunk_s=chunk_s,
+                                              overwrite=overwrite, progress=callback)
+        if chunk_s is None:
+            write_simulation(result, out, fmt=fmt, overwrite=overwrite)
+            n_radars, n_plots = len(result.dataset.sites), len(result.dataset.plots)
+            n_adsb = 0 if result.dataset.adsb is None else len(result.dataset.adsb)
+        else:
+            n_radars, n_plots, n_adsb = len(streamed.n_plots), streamed.total_plots, \
+                streamed.n_adsb
     console.print(
-        f"wrote {out}: {len(result.dataset.sites)} radars, {len(result.dataset.plots)} plots, "
-        f"{n_adsb} ADS-B reports (seed {seed})"
+        f"wrote {out}: {n_radars} radars, {n_plots} plots, {n_adsb} ADS-B reports (seed {seed})"
     )
 
 

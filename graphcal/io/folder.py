@@ -1,7 +1,9 @@
 """Dataset folders: reading and writing sites, plots and ADS-B reports (CONTRACT.md).
 
 A dataset is a folder with ``sites.toml``, ``plots.csv|parquet`` and optionally
-``adsb.csv|parquet``.  Tables keep the contract's column names and units
+``adsb.csv|parquet``; graphcal also reads a table given as a folder of parts,
+``plots/`` or ``adsb/`` holding ``*.csv`` or ``*.parquet`` files taken in name order
+(:mod:`graphcal.io.table_files`).  Tables keep the contract's column names and units
 (degrees, metres, seconds); :class:`Site` holds SI values (radians).
 
 Reading (:func:`load_dataset`, :func:`load_sites`) validates everything and
@@ -13,10 +15,10 @@ naming the file, the row and the field:
   repeats the line number); blank lines are skipped but keep this numbering,
   so without blank lines row N is exactly the N-th data row.  In a Parquet
   file row N is the N-th row.  When several rows are bad, the first one in the
-  file is reported.
+  file is reported.  In a table of parts, the file is the part.
 * In ``sites.toml``, "row N" is the N-th ``[[radar]]`` table.
 
-Normalisation of the tables read:
+Normalisation of the tables read (:mod:`graphcal.io.table_checks`):
 
 * ``radar_id`` and ``target_id`` are strings with surrounding blanks removed;
   ``target_id`` is lower-cased and is ``""`` when missing.
@@ -39,9 +41,12 @@ Normalisation of the tables read:
   (:func:`load_plot_altitude`).
 * Columns beyond the contract's are kept unchanged after the contract columns.
 
+:func:`load_dataset` holds the whole recording in memory;
+:func:`graphcal.io.window_reader.iter_windows` reads the same folder window by window.
+
 Reading never writes anything.  Writing (:func:`write_dataset`,
-:func:`write_sites`, :func:`atomic_write_text`) is atomic: a reader sees either
-the old content or the complete new one.
+:class:`DatasetWriter`, :func:`write_sites`, :func:`atomic_write_text`) is atomic:
+a reader sees either the old content or the complete new one.
 """
 
 
@@ -49,7 +54,6 @@ from __future__ import annotations
 
 import math
 import os
-import re
 import shutil
 import tempfile
 import tomllib
@@ -57,12 +61,12 @@ import uuid
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
 import numpy as np
 import pandas as pd
 import tomli_w
-from numpy.typing import NDArray
 
 from graphcal.core.atomic import atomic_write_text, write_table
 from graphcal.core.errors import DatasetError, SensorModelError
@@ -70,7 +74,6 @@ from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosp
 from graphcal.data.bias import ESTIMATE_NAMES
 from graphcal.data.dataset import (
     ADSB_COLUMNS,
-    ADSB_DEFAULT_SIGMA_M,
     PLOT_COLUMNS,
     REFRACTION_MODELS,
     REFRACTIVITY_N_S_RANGE,
@@ -81,15 +84,10 @@ from graphcal.data.dataset import (
     Site,
 )
 from graphcal.data.height import GEOMETRIC, PLOT_ALTITUDE_CHOICES
-from graphcal.data.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
-
-#: Text read as "no value" in a numeric column (compared after removing blanks).
-_MISSING_TEXT: tuple[str, ...] = ("", "nan", "NaN", "NAN", "NA", "N/A", "n/a", "null", "NULL",
-                                  "None", "none")
-#: Columns read as text; every other contract column is numeric.
-_TEXT_COLUMNS: tuple[str, ...] = ("radar_id", "target_id")
-
-
+from graphcal.data.sensor_models import SensorModel, load_sensor_model
+from graphcal.io.table_checks import validate_adsb, validate_plots
+from graphcal.io.table_files import find_table_files, read_rows
+from graphcal.io.table_writer import TableWriter
 
 # --------------------------------------------------------------------------- sites.toml
 
@@ -485,317 +483,52 @@ def write_sites(
 _SITES_HEADER = "# Radar sites. Units are in the key names (deg, m, mrad, s).\n\n"
 
 
+
 # --------------------------------------------------------------------------- tables
 
 
-@dataclass
-class _Table:
-    """A table as read from disk, before validation.
+def _load_table(files: list[Path], required: tuple[str, ...],
+                validate: Callable[[Any], pd.DataFrame]) -> pd.DataFrame:
+    """Read and validate every file of a table (one file or its parts), in order.
 
-    Attributes
-    ----------
-    path : Path
-        The file.
-    frame : pandas.DataFrame
-        Its rows (blank CSV lines removed), with a fresh ``RangeIndex``.
-    rows : ndarray of int
-        The 1-based data-row number of each frame row, as reported to users.
+    Raises
+    ------
+    DatasetError
+        For the first problem (:mod:`graphcal.io.table_checks`), or when the table
+        has no data row (naming the file, or the parts folder).
     """
-
-    path: Path
-    frame: pd.DataFrame
-    rows: NDArray[np.int64]
-
-    def error(self, message: str, *, pos: int | None = None, column: str | None = None
-              ) -> DatasetError:
-        """A :class:`DatasetError` for frame row ``pos`` (0-based) and ``column``."""
-        row = None if pos is None else int(self.rows[pos])
-        if row is not None and self.path.suffix == ".csv":
-            message = f"{message} (line {row + 1})"
-        return DatasetError(message, path=self.path, row=row, field=column)
+    frames = [validate(rows) for path in files for rows in read_rows(path, required)]
+    frames = [frame for frame in frames if len(frame)] or frames[:1]
+    if not frames or not len(frames[0]):
+        where = files[0] if len(files) == 1 else files[0].parent
+        raise DatasetError("the table has no data rows", path=where)
+    if len(frames) == 1:
+        return frames[0]
+    return pd.concat(frames, ignore_index=True)
 
 
-class _FirstProblem:
-    """Collects bad rows of several checks and keeps the earliest one.
+def check_folder(folder: Path) -> None:
+    """Raise a :class:`DatasetError` unless ``folder`` is an existing folder."""
+    if not folder.exists():
+        raise DatasetError("dataset folder not found", path=folder)
+    if not folder.is_dir():
+        raise DatasetError("not a folder", path=folder)
 
-    On a tie (two problems in the same row) the check made first wins.
+
+def dataset_tables(folder: Path) -> tuple[list[Path], list[Path] | None]:
+    """The files of a dataset folder's plots table and of its ADS-B table (or ``None``).
+
+    Raises
+    ------
+    DatasetError
+        If the folder is missing or not a folder, has no plots table, or has a
+        table in two forms (:func:`graphcal.io.table_files.find_table_files`).
     """
-
-    def __init__(self, table: _Table) -> None:
-        self._table = table
-        self._first: tuple[int, str, str] | None = None
-
-    def flag(self, bad: NDArray[np.bool_], column: str, describe: Callable[[int], str]) -> None:
-        """Record the first row where ``bad`` holds; ``describe(pos)`` makes its message."""
-        hits = np.flatnonzero(np.asarray(bad, dtype=bool))
-        if hits.size and (self._first is None or hits[0] < self._first[0]):
-            pos = int(hits[0])
-            self._first = (pos, column, describe(pos))
-
-    def raise_first(self) -> None:
-        """Raise the earliest recorded problem, if any."""
-        if self._first is not None:
-            pos, column, message = self._first
-            raise self._table.error(message, pos=pos, column=column)
-
-
-def _find_table(folder: Path, stem: str) -> Path | None:
-    """``folder/stem.csv`` or ``folder/stem.parquet``, ``None`` if neither; an error if both."""
-    candidates = [folder / f"{stem}.{fmt}" for fmt in TABLE_FORMATS]
-    found = [path for path in candidates if path.is_file()]
-    if len(found) > 1:
-        raise DatasetError(
-            f"both {stem}.csv and {stem}.parquet exist; keep only one", path=folder, field=stem
-        )
-    return found[0] if found else None
-
-
-def _blank_rows(frame: pd.DataFrame) -> NDArray[np.bool_]:
-    """Rows in which every cell is empty (blank CSV lines)."""
-    blank = np.ones(len(frame), dtype=bool)
-    for column in frame.columns:
-        values = frame[column]
-        empty = values.isna()
-        if not pd.api.types.is_numeric_dtype(values):
-            empty |= values.astype("string").str.strip().eq("").fillna(True)
-        blank &= empty.to_numpy(dtype=bool)
-    return blank
-
-
-def _csv_parser_error(path: Path, exc: pd.errors.ParserError) -> DatasetError:
-    """A :class:`DatasetError` for a malformed CSV line, with its row when known."""
-    match = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(exc))
-    if match is None:
-        return DatasetError(f"cannot read CSV: {exc}", path=path)
-    expected, line, seen = (int(group) for group in match.groups())
-    return DatasetError(
-        f"{seen} fields where the header has {expected} (line {line}; a decimal comma or "
-        "an unquoted comma in a text?)",
-        path=path,
-        row=line - 1,
-    )
-
-
-def _read_csv(path: Path) -> tuple[pd.DataFrame, NDArray[np.int64]]:
-    """Read a CSV table: text columns as text, empty cells of the others as NaN."""
-    try:
-        header = pd.read_csv(path, nrows=0, encoding="utf-8-sig").columns
-        frame = pd.read_csv(
-            path,
-            encoding="utf-8-sig",
-            dtype={column: str for column in _TEXT_COLUMNS if column in header},
-            keep_default_na=False,
-            na_values={c: list(_MISSING_TEXT) for c in header if c not in _TEXT_COLUMNS},
-            skip_blank_lines=False,
-            index_col=False,
-        )
-    except pd.errors.EmptyDataError:
-        raise DatasetError("the file is empty (no header line)", path=path) from None
-    except pd.errors.ParserError as exc:
-        raise _csv_parser_error(path, exc) from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise DatasetError(f"cannot read CSV: {exc}", path=path) from None
-    keep = ~_blank_rows(frame)
-    rows = np.arange(1, len(frame) + 1)[keep]
-    return frame.loc[keep].reset_index(drop=True), rows
-
-
-def _read_parquet(path: Path) -> tuple[pd.DataFrame, NDArray[np.int64]]:
-    """Read a Parquet table."""
-    try:
-        frame = pd.read_parquet(path)
-    except (OSError, ValueError, ImportError) as exc:
-        raise DatasetError(f"cannot read Parquet: {exc}", path=path) from None
-    return frame.reset_index(drop=True), np.arange(1, len(frame) + 1)
-
-
-def _read_table(path: Path, required: tuple[str, ...]) -> _Table:
-    """Read a CSV or Parquet table and check its columns and that it has rows."""
-    reader = _read_csv if path.suffix == ".csv" else _read_parquet
-    frame, rows = reader(path)
-    table = _Table(path, frame, rows)
-    for column in required:
-        if column not in frame.columns:
-            found = ", ".join(map(str, frame.columns)) or "none"
-            raise table.error(f"missing required column (columns found: {found})", column=column)
-    if frame.empty:
-        raise table.error("the table has no data rows")
-    return table
-
-
-def _numeric(table: _Table, problems: _FirstProblem, column: str) -> NDArray[np.float64]:
-    """A numeric column as floats (NaN where empty); flags cells that are not numbers."""
-    values = table.frame[column]
-    if pd.api.types.is_bool_dtype(values):
-        problems.flag(np.ones(len(values), dtype=bool), column,
-                      lambda pos: f"{values.iloc[pos]!r} is not a number")
-        return np.full(len(values), np.nan)
-    if pd.api.types.is_numeric_dtype(values):
-        return values.to_numpy(dtype=float, na_value=np.nan)
-    text = values.astype("string").str.strip()
-    missing = (text.isna() | text.isin(_MISSING_TEXT)).to_numpy(dtype=bool)
-    parsed = pd.to_numeric(text.mask(missing), errors="coerce")
-    parsed = parsed.to_numpy(dtype=float, na_value=np.nan)
-    problems.flag(np.isnan(parsed) & ~missing, column,
-                  lambda pos: f"{values.iloc[pos]!r} is not a number")
-    return parsed
-
-
-def _text(table: _Table, column: str, *, lower: bool = False) -> pd.Series:
-    """A text column without surrounding blanks, ``""`` where missing."""
-    text = table.frame[column].astype("string").fillna("").str.strip()
-    if lower:
-        text = text.str.lower()
-    return text.astype(str)
-
-
-def _flag_not_finite(
-    problems: _FirstProblem, values: NDArray[np.float64], column: str, *, required: bool
-) -> None:
-    """Flag infinite values, and missing ones when ``required``."""
-    bad = np.isinf(values) | (np.isnan(values) if required else False)
-    problems.flag(bad, column, lambda pos: "missing value" if np.isnan(values[pos])
-                  else f"{values[pos]} is not finite")
-
-
-def _flag_outside(
-    problems: _FirstProblem,
-    values: NDArray[np.float64],
-    column: str,
-    low: float,
-    high: float,
-    *,
-    high_open: bool = False,
-) -> None:
-    """Flag values outside ``[low, high]`` (``[low, high)`` when ``high_open``); NaN passes."""
-    above = values >= high if high_open else values > high
-    interval = f"[{low:g}, {high:g}{')' if high_open else ']'}"
-    problems.flag((values < low) | above, column,
-                  lambda pos: f"{values[pos]} is outside {interval}")
-
-
-def _assemble(table: _Table, columns: dict[str, Any]) -> pd.DataFrame:
-    """The normalised columns, followed by the table's extra columns unchanged."""
-    out = pd.DataFrame(columns, index=pd.RangeIndex(len(table.frame)))
-    for column in table.frame.columns:
-        if column not in out.columns:
-            out[column] = table.frame[column]
-    return out
-
-
-# --------------------------------------------------------------------------- plots
-
-
-def _load_plots(path: Path, sites: Mapping[str, Site]) -> pd.DataFrame:
-    """Read, validate and normalise the plots table (see the module docstring)."""
-    table = _read_table(path, PLOT_COLUMNS)
-    problems = _FirstProblem(table)
-    radar_id = _text(table, "radar_id")
-    known = ", ".join(sites)
-    problems.flag(~radar_id.isin(list(sites)).to_numpy(dtype=bool), "radar_id",
-                  lambda pos: "missing radar id" if not radar_id.iloc[pos]
-                  else f"unknown radar {radar_id.iloc[pos]!r}; sites.toml defines: {known}")
-    time_s = _numeric(table, problems, "time_s")
-    _flag_not_finite(problems, time_s, "time_s", required=True)
-    range_m = _numeric(table, problems, "range_m")
-    _flag_not_finite(problems, range_m, "range_m", required=True)
-    problems.flag(range_m < 0.0, "range_m", lambda pos: f"negative range {range_m[pos]}")
-    azimuth_deg = _numeric(table, problems, "azimuth_deg")
-    _flag_not_finite(problems, azimuth_deg, "azimuth_deg", required=True)
-    _flag_outside(problems, azimuth_deg, "azimuth_deg", 0.0, 360.0, high_open=True)
-    elevation_deg = _numeric(table, problems, "elevation_deg")
-    _flag_not_finite(problems, elevation_deg, "elevation_deg", required=False)
-    three_d = radar_id.isin([s.id for s in sites.values() if s.is_3d]).to_numpy(dtype=bool)
-    problems.flag(three_d & np.isnan(elevation_deg), "elevation_deg",
-                  lambda pos: f"missing elevation for 3-D radar {radar_id.iloc[pos]!r}")
-    _flag_outside(problems, elevation_deg, "elevation_deg", -90.0, 90.0)
-    if "altitude_m" in table.frame.columns:
-        altitude_m = _numeric(table, problems, "altitude_m")
-        _flag_not_finite(problems, altitude_m, "altitude_m", required=False)
-    else:
-        altitude_m = np.full(len(table.frame), np.nan)
-    target_id = _text(table, "target_id", lower=True)
-    problems.raise_first()
-    return _assemble(table, {
-        "radar_id": radar_id,
-        "time_s": time_s,
-        "range_m": range_m,
-        "azimuth_deg": azimuth_deg,
-        "elevation_deg": elevation_deg,
-        "target_id": target_id,
-        "altitude_m": altitude_m,
-    })
-
-
-# --------------------------------------------------------------------------- ADS-B
-
-
-def _adsb_nacp(table: _Table, problems: _FirstProblem) -> NDArray[np.float64] | None:
-    """The ``nacp`` column as floats (NaN where empty), or ``None`` when absent."""
-    if "nacp" not in table.frame.columns:
-        return None
-    nacp = _numeric(table, problems, "nacp")
-    given = ~np.isnan(nacp)
-    invalid = given & ((nacp != np.round(nacp)) | (nacp < 0) | (nacp > 11))
-    problems.flag(invalid, "nacp", lambda pos: f"{nacp[pos]} is not an integer in 0..11")
-    return nacp
-
-
-def _adsb_sigma(
-    table: _Table, problems: _FirstProblem, nacp: NDArray[np.float64] | None
-) -> NDArray[np.float64]:
-    """``sigma_m`` filled in: given value, else from NACp, else the default [m]."""
-    n = len(table.frame)
-    if "sigma_m" in table.frame.columns:
-        sigma = _numeric(table, problems, "sigma_m")
-        _flag_not_finite(problems, sigma, "sigma_m", required=False)
-        problems.flag(sigma <= 0.0, "sigma_m", lambda pos: f"must be positive, got {sigma[pos]}")
-    else:
-        sigma = np.full(n, np.nan)
-    if nacp is not None:
-        usable = np.isfinite(nacp) & (nacp == np.round(nacp)) & (nacp >= 0) & (nacp <= 11)
-        from_nacp = adsb_sigma_from_nacp(np.where(usable, nacp, np.nan))
-        sigma = np.where(np.isnan(sigma), from_nacp, sigma)
-    return np.where(np.isnan(sigma), ADSB_DEFAULT_SIGMA_M, sigma)
-
-
-def _load_adsb(path: Path) -> pd.DataFrame:
-    """Read, validate and normalise the ADS-B table (see the module docstring)."""
-    table = _read_table(path, ADSB_COLUMNS)
-    problems = _FirstProblem(table)
-    time_s = _numeric(table, problems, "time_s")
-    _flag_not_finite(problems, time_s, "time_s", required=True)
-    target_id = _text(table, "target_id", lower=True)
-    problems.flag((target_id == "").to_numpy(dtype=bool), "target_id",
-                  lambda pos: "missing target id (ICAO address)")
-    lat_deg = _numeric(table, problems, "lat_deg")
-    _flag_not_finite(problems, lat_deg, "lat_deg", required=True)
-    _flag_outside(problems, lat_deg, "lat_deg", -90.0, 90.0)
-    lon_deg = _numeric(table, problems, "lon_deg")
-    _flag_not_finite(problems, lon_deg, "lon_deg", required=True)
-    _flag_outside(problems, lon_deg, "lon_deg", -180.0, 180.0)
-    alt_m = _numeric(table, problems, "alt_m")
-    _flag_not_finite(problems, alt_m, "alt_m", required=True)
-    nacp = _adsb_nacp(table, problems)
-    sigma_m = _adsb_sigma(table, problems, nacp)
-    baro_alt_m = None
-    if "baro_alt_m" in table.frame.columns:
-        baro_alt_m = _numeric(table, problems, "baro_alt_m")
-        _flag_not_finite(problems, baro_alt_m, "baro_alt_m", required=False)
-    problems.raise_first()
-    columns: dict[str, Any] = {
-        "time_s": time_s,
-        "target_id": target_id,
-        "lat_deg": lat_deg,
-        "lon_deg": lon_deg,
-        "alt_m": alt_m,
-        "sigma_m": sigma_m,
-    }
-    if nacp is not None:
-        columns["nacp"] = pd.array(np.where(np.isnan(nacp), None, nacp), dtype="Int64")
-    if baro_alt_m is not None:
-        columns["baro_alt_m"] = baro_alt_m
-    return _assemble(table, columns)
+    check_folder(folder)
+    plots = find_table_files(folder, "plots")
+    if plots is None:
+        raise DatasetError("missing plots.csv or plots.parquet", path=folder, field="plots")
+    return plots, find_table_files(folder, "adsb")
 
 
 # --------------------------------------------------------------------------- dataset
@@ -807,9 +540,9 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
     Parameters
     ----------
     folder : str or Path
-        Folder with ``sites.toml``, ``plots.csv`` or ``plots.parquet`` and
-        optionally ``adsb.csv`` or ``adsb.parquet`` (not both formats of one
-        table).
+        Folder with ``sites.toml``, ``plots.csv`` or ``plots.parquet`` (or a
+        ``plots/`` folder of parts) and optionally ``adsb.csv`` or
+        ``adsb.parquet`` (or ``adsb/``); one form per table.
     clean : bool, optional
         After validation, remove bad data (duplicates, stale and impossible
         ADS-B reports, mislabelled aircraft, see :mod:`graphcal.data.cleaning`) from
@@ -820,8 +553,9 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
     -------
     Dataset
         Validated and normalised (see the module docstring); ``adsb`` is
-        ``None`` when the folder has no ADS-B table.  When cleaned, the tables
-        have a fresh ``RangeIndex`` (row labels no longer follow the file).
+        ``None`` when the folder has no ADS-B table.  The parts of a table are
+        concatenated in name order.  When cleaned, the tables have a fresh
+        ``RangeIndex`` (row labels no longer follow the file).
 
     Raises
     ------
@@ -829,18 +563,13 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
         For the first problem found, naming the file, the row and the field.
     """
     folder = Path(folder)
-    if not folder.exists():
-        raise DatasetError("dataset folder not found", path=folder)
-    if not folder.is_dir():
-        raise DatasetError("not a folder", path=folder)
+    check_folder(folder)
     sites = load_sites(folder / SITES_FILE)
-    plots_path = _find_table(folder, "plots")
-    if plots_path is None:
-        raise DatasetError("missing plots.csv or plots.parquet", path=folder, field="plots")
-    plots = _load_plots(plots_path, sites)
-    sites = _three_d_without_sigmas(sites, plots, folder / SITES_FILE)
-    adsb_path = _find_table(folder, "adsb")
-    adsb = None if adsb_path is None else _load_adsb(adsb_path)
+    plot_files, adsb_files = dataset_tables(folder)
+    plots = _load_table(plot_files, PLOT_COLUMNS, lambda rows: validate_plots(rows, sites))
+    if needs_elevation_scan(sites):
+        sites = three_d_without_sigmas(sites, elevation_complete(plots), folder / SITES_FILE)
+    adsb = None if adsb_files is None else _load_table(adsb_files, ADSB_COLUMNS, validate_adsb)
     plot_altitude = load_plot_altitude(folder / SITES_FILE)
     dataset = Dataset(sites=sites, plots=plots, adsb=adsb, path=folder,
                       plot_altitude=plot_altitude)
@@ -851,8 +580,15 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
     return dataset
 
 
-def _three_d_without_sigmas(
-    sites: dict[str, Site], plots: pd.DataFrame, sites_path: Path
+def elevation_complete(plots: pd.DataFrame) -> dict[str, bool]:
+    """Per radar with plots: whether every one of its plots carries a finite elevation."""
+    finite = np.isfinite(plots["elevation_deg"].to_numpy(dtype=float))
+    complete = pd.Series(finite).groupby(plots["radar_id"].to_numpy()).all()
+    return {str(rid): bool(value) for rid, value in complete.items()}
+
+
+def three_d_without_sigmas(
+    sites: dict[str, Site], complete: Mapping[str, bool], sites_path: Path
 ) -> dict[str, Site]:
     """Sites whose table gives no sigma at all, made 3-D when all their plots have elevation.
 
@@ -860,13 +596,28 @@ def _three_d_without_sigmas(
     table without any sigma cannot say it, so the plots do.  The elevation
     sigma is then NaN (to be estimated); ``estimate`` gains ``elevation_bias``
     when the table left it to the default.
+
+    Parameters
+    ----------
+    sites : dict of str to Site
+        As read from ``sites.toml``.
+    complete : mapping of str to bool
+        Per radar that has plots, whether all of them carry an elevation
+        (:func:`elevation_complete`); a radar without plots is absent.
+    sites_path : Path
+        ``sites.toml``, for error messages.
+
+    Raises
+    ------
+    DatasetError
+        If such a radar's ``estimate`` names ``elevation_bias`` but not all of its
+        plots carry an elevation.
     """
     updated = dict(sites)
     for radar_id, site in sites.items():
         if site.missing_sigmas != ("sigma_range_m", "sigma_azimuth_mrad") or site.model:
             continue
-        elevation = plots.loc[plots["radar_id"] == radar_id, "elevation_deg"].to_numpy()
-        if len(elevation) and np.isfinite(elevation).all():
+        if complete.get(radar_id, False):
             default_2d = replace(site, estimate=()).estimate
             estimate = () if site.estimate == default_2d else site.estimate
             updated[radar_id] = replace(site, sigma_elevation_rad=math.nan, estimate=estimate)
@@ -875,6 +626,15 @@ def _three_d_without_sigmas(
                 f"radar {radar_id!r}: elevation_bias needs a 3-D radar, and not all of its "
                 "plots carry an elevation", path=sites_path, field="estimate")
     return updated
+
+
+def needs_elevation_scan(sites: Mapping[str, Site]) -> bool:
+    """Whether :func:`three_d_without_sigmas` may change a site (a table gives no sigma)."""
+    return any(site.missing_sigmas == ("sigma_range_m", "sigma_azimuth_mrad")
+               and not site.model for site in sites.values())
+
+
+# --------------------------------------------------------------------------- writing
 
 
 def _is_empty_folder(path: Path) -> bool:
@@ -914,6 +674,111 @@ def _move_into_place(staging: Path, target: Path, overwrite: bool) -> None:
     shutil.rmtree(backup, ignore_errors=True)
 
 
+class DatasetWriter:
+    """Write a dataset folder table piece by table piece, atomically.
+
+    Everything (``sites.toml`` at once, then the plots and ADS-B tables piece by
+    piece through :class:`~graphcal.io.table_writer.TableWriter`, then any further
+    file such as ``truth.json``) goes into a temporary sibling folder, which
+    :meth:`commit` renames to ``folder``.  If writing fails, or :meth:`abort` is
+    called, nothing is left behind and an existing ``folder`` is untouched.  Used
+    as a context manager it commits on success and aborts on an exception.
+
+    Parameters
+    ----------
+    sites : mapping of str to Site
+        The radars, written to ``sites.toml`` at once.
+    folder : str or Path
+        Destination folder; its parent is created when missing.
+    fmt : {"csv", "parquet"}, optional
+        Table format.
+    overwrite : bool, optional
+        Replace an existing non-empty ``folder`` (as :func:`write_dataset`).
+    plot_altitude : {"geometric", "pressure"}, optional
+        Written to ``sites.toml`` (:func:`write_sites`).
+    row_group_rows : int, optional
+        Largest Parquet row group [rows] (:class:`~graphcal.io.table_writer.TableWriter`).
+
+    Raises
+    ------
+    ValueError
+        If ``fmt`` is not a known format.
+    DatasetError
+        If ``folder`` exists and is a file, or is a non-empty folder and
+        ``overwrite`` is false.
+    """
+
+    def __init__(self, sites: Mapping[str, Site], folder: str | Path, *, fmt: str = "csv",
+                 overwrite: bool = False, plot_altitude: str = GEOMETRIC,
+                 row_group_rows: int | None = None) -> None:
+        if fmt not in TABLE_FORMATS:
+            raise ValueError(f"fmt must be one of {', '.join(TABLE_FORMATS)}, got {fmt!r}")
+        self.folder = Path(folder)
+        self.fmt = fmt
+        self.overwrite = overwrite
+        _check_target(self.folder, overwrite)
+        self.folder.parent.mkdir(parents=True, exist_ok=True)
+        self._staging = Path(tempfile.mkdtemp(prefix=f".{self.folder.name}.tmp-",
+                                              dir=self.folder.parent))
+        self._options = {} if row_group_rows is None else {"row_group_rows": row_group_rows}
+        self._tables: dict[str, TableWriter] = {}
+        try:
+            os.chmod(self._staging, 0o755)
+            write_sites(sites, self._staging / SITES_FILE, plot_altitude=plot_altitude)
+        except BaseException:
+            self.abort()
+            raise
+
+    def _table(self, stem: str) -> TableWriter:
+        if stem not in self._tables:
+            self._tables[stem] = TableWriter(self._staging / f"{stem}.{self.fmt}",
+                                             **self._options)
+        return self._tables[stem]
+
+    def write_plots(self, frame: pd.DataFrame) -> None:
+        """Append rows to the plots table (the first piece sets its columns)."""
+        self._table("plots").write(frame)
+
+    def write_adsb(self, frame: pd.DataFrame) -> None:
+        """Append rows to the ADS-B table; without any call there is no ADS-B table."""
+        self._table("adsb").write(frame)
+
+    def write_text(self, name: str, text: str) -> None:
+        """Add a text file (e.g. ``truth.json``) to the folder."""
+        atomic_write_text(self._staging / name, text)
+
+    def rows_written(self, stem: str) -> int:
+        """Rows written so far to table ``stem`` (``"plots"`` or ``"adsb"``)."""
+        return self._tables[stem].n_rows if stem in self._tables else 0
+
+    def commit(self) -> Path:
+        """Finish every table and rename the folder into place; returns the folder."""
+        try:
+            for writer in self._tables.values():
+                writer.close()
+            _move_into_place(self._staging, self.folder, self.overwrite)
+        except BaseException:
+            self.abort()
+            raise
+        return self.folder
+
+    def abort(self) -> None:
+        """Drop everything written; an existing folder is left as it was."""
+        for writer in self._tables.values():
+            writer.abort()
+        shutil.rmtree(self._staging, ignore_errors=True)
+
+    def __enter__(self) -> DatasetWriter:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 traceback: TracebackType | None) -> None:
+        if kind is None:
+            self.commit()
+        else:
+            self.abort()
+
+
 def write_dataset(
     dataset: Dataset, folder: str | Path, *, fmt: str = "csv", overwrite: bool = False
 ) -> Path:
@@ -923,7 +788,8 @@ def write_dataset(
     has ADS-B) is written into a temporary sibling folder, which is then renamed
     to ``folder``.  If writing fails, nothing is left behind and an existing
     ``folder`` is untouched.  Callers add further files (``truth.json``) with
-    :func:`atomic_write_text`.
+    :func:`atomic_write_text`.  :class:`DatasetWriter` does the same piece by
+    piece.
 
     Parameters
     ----------

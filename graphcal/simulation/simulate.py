@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -76,6 +76,7 @@ from graphcal.data.bias import (
 from graphcal.data.dataset import PLOT_COLUMNS, Dataset
 from graphcal.data.height import HeightModel
 from graphcal.io.folder import write_dataset
+from graphcal.simulation.chunks import TimeSpan, chunk_edges, true_span
 from graphcal.simulation.scenario import AdsbSpec, RadarSpec, Scenario
 from graphcal.simulation.trajectories import (
     ReplayStats,
@@ -351,11 +352,11 @@ def _radar_plots(
     radar: RadarSpec,
     phase: float,
     flights: list[Trajectory],
-    duration_s: float,
+    span: TimeSpan,
     rng: np.random.Generator,
     pressure: HeightModel | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame, int]:
-    """Plots of one radar and their truth; also the number of in-coverage hits.
+    """Plots of one radar whose true times fall in ``span``, their truth, and the in-coverage hits.
 
     ``pressure``: report the pressure altitude of the true height through this
     height model instead of the height itself.
@@ -364,9 +365,9 @@ def _radar_plots(
     radar_ecef, rotation = site.ecef_m, site.ecef_to_enu
     times, ids = [], []
     for flight in flights:
-        t = beam_crossings(
-            flight, radar_ecef, rotation, radar.scan_period_s, phase, 0.0, duration_s
-        )
+        t = span.keep(beam_crossings(
+            flight, radar_ecef, rotation, radar.scan_period_s, phase, span.t0_s, span.t1_s
+        ))
         times.append(t)
         ids.append(np.full(t.size, flight.target_id, dtype=object))
     positions = [f.position_ecef(t) for f, t in zip(flights, times, strict=True) if t.size]
@@ -455,31 +456,38 @@ def adsb_equipage(
     return mask
 
 
+def _adsb_schedule(
+    spec: AdsbSpec, flights: list[Trajectory], rng: np.random.Generator
+) -> tuple[NDArray[np.bool_], Array]:
+    """Which flights broadcast ADS-B and the phase of each flight's reports [s]."""
+    equipped = adsb_equipage(spec.equipped_fraction, len(flights), rng)
+    # One phase per flight, equipped or not: fixed draw shapes.
+    phases = rng.uniform(0.0, spec.period_s, size=len(flights))
+    return equipped, phases
+
+
 def _adsb_reports(
-    spec: AdsbSpec, flights: list[Trajectory], duration_s: float, rng: np.random.Generator,
-    baro: HeightModel | None = None,
-) -> tuple[pd.DataFrame, pd.DataFrame, tuple[str, ...]]:
-    """ADS-B reports of the equipped flights, their truth and the equipped addresses.
+    spec: AdsbSpec, flights: list[Trajectory], equipped: NDArray[np.bool_], phases: Array,
+    span: TimeSpan, rng: np.random.Generator, baro: HeightModel | None = None,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """ADS-B reports of the equipped flights whose times fall in ``span``, and their truth.
 
     ``baro``: add ``baro_alt_m``, the pressure altitude of the true height through this
     height model, quantised to ``spec.baro_quantum_m``.
     """
-    equipped = adsb_equipage(spec.equipped_fraction, len(flights), rng)
-    # One phase per flight, equipped or not: fixed draw shapes.
-    phases = rng.uniform(0.0, spec.period_s, size=len(flights))
     times, ids, positions = [], [], []
     for flight, phase, has_adsb in zip(flights, phases, equipped, strict=True):
         if not has_adsb:
             continue
         for seg0, seg1 in flight.segments():
-            a, b = max(seg0, 0.0), min(seg1, duration_s)
+            a, b = max(seg0, span.t0_s), min(seg1, span.t1_s)
             if not b >= a:
                 continue
             k0 = math.ceil((a - phase) / spec.period_s)
             k1 = math.floor((b - phase) / spec.period_s)
             if k1 < k0:
                 continue
-            t = phase + spec.period_s * np.arange(k0, k1 + 1)
+            t = span.keep(phase + spec.period_s * np.arange(k0, k1 + 1))
             times.append(t)
             ids.append(np.full(t.size, flight.target_id, dtype=object))
             positions.append(flight.position_ecef(t))
@@ -522,17 +530,166 @@ def _adsb_reports(
     truth = pd.DataFrame(
         {"x_m": pos[:, 0], "y_m": pos[:, 1], "z_m": pos[:, 2], "outlier": outlier}
     )[kept].reset_index(drop=True)
-    addresses = tuple(f.target_id for f, e in zip(flights, equipped, strict=True) if e)
-    return reports, truth, addresses
+    return reports, truth
 
 
 # --------------------------------------------------------------------------- simulate
+
+
+@dataclass
+class SimulationChunk:
+    """The plots and ADS-B reports of one chunk of a scenario (:mod:`graphcal.simulation.chunks`).
+
+    Attributes
+    ----------
+    index : int
+        Chunk number, from 0.
+    t_start_s, t_end_s : float
+        Its span of reported time ``[t_start_s, t_end_s)`` [s] (``-inf`` and ``inf``
+        at the ends of the scenario).
+    plots : pandas.DataFrame
+        Contract columns, sorted by time.
+    plot_truth : pandas.DataFrame
+        Row for row with ``plots`` (:attr:`SimulationResult.plot_truth`).
+    adsb, adsb_truth : pandas.DataFrame or None
+        The reports (possibly none) and their truth; ``None`` when ADS-B is off.
+    n_candidates : dict of str to int
+        Per radar, the beam hits in coverage before the detection draw.
+    """
+
+    index: int
+    t_start_s: float
+    t_end_s: float
+    plots: pd.DataFrame
+    plot_truth: pd.DataFrame
+    adsb: pd.DataFrame | None
+    adsb_truth: pd.DataFrame | None
+    n_candidates: dict[str, int]
+
+
+class ChunkedSimulation:
+    """A scenario simulated one chunk of time after the other.
+
+    The traffic and the antenna phases are drawn when it is made; :meth:`chunks`
+    then simulates chunk after chunk, each radar in file order and then the ADS-B
+    (the equipage and the report phases are drawn before the first chunk's
+    ADS-B), so one seed and one chunk length give one dataset.  With a single
+    chunk (``chunk_s`` ``None``) every draw comes in the order :func:`simulate`
+    has always used, so its output does not change.  With several chunks the
+    radars' hits (times and true positions) are the same, as the chunks partition
+    them, but the detection and noise draws, and the ADS-B equipage and report
+    phases (drawn after the first chunk's plots), are others: the output is
+    statistically equivalent to the one-chunk simulation, not identical.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        From :func:`graphcal.simulation.scenario.load_scenario`.
+    rng : numpy.random.Generator
+        The only source of randomness.
+    chunk_s : float, optional
+        Chunk length [s] of reported time (:func:`graphcal.simulation.chunks.chunk_edges`);
+        ``None``: one chunk.
+    progress : callable, optional
+        ``progress(stage, done, total)`` after the traffic, each radar of each chunk
+        and each chunk's ADS-B.
+
+    Raises
+    ------
+    ScenarioError
+        If an ``[opensky]`` table is missing or unreadable.
+    ValueError
+        If ``chunk_s`` is not a positive duration.
+    """
+
+    def __init__(self, scenario: Scenario, rng: np.random.Generator, *,
+                 chunk_s: float | None = None, progress: ProgressCallback | None = None
+                 ) -> None:
+        self.scenario = scenario
+        self.edges = chunk_edges(scenario.duration_s, chunk_s)
+        self._rng = rng
+        self._progress = progress
+        self._done = 0
+        self._total = 1 + (len(scenario.radars) + 1) * self.n_chunks
+        self._equipped: NDArray[np.bool_] | None = None
+        self._adsb_phases: Array | None = None
+        self._started = False
+        self.flights, self.replay_stats = build_trajectories(scenario, rng)
+        self._report(f"{len(self.flights)} flights")
+        self.antenna_phase_rad = _antenna_phases(scenario, rng)
+
+    @property
+    def n_chunks(self) -> int:
+        """Number of chunks."""
+        return len(self.edges) - 1
+
+    @property
+    def adsb_equipped(self) -> tuple[str, ...]:
+        """Addresses of the aircraft that broadcast ADS-B (empty before the first chunk)."""
+        if self._equipped is None:
+            return ()
+        return tuple(f.target_id for f, e in zip(self.flights, self._equipped, strict=True)
+                     if e)
+
+    def _report(self, stage: str) -> None:
+        self._done += 1
+        if self._progress is not None:
+            self._progress(stage, self._done, self._total)
+
+    def chunks(self) -> Iterator[SimulationChunk]:
+        """Simulate the chunks in time order (once: the draws are consumed).
+
+        Raises
+        ------
+        RuntimeError
+            When called a second time.
+        """
+        if self._started:
+            raise RuntimeError("the chunks of a simulation can be drawn only once")
+        self._started = True
+        for k in range(self.n_chunks):
+            yield self._chunk(k)
+
+    def _chunk(self, k: int) -> SimulationChunk:
+        scenario, rng = self.scenario, self._rng
+        prefix = f"chunk {k + 1}/{self.n_chunks}: " if self.n_chunks > 1 else ""
+        duration = scenario.duration_s
+        pressure = scenario.height_model if scenario.plot_altitude == "pressure" else None
+        plot_frames, truth_frames, candidates = [], [], {}
+        for radar in scenario.radars:
+            span = true_span(self.edges, k, duration, radar.bias.time_offset_s)
+            plots, truth, n_hits = _radar_plots(
+                radar, self.antenna_phase_rad[radar.id], self.flights, span, rng, pressure)
+            plot_frames.append(plots)
+            truth_frames.append(truth)
+            candidates[radar.id] = n_hits
+            self._report(f"{prefix}radar {radar.id}: {len(plots)} plots")
+        plots = pd.concat(plot_frames, ignore_index=True)
+        truth = pd.concat(truth_frames, ignore_index=True)
+        order = np.argsort(plots["time_s"].to_numpy(), kind="stable")
+        plots = plots.iloc[order].reset_index(drop=True)[list(PLOT_COLUMNS) + ["altitude_m"]]
+        truth = truth.iloc[order].reset_index(drop=True)[list(_TRUTH_COLUMNS)]
+        adsb = adsb_truth = None
+        if scenario.adsb.enabled:
+            if self._equipped is None:
+                self._equipped, self._adsb_phases = _adsb_schedule(
+                    scenario.adsb, self.flights, rng)
+            assert self._adsb_phases is not None
+            adsb, adsb_truth = _adsb_reports(
+                scenario.adsb, self.flights, self._equipped, self._adsb_phases,
+                true_span(self.edges, k, duration), rng,
+                scenario.height_model if scenario.adsb_baro else None,
+            )
+        self._report(f"{prefix}ADS-B: {0 if adsb is None else len(adsb)} reports")
+        return SimulationChunk(k, self.edges[k], self.edges[k + 1], plots, truth, adsb,
+                               adsb_truth, candidates)
 
 
 def simulate(
     scenario: Scenario,
     rng: np.random.Generator,
     *,
+    chunk_s: float | None = None,
     progress: ProgressCallback | None = None,
 ) -> SimulationResult:
     """Simulate the radar plots and ADS-B reports of a scenario.
@@ -543,6 +700,10 @@ def simulate(
         From :func:`graphcal.simulation.scenario.load_scenario`.
     rng : numpy.random.Generator
         The only source of randomness (``numpy.random.default_rng(seed)``).
+    chunk_s : float, optional
+        Simulate in chunks of this much reported time [s] (:class:`ChunkedSimulation`):
+        the same dataset :func:`graphcal.simulation.stream.simulate_to_folder` writes
+        with this chunk.  Default: one chunk, the draws as they have always been.
     progress : callable, optional
         ``progress(stage, done, total)`` after each step (traffic, each radar,
         ADS-B); e.g. to drive a progress bar.
@@ -557,45 +718,19 @@ def simulate(
     ScenarioError
         If an ``[opensky]`` table is missing or unreadable.
     """
-    total = len(scenario.radars) + 2
-    done = 0
-
-    def report(stage: str) -> None:
-        nonlocal done
-        done += 1
-        if progress is not None:
-            progress(stage, done, total)
-
-    flights, stats = build_trajectories(scenario, rng)
-    report(f"{len(flights)} flights")
-    phases = _antenna_phases(scenario, rng)
-    plot_frames, truth_frames, candidates = [], [], {}
-    pressure = scenario.height_model if scenario.plot_altitude == "pressure" else None
-    for radar in scenario.radars:
-        plots, truth, n_hits = _radar_plots(
-            radar, phases[radar.id], flights, scenario.duration_s, rng, pressure
-        )
-        plot_frames.append(plots)
-        truth_frames.append(truth)
-        candidates[radar.id] = n_hits
-        report(f"radar {radar.id}: {len(plots)} plots")
-    plots = pd.concat(plot_frames, ignore_index=True)
-    truth = pd.concat(truth_frames, ignore_index=True)
-    order = np.argsort(plots["time_s"].to_numpy(), kind="stable")
-    plots = plots.iloc[order].reset_index(drop=True)[list(PLOT_COLUMNS) + ["altitude_m"]]
-    truth = truth.iloc[order].reset_index(drop=True)[list(_TRUTH_COLUMNS)]
+    run = ChunkedSimulation(scenario, rng, chunk_s=chunk_s, progress=progress)
+    chunks = list(run.chunks())
+    plots = pd.concat([c.plots for c in chunks], ignore_index=True)
+    truth = pd.concat([c.plot_truth for c in chunks], ignore_index=True)
     adsb = adsb_truth = None
-    equipped: tuple[str, ...] = ()
     if scenario.adsb.enabled:
-        adsb, adsb_truth, equipped = _adsb_reports(
-            scenario.adsb, flights, scenario.duration_s, rng,
-            scenario.height_model if scenario.adsb_baro else None,
-        )
+        adsb = pd.concat([c.adsb for c in chunks], ignore_index=True)
+        adsb_truth = pd.concat([c.adsb_truth for c in chunks], ignore_index=True)
         if adsb.empty:
             # No report at all (e.g. equipped_fraction = 0): no table, as a
             # dataset's ADS-B file must have rows to be read back.
             adsb = adsb_truth = None
-    report(f"ADS-B: {0 if adsb is None else len(adsb)} reports")
+    candidates = {r.id: sum(c.n_candidates[r.id] for c in chunks) for r in scenario.radars}
     sites = {r.id: r.site() for r in scenario.radars}
     dataset = Dataset(sites=sites, plots=plots, adsb=adsb,
                       plot_altitude=scenario.plot_altitude)
@@ -605,11 +740,11 @@ def simulate(
         biases={r.id: r.bias for r in scenario.radars},
         plot_truth=truth,
         adsb_truth=adsb_truth,
-        trajectories=flights,
-        antenna_phase_rad=phases,
-        replay_stats=stats,
+        trajectories=run.flights,
+        antenna_phase_rad=run.antenna_phase_rad,
+        replay_stats=run.replay_stats,
         n_candidates=candidates,
-        adsb_equipped=equipped,
+        adsb_equipped=run.adsb_equipped,
     )
 
 
@@ -617,6 +752,11 @@ def simulate(
 
 
 def truth_document(result: SimulationResult) -> dict:
+    """The true biases of a simulation in the contract's result schema (:func:`scenario_truth`)."""
+    return scenario_truth(result.scenario, result.n_plots())
+
+
+def scenario_truth(scenario: Scenario, n_plots: Mapping[str, int]) -> dict:
     """The true biases in the contract's result schema (``method = "truth"``).
 
     Every radar gets the four bias keys in contract units
@@ -629,10 +769,16 @@ def truth_document(result: SimulationResult) -> dict:
     drifting term's rate per hour, contract units) and ``steps`` (``time_s`` and each
     changed term); ``radars`` then holds the biases at t = 0
     (:class:`graphcal.data.bias_schedule.BiasSchedule`).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario simulated.
+    n_plots : mapping of str to int
+        Plots simulated per radar.
     """
-    counts = result.n_plots()
     radars = {}
-    for radar in result.scenario.radars:
+    for radar in scenario.radars:
         bias = radar.bias
         values = dict(zip(PARAMETER_NAMES, bias.as_vector(), strict=True))
         entry: dict[str, object] = {}
@@ -650,16 +796,16 @@ def truth_document(result: SimulationResult) -> dict:
                 key, factor = CONTRACT_KEYS[name]
                 entry[key] = float(bias.value(name)) * factor
         entry["sigma"] = {}
-        entry["n_plots"] = counts[radar.id]
+        entry["n_plots"] = int(n_plots[radar.id])
         radars[radar.id] = entry
     document: dict[str, object] = {
-        "method": "truth", "scenario": result.scenario.name, "radars": radars,
+        "method": "truth", "scenario": scenario.name, "radars": radars,
     }
-    if result.scenario.has_pressure:
-        model = result.scenario.height_model
+    if scenario.has_pressure:
+        model = scenario.height_model
         document["atmosphere"] = {"height_offset_m": float(model.height_offset_m),
                                   "height_scale": float(model.height_scale), "sigma": {}}
-    drift = {radar.id: _drift_entry(radar) for radar in result.scenario.radars
+    drift = {radar.id: _drift_entry(radar) for radar in scenario.radars
              if not radar.schedule.constant}
     if drift:
         document["drift"] = drift

@@ -1,0 +1,280 @@
+"""Validation and normalisation of plots and ADS-B rows (CONTRACT.md), a whole table or a chunk.
+
+:func:`validate_plots` and :func:`validate_adsb` take the rows of one table file as
+read (:class:`~graphcal.io.table_files.RawRows`: a whole file, or a chunk of one with
+each row's number in its file) and return the normalised table, or raise one
+:class:`~graphcal.core.errors.DatasetError` for the earliest bad row, naming the
+file, the row (its number in the file) and the field.  The rules are those of
+:mod:`graphcal.io.folder` (its module docstring lists them): the same functions serve
+:func:`graphcal.io.folder.load_dataset` and the window-by-window reader
+(:mod:`graphcal.io.window_reader`), so that both accept and reject the same rows
+with the same message.
+
+A caller may add its own row check (``extra``): it is given the problem collector
+and the parsed ``time_s`` and flags rows like the built-in checks, so that the
+earliest problem in the file is still the one reported.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from graphcal.data.dataset import ADSB_DEFAULT_SIGMA_M, Site
+from graphcal.data.sensor_models import adsb_sigma_from_nacp
+from graphcal.io.table_files import MISSING_TEXT, RawRows
+
+
+class FirstProblem:
+    """Collects bad rows of several checks and keeps the earliest one.
+
+    On a tie (two problems in the same row) the check made first wins.
+    """
+
+    def __init__(self, table: RawRows) -> None:
+        self._table = table
+        self._first: tuple[int, str, str] | None = None
+
+    def flag(self, bad: NDArray[np.bool_], column: str, describe: Callable[[int], str]) -> None:
+        """Record the first row where ``bad`` holds; ``describe(pos)`` makes its message."""
+        hits = np.flatnonzero(np.asarray(bad, dtype=bool))
+        if hits.size and (self._first is None or hits[0] < self._first[0]):
+            pos = int(hits[0])
+            self._first = (pos, column, describe(pos))
+
+    def raise_first(self) -> None:
+        """Raise the earliest recorded problem, if any."""
+        if self._first is not None:
+            pos, column, message = self._first
+            raise self._table.error(message, pos=pos, column=column)
+
+
+#: ``extra(problems, time_s)``: a caller's own check of a chunk's rows (module docstring).
+ExtraCheck = Callable[[FirstProblem, NDArray[np.float64]], None]
+
+
+def _numeric(table: RawRows, problems: FirstProblem, column: str) -> NDArray[np.float64]:
+    """A numeric column as floats (NaN where empty); flags cells that are not numbers."""
+    values = table.frame[column]
+    if pd.api.types.is_bool_dtype(values):
+        problems.flag(np.ones(len(values), dtype=bool), column,
+                      lambda pos: f"{values.iloc[pos]!r} is not a number")
+        return np.full(len(values), np.nan)
+    if pd.api.types.is_numeric_dtype(values):
+        return values.to_numpy(dtype=float, na_value=np.nan)
+    text = values.astype("string").str.strip()
+    missing = (text.isna() | text.isin(MISSING_TEXT)).to_numpy(dtype=bool)
+    parsed = pd.to_numeric(text.mask(missing), errors="coerce")
+    parsed = parsed.to_numpy(dtype=float, na_value=np.nan)
+    problems.flag(np.isnan(parsed) & ~missing, column,
+                  lambda pos: f"{values.iloc[pos]!r} is not a number")
+    return parsed
+
+
+def _text(table: RawRows, column: str, *, lower: bool = False) -> pd.Series:
+    """A text column without surrounding blanks, ``""`` where missing."""
+    text = table.frame[column].astype("string").fillna("").str.strip()
+    if lower:
+        text = text.str.lower()
+    return text.astype(str)
+
+
+def _flag_not_finite(
+    problems: FirstProblem, values: NDArray[np.float64], column: str, *, required: bool
+) -> None:
+    """Flag infinite values, and missing ones when ``required``."""
+    bad = np.isinf(values) | (np.isnan(values) if required else False)
+    problems.flag(bad, column, lambda pos: "missing value" if np.isnan(values[pos])
+                  else f"{values[pos]} is not finite")
+
+
+def _flag_outside(
+    problems: FirstProblem,
+    values: NDArray[np.float64],
+    column: str,
+    low: float,
+    high: float,
+    *,
+    high_open: bool = False,
+) -> None:
+    """Flag values outside ``[low, high]`` (``[low, high)`` when ``high_open``); NaN passes."""
+    above = values >= high if high_open else values > high
+    interval = f"[{low:g}, {high:g}{')' if high_open else ']'}"
+    problems.flag((values < low) | above, column,
+                  lambda pos: f"{values[pos]} is outside {interval}")
+
+
+def _assemble(table: RawRows, columns: dict[str, Any]) -> pd.DataFrame:
+    """The normalised columns, followed by the table's extra columns unchanged."""
+    out = pd.DataFrame(columns, index=pd.RangeIndex(len(table.frame)))
+    for column in table.frame.columns:
+        if column not in out.columns:
+            out[column] = table.frame[column]
+    return out
+
+
+# --------------------------------------------------------------------------- plots
+
+
+def validate_plots(table: RawRows, sites: Mapping[str, Site], *,
+                   extra: ExtraCheck | None = None) -> pd.DataFrame:
+    """Validate and normalise plot rows (see :mod:`graphcal.io.folder`).
+
+    Parameters
+    ----------
+    table : RawRows
+        Rows of a plots file (whole or a chunk); it has the required columns.
+    sites : mapping of str to Site
+        The dataset's radars (an unknown ``radar_id`` is an error; a 3-D radar's
+        plot needs an elevation).
+    extra : callable, optional
+        A further row check (module docstring).
+
+    Returns
+    -------
+    pandas.DataFrame
+        The contract columns normalised (``altitude_m`` added as NaN when
+        absent), then the extra columns unchanged; a fresh ``RangeIndex``.
+
+    Raises
+    ------
+    DatasetError
+        For the earliest bad row, naming the file, its row and the field.
+    """
+    problems = FirstProblem(table)
+    radar_id = _text(table, "radar_id")
+    known = ", ".join(sites)
+    problems.flag(~radar_id.isin(list(sites)).to_numpy(dtype=bool), "radar_id",
+                  lambda pos: "missing radar id" if not radar_id.iloc[pos]
+                  else f"unknown radar {radar_id.iloc[pos]!r}; sites.toml defines: {known}")
+    time_s = _numeric(table, problems, "time_s")
+    _flag_not_finite(problems, time_s, "time_s", required=True)
+    range_m = _numeric(table, problems, "range_m")
+    _flag_not_finite(problems, range_m, "range_m", required=True)
+    problems.flag(range_m < 0.0, "range_m", lambda pos: f"negative range {range_m[pos]}")
+    azimuth_deg = _numeric(table, problems, "azimuth_deg")
+    _flag_not_finite(problems, azimuth_deg, "azimuth_deg", required=True)
+    _flag_outside(problems, azimuth_deg, "azimuth_deg", 0.0, 360.0, high_open=True)
+    elevation_deg = _numeric(table, problems, "elevation_deg")
+    _flag_not_finite(problems, elevation_deg, "elevation_deg", required=False)
+    three_d = radar_id.isin([s.id for s in sites.values() if s.is_3d]).to_numpy(dtype=bool)
+    problems.flag(three_d & np.isnan(elevation_deg), "elevation_deg",
+                  lambda pos: f"missing elevation for 3-D radar {radar_id.iloc[pos]!r}")
+    _flag_outside(problems, elevation_deg, "elevation_deg", -90.0, 90.0)
+    if "altitude_m" in table.frame.columns:
+        altitude_m = _numeric(table, problems, "altitude_m")
+        _flag_not_finite(problems, altitude_m, "altitude_m", required=False)
+    else:
+        altitude_m = np.full(len(table.frame), np.nan)
+    target_id = _text(table, "target_id", lower=True)
+    if extra is not None:
+        extra(problems, time_s)
+    problems.raise_first()
+    return _assemble(table, {
+        "radar_id": radar_id,
+        "time_s": time_s,
+        "range_m": range_m,
+        "azimuth_deg": azimuth_deg,
+        "elevation_deg": elevation_deg,
+        "target_id": target_id,
+        "altitude_m": altitude_m,
+    })
+
+
+# --------------------------------------------------------------------------- ADS-B
+
+
+def _adsb_nacp(table: RawRows, problems: FirstProblem) -> NDArray[np.float64] | None:
+    """The ``nacp`` column as floats (NaN where empty), or ``None`` when absent."""
+    if "nacp" not in table.frame.columns:
+        return None
+    nacp = _numeric(table, problems, "nacp")
+    given = ~np.isnan(nacp)
+    invalid = given & ((nacp != np.round(nacp)) | (nacp < 0) | (nacp > 11))
+    problems.flag(invalid, "nacp", lambda pos: f"{nacp[pos]} is not an integer in 0..11")
+    return nacp
+
+
+def _adsb_sigma(
+    table: RawRows, problems: FirstProblem, nacp: NDArray[np.float64] | None
+) -> NDArray[np.float64]:
+    """``sigma_m`` filled in: given value, else from NACp, else the default [m]."""
+    n = len(table.frame)
+    if "sigma_m" in table.frame.columns:
+        sigma = _numeric(table, problems, "sigma_m")
+        _flag_not_finite(problems, sigma, "sigma_m", required=False)
+        problems.flag(sigma <= 0.0, "sigma_m", lambda pos: f"must be positive, got {sigma[pos]}")
+    else:
+        sigma = np.full(n, np.nan)
+    if nacp is not None:
+        usable = np.isfinite(nacp) & (nacp == np.round(nacp)) & (nacp >= 0) & (nacp <= 11)
+        from_nacp = adsb_sigma_from_nacp(np.where(usable, nacp, np.nan))
+        sigma = np.where(np.isnan(sigma), from_nacp, sigma)
+    return np.where(np.isnan(sigma), ADSB_DEFAULT_SIGMA_M, sigma)
+
+
+def validate_adsb(table: RawRows, *, extra: ExtraCheck | None = None) -> pd.DataFrame:
+    """Validate and normalise ADS-B rows (see :mod:`graphcal.io.folder`).
+
+    Parameters
+    ----------
+    table : RawRows
+        Rows of an ADS-B file (whole or a chunk); it has the required columns.
+    extra : callable, optional
+        A further row check (module docstring).
+
+    Returns
+    -------
+    pandas.DataFrame
+        The contract columns normalised (``sigma_m`` filled in, ``nacp`` as
+        ``Int64`` when present, ``baro_alt_m`` when present), then the extra
+        columns unchanged; a fresh ``RangeIndex``.
+
+    Raises
+    ------
+    DatasetError
+        For the earliest bad row, naming the file, its row and the field.
+    """
+    problems = FirstProblem(table)
+    time_s = _numeric(table, problems, "time_s")
+    _flag_not_finite(problems, time_s, "time_s", required=True)
+    target_id = _text(table, "target_id", lower=True)
+    problems.flag((target_id == "").to_numpy(dtype=bool), "target_id",
+                  lambda pos: "missing target id (ICAO address)")
+    lat_deg = _numeric(table, problems, "lat_deg")
+    _flag_not_finite(problems, lat_deg, "lat_deg", required=True)
+    _flag_outside(problems, lat_deg, "lat_deg", -90.0, 90.0)
+    lon_deg = _numeric(table, problems, "lon_deg")
+    _flag_not_finite(problems, lon_deg, "lon_deg", required=True)
+    _flag_outside(problems, lon_deg, "lon_deg", -180.0, 180.0)
+    alt_m = _numeric(table, problems, "alt_m")
+    _flag_not_finite(problems, alt_m, "alt_m", required=True)
+    nacp = _adsb_nacp(table, problems)
+    sigma_m = _adsb_sigma(table, problems, nacp)
+    baro_alt_m = None
+    if "baro_alt_m" in table.frame.columns:
+        baro_alt_m = _numeric(table, problems, "baro_alt_m")
+        _flag_not_finite(problems, baro_alt_m, "baro_alt_m", required=False)
+    if extra is not None:
+        extra(problems, time_s)
+    problems.raise_first()
+    columns: dict[str, Any] = {
+        "time_s": time_s,
+        "target_id": target_id,
+        "lat_deg": lat_deg,
+        "lon_deg": lon_deg,
+        "alt_m": alt_m,
+        "sigma_m": sigma_m,
+    }
+    if nacp is not None:
+        columns["nacp"] = pd.array(np.where(np.isnan(nacp), None, nacp), dtype="Int64")
+    if baro_alt_m is not None:
+        columns["baro_alt_m"] = baro_alt_m
+    return _assemble(table, columns)
+
+
+__all__ = ["ExtraCheck", "FirstProblem", "validate_adsb", "validate_plots"]

@@ -1,0 +1,340 @@
+"""The files of a dataset table, read whole or in chunks, each row with its number in its file.
+
+A table (``plots`` or ``adsb``) of a dataset folder is one file, ``NAME.csv`` or
+``NAME.parquet``, or (graphcal's extension of the contract) a folder ``NAME/`` of
+*parts*: files ``*.csv`` or ``*.parquet``, all of one format, taken in the order of
+their names; names starting with ``.`` or ``_`` are ignored (``_SUCCESS``, ``.crc``
+and the like left by other writers).  The parts together are the table: each part
+has a header (CSV) or a schema (Parquet) with the required columns; a part may be
+empty, but not all of them.
+
+Every chunk read comes as :class:`RawRows`: the cells as read, not yet validated
+(:mod:`graphcal.io.table_checks` does that), and the number of each row *in its
+file*: the N-th data row as a user counts it.  In a CSV file the header is line 1
+and row N is line N + 1; blank lines are dropped but keep this numbering.  In a
+Parquet file row N is the N-th row.  So an error found in the millionth row of a
+file read in chunks names row 1000000, not a row of the chunk.
+
+CSV files are read with pandas' parser, in chunks of ``chunk_rows`` rows, with the
+same options as a whole file (numbers parse to the same floats either way).
+Parquet files are read record batch by record batch, without reading a whole row
+group at once (``pre_buffer`` off), so even a file written as one huge row group is
+read in bounded memory.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+from numpy.typing import NDArray
+
+from graphcal.core.errors import DatasetError
+from graphcal.data.dataset import TABLE_FORMATS
+
+#: Text read as "no value" in a numeric column (compared after removing blanks).
+MISSING_TEXT: tuple[str, ...] = ("", "nan", "NaN", "NAN", "NA", "N/A", "n/a", "null", "NULL",
+                                 "None", "none")
+#: Columns read as text; every other contract column is numeric.
+TEXT_COLUMNS: tuple[str, ...] = ("radar_id", "target_id")
+#: Rows per chunk when a table is read in chunks.
+DEFAULT_CHUNK_ROWS = 100_000
+#: Read buffer of a Parquet file read in chunks [bytes].
+PARQUET_BUFFER_BYTES = 1 << 20
+
+
+@dataclass
+class RawRows:
+    """Rows of one table file as read, before validation.
+
+    Attributes
+    ----------
+    path : Path
+        The file.
+    frame : pandas.DataFrame
+        The rows (blank CSV lines removed), with a fresh ``RangeIndex``.
+    rows : ndarray of int
+        The 1-based number of each frame row in the file, as reported to users.
+    """
+
+    path: Path
+    frame: pd.DataFrame
+    rows: NDArray[np.int64]
+
+    def error(self, message: str, *, pos: int | None = None, column: str | None = None
+              ) -> DatasetError:
+        """A :class:`DatasetError` for frame row ``pos`` (0-based) and ``column``.
+
+        A CSV file's line number is added to the message, after the row number.
+        """
+        row = None if pos is None else int(self.rows[pos])
+        if row is not None and self.path.suffix == ".csv":
+            message = f"{message} (line {row + 1})"
+        return DatasetError(message, path=self.path, row=row, field=column)
+
+
+# --------------------------------------------------------------------------- locating
+
+
+def find_table_files(folder: Path, stem: str) -> list[Path] | None:
+    """The files of table ``stem`` in a dataset folder, ``None`` when it has none.
+
+    Parameters
+    ----------
+    folder : Path
+        The dataset folder.
+    stem : str
+        ``"plots"`` or ``"adsb"``.
+
+    Returns
+    -------
+    list of Path or None
+        ``[folder/stem.csv]``, ``[folder/stem.parquet]``, or the parts of the folder
+        ``folder/stem/`` in name order (module docstring).
+
+    Raises
+    ------
+    DatasetError
+        If more than one of ``stem.csv``, ``stem.parquet`` and ``stem/`` exist, or
+        the parts folder holds no part, parts of both formats, or a sub-folder.
+    """
+    candidates = [folder / f"{stem}.{fmt}" for fmt in TABLE_FORMATS]
+    found = [path for path in candidates if path.is_file()]
+    parts_folder = folder / stem
+    if parts_folder.is_dir():
+        found.append(parts_folder)
+    if len(found) > 1:
+        names = " and ".join(path.name + ("/" if path.is_dir() else "") for path in found)
+        raise DatasetError(f"both {names} exist; keep only one", path=folder, field=stem)
+    if not found:
+        return None
+    if not found[0].is_dir():
+        return found
+    return _parts(found[0])
+
+
+def _parts(folder: Path) -> list[Path]:
+    """The part files of a table folder, in name order."""
+    entries = sorted(p for p in folder.iterdir() if not p.name.startswith((".", "_")))
+    for entry in entries:
+        if entry.is_dir():
+            raise DatasetError("a parts folder holds files only, not folders", path=entry)
+    formats = {entry.suffix for entry in entries}
+    unknown = formats - {f".{fmt}" for fmt in TABLE_FORMATS}
+    if unknown:
+        name = next(e.name for e in entries if e.suffix in unknown)
+        raise DatasetError(f"{name}: a part must be a .csv or .parquet file", path=folder)
+    if len(formats) > 1:
+        raise DatasetError("parts of both formats (.csv and .parquet); keep one format",
+                           path=folder)
+    if not entries:
+        raise DatasetError("the parts folder holds no .csv or .parquet part", path=folder)
+    return entries
+
+
+def require_columns(path: Path, columns: list[str], required: tuple[str, ...]) -> None:
+    """Raise a :class:`DatasetError` naming the first required column not in ``columns``."""
+    for column in required:
+        if column not in columns:
+            found = ", ".join(map(str, columns)) or "none"
+            raise DatasetError(f"missing required column (columns found: {found})",
+                               path=path, field=column)
+
+
+# --------------------------------------------------------------------------- CSV
+
+
+def csv_header(path: Path) -> list[str]:
+    """The column names of a CSV table file.
+
+    Raises
+    ------
+    DatasetError
+        If the file is empty (no header line) or cannot be read.
+    """
+    try:
+        return [str(c) for c in pd.read_csv(path, nrows=0, encoding="utf-8-sig").columns]
+    except pd.errors.EmptyDataError:
+        raise DatasetError("the file is empty (no header line)", path=path) from None
+    except pd.errors.ParserError as exc:
+        raise csv_parser_error(path, exc) from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DatasetError(f"cannot read CSV: {exc}", path=path) from None
+
+
+def _csv_options(header: list[str], usecols: list[str] | None = None) -> dict:
+    """``pandas.read_csv`` options: text columns as text, empty cells of the others NaN."""
+    return {
+        "encoding": "utf-8-sig",
+        "dtype": {column: str for column in TEXT_COLUMNS if column in header},
+        "keep_default_na": False,
+        "na_values": {c: list(MISSING_TEXT) for c in header if c not in TEXT_COLUMNS},
+        "skip_blank_lines": False,
+        "index_col": False,
+        "usecols": usecols,
+    }
+
+
+def csv_parser_error(path: Path, exc: pd.errors.ParserError) -> DatasetError:
+    """A :class:`DatasetError` for a malformed CSV line, with its row when known."""
+    match = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", str(exc))
+    if match is None:
+        return DatasetError(f"cannot read CSV: {exc}", path=path)
+    expected, line, seen = (int(group) for group in match.groups())
+    return DatasetError(
+        f"{seen} fields where the header has {expected} (line {line}; a decimal comma or "
+        "an unquoted comma in a text?)",
+        path=path,
+        row=line - 1,
+    )
+
+
+def blank_rows(frame: pd.DataFrame) -> NDArray[np.bool_]:
+    """Rows in which every cell is empty (blank CSV lines)."""
+    blank = np.ones(len(frame), dtype=bool)
+    for column in frame.columns:
+        values = frame[column]
+        empty = values.isna()
+        if not pd.api.types.is_numeric_dtype(values):
+            empty |= values.astype("string").str.strip().eq("").fillna(True)
+        blank &= empty.to_numpy(dtype=bool)
+    return blank
+
+
+def _csv_rows(path: Path, frame: pd.DataFrame, first_row: int) -> RawRows:
+    """``frame`` (file rows ``first_row``, ...) without its blank lines."""
+    keep = ~blank_rows(frame)
+    rows = np.arange(first_row, first_row + len(frame), dtype=np.int64)[keep]
+    return RawRows(path, frame.loc[keep].reset_index(drop=True), rows)
+
+
+def _iter_csv(path: Path, chunk_rows: int | None,
+              usecols: list[str] | None = None) -> Iterator[RawRows]:
+    """A CSV file whole (``chunk_rows`` None) or in chunks."""
+    header = csv_header(path)
+    options = _csv_options(header, usecols)
+    try:
+        if chunk_rows is None:
+            yield _csv_rows(path, pd.read_csv(path, **options), 1)
+            return
+        first_row = 1
+        with pd.read_csv(path, chunksize=chunk_rows, **options) as reader:
+            for frame in reader:
+                yield _csv_rows(path, frame, first_row)
+                first_row += len(frame)
+    except pd.errors.EmptyDataError:
+        raise DatasetError("the file is empty (no header line)", path=path) from None
+    except pd.errors.ParserError as exc:
+        raise csv_parser_error(path, exc) from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DatasetError(f"cannot read CSV: {exc}", path=path) from None
+
+
+# --------------------------------------------------------------------------- Parquet
+
+
+def parquet_file(path: Path) -> pq.ParquetFile:
+    """An open Parquet file for chunked reading.
+
+    Raises
+    ------
+    DatasetError
+        If it is not a readable Parquet file.
+    """
+    try:
+        return pq.ParquetFile(path, pre_buffer=False, buffer_size=PARQUET_BUFFER_BYTES)
+    except (OSError, ValueError, pa.ArrowException) as exc:
+        raise DatasetError(f"cannot read Parquet: {exc}", path=path) from None
+
+
+def parquet_columns(handle: pq.ParquetFile) -> list[str]:
+    """The data columns of a Parquet file (without a stored pandas index)."""
+    index = set()
+    metadata = handle.schema_arrow.pandas_metadata or {}
+    for entry in metadata.get("index_columns", []):
+        if isinstance(entry, str):
+            index.add(entry)
+    return [name for name in handle.schema_arrow.names if name not in index]
+
+
+def _iter_parquet(path: Path, chunk_rows: int | None,
+                  usecols: list[str] | None = None) -> Iterator[RawRows]:
+    """A Parquet file whole (``chunk_rows`` None) or in record batches."""
+    try:
+        if chunk_rows is None:
+            frame = pd.read_parquet(path, columns=usecols).reset_index(drop=True)
+            yield RawRows(path, frame, np.arange(1, len(frame) + 1, dtype=np.int64))
+            return
+        handle = parquet_file(path)
+        first_row = 1
+        for batch in handle.iter_batches(batch_size=chunk_rows, columns=usecols):
+            frame = pa.Table.from_batches([batch]).to_pandas().reset_index(drop=True)
+            rows = np.arange(first_row, first_row + len(frame), dtype=np.int64)
+            first_row += len(frame)
+            yield RawRows(path, frame, rows)
+    except (OSError, ValueError, ImportError, pa.ArrowException) as exc:
+        raise DatasetError(f"cannot read Parquet: {exc}", path=path) from None
+
+
+# --------------------------------------------------------------------------- both
+
+
+def table_columns(path: Path) -> list[str]:
+    """The column names of a CSV or Parquet table file (header or schema)."""
+    if path.suffix == ".csv":
+        return csv_header(path)
+    return parquet_columns(parquet_file(path))
+
+
+def read_rows(path: Path, required: tuple[str, ...], *, chunk_rows: int | None = None,
+              usecols: list[str] | None = None) -> Iterator[RawRows]:
+    """The rows of a CSV or Parquet table file, whole or in chunks.
+
+    Parameters
+    ----------
+    path : Path
+        The file; its suffix gives the format.
+    required : tuple of str
+        Columns the file must have (checked before any row is read).
+    chunk_rows : int, optional
+        Rows per chunk; ``None`` reads the whole file as one chunk.
+    usecols : list of str, optional
+        Read only these columns (all of them must be in ``required``).
+
+    Yields
+    ------
+    RawRows
+        The chunks in file order; a chunk may be empty (all its lines blank).
+
+    Raises
+    ------
+    DatasetError
+        If the file cannot be read, lacks a required column, or has a malformed
+        line (naming the file, the row and the line).
+    """
+    require_columns(path, table_columns(path), required)
+    reader = _iter_csv if path.suffix == ".csv" else _iter_parquet
+    yield from reader(path, chunk_rows, usecols)
+
+
+__all__ = [
+    "DEFAULT_CHUNK_ROWS",
+    "MISSING_TEXT",
+    "TEXT_COLUMNS",
+    "RawRows",
+    "blank_rows",
+    "csv_header",
+    "csv_parser_error",
+    "find_table_files",
+    "parquet_columns",
+    "parquet_file",
+    "read_rows",
+    "require_columns",
+    "table_columns",
+]
