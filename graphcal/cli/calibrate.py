@@ -189,7 +189,7 @@ def calibrate_command(
 ) -> None:
     """Estimate every radar's biases from a dataset folder."""
     from graphcal.data.calibration import load_result
-    from graphcal.io.folder import load_dataset
+    from graphcal.io.folder import SITES_FILE, load_dataset, load_sites
     from graphcal.pipeline.calibrate import calibrate as run_calibration
     from graphcal.reporting.tables import calibration_table
 
@@ -197,8 +197,17 @@ def calibrate_command(
         if history is not None and not history.parent.resolve().is_dir():
             fail(f"--history {history}: the folder {history.parent} does not exist",
                  EXIT_BAD_INPUT)
-        dataset = load_dataset(dataset_dir, clean=clean)
-        if dataset.cleaning is not None:
+        if window is not None:
+            if report is not None:
+                fail("--report draws one batch of plots; with --window, write the result "
+                     "(--out) and run 'graphcal report' on it", EXIT_BAD_INPUT)
+            # Read window by window (bounded memory) by the pipeline: the sites only here.
+            dataset = None
+            sites = load_sites(dataset_dir / SITES_FILE)
+        else:
+            dataset = load_dataset(dataset_dir, clean=clean)
+            sites = dataset.sites
+        if dataset is not None and dataset.cleaning is not None:
             for line in dataset.cleaning.summary():
                 err_console.print(f"cleaning: {line}", highlight=False)
         if method is None:
@@ -217,7 +226,8 @@ def calibrate_command(
                 raise ValueError(f"{given} applies to calibrations over time: give --window")
             with progress_bar(_progress_label(method, select)) as callback:
                 cal = run_calibration(
-                    dataset, method, max_gap_s=max_gap_s, cross=cross, robust=robust,
+                    dataset_dir if dataset is None else dataset, method, max_gap_s=max_gap_s,
+                    cross=cross, robust=robust,
                     robust_scale=robust_scale, use_adsb=adsb, init=init, fixed=fixed,
                     max_iterations=max_iterations, time_offset=time_offset,
                     iterations=iterations, linearise=linearise, select=select, budget=budget,
@@ -233,13 +243,13 @@ def calibrate_command(
             from graphcal.io.asterix.cat063 import radar_kinds_from_sites, write_cat063
 
             try:
-                write_cat063(cat063, cal, _radar_codes(dataset.sites),
-                             radar_kinds_from_sites(dataset.sites))
+                write_cat063(cat063, cal, _radar_codes(sites),
+                             radar_kinds_from_sites(sites))
             except ValueError as exc:
                 fail(f"--cat063 {cat063}: {exc}", EXIT_BAD_INPUT)
             err_console.print(f"wrote {cat063}", highlight=False)
         if history is not None:
-            _append_history(history, cal, dataset, dataset_dir, {
+            _append_history(history, cal, sites, dataset, dataset_dir, {
                 "method": method, "window": window, "cross": cross, "robust": robust,
                 "adsb": adsb, "fix": fix or [], "drift": drift or [], "break": breaks or [],
                 "steps": steps, "clean": clean})
@@ -271,23 +281,25 @@ def calibrate_command(
             highlight=False,
         )
         warnings = list(cal.warnings)
-        if dataset.cleaning is not None and method != "graph":
+        if dataset is not None and dataset.cleaning is not None and method != "graph":
             warnings = [w for w in dataset.cleaning.warnings if w not in warnings] + warnings
         for warning in warnings:
             console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
 
 
-def _append_history(path: Path, cal, dataset, dataset_dir: Path, options: dict) -> None:
+def _append_history(path: Path, cal, sites, dataset, dataset_dir: Path, options: dict) -> None:
     """``--history``: the run appended to the calibration history database."""
     from graphcal.pipeline.history import append_run
 
-    times = dataset.plots["time_s"]
+    span = {}
+    if cal.series is None:  # with windows the span is that of the series
+        times = dataset.plots["time_s"]
+        span = {"t_start_s": float(times.min()), "t_end_s": float(times.max())}
     run_id = append_run(path, cal.to_dict(), provenance={
         "dataset": str(dataset_dir.resolve()),
         "options": options,
-        "t_start_s": float(times.min()),
-        "t_end_s": float(times.max()),
-        "sensor_models": {rid: site.model for rid, site in dataset.sites.items()
+        **span,
+        "sensor_models": {rid: site.model for rid, site in sites.items()
                           if getattr(site, "model", None)},
     })
     err_console.print(f"appended run {run_id} to {path}", highlight=False)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,7 +25,7 @@ from graphcal.analysis.observability import report_from_information
 from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY, from_contract_units
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
-from graphcal.io.folder import load_dataset
+from graphcal.io.folder import SITES_FILE, load_dataset, load_sites
 from graphcal.noise import filled_with_notes
 from graphcal.solvers.registry import METHODS, get_estimator
 
@@ -208,19 +209,27 @@ def calibrate(
         Unknown method or option value, or an option the method does not use.
     """
     start = time.perf_counter()
+    folder = None
     if not isinstance(dataset, Dataset):
-        dataset = load_dataset(dataset, clean=clean)
+        if window is not None:  # read window by window, not loaded whole
+            folder = dataset
+            sites = load_sites(Path(folder) / SITES_FILE)
+        else:
+            dataset = load_dataset(dataset, clean=clean)
+    if folder is None:
+        sites = dataset.sites
     estimator = get_estimator(method)
     given = {
         "cross": cross, "robust": robust, "robust_scale": robust_scale, "use_adsb": use_adsb,
         "init": init, "fixed": fixed or None, "max_iterations": max_iterations,
         "time_offset": time_offset, "iterations": iterations, "linearise": linearise,
     }
-    options = _method_options(method, given, dataset.sites)
+    options = _method_options(method, given, sites)
     if max_gap_s is not None:
         options["max_gap_s"] = max_gap_s
     if window is not None:
-        return _calibrate_windows(dataset, method, window, options, select=select,
+        return _calibrate_windows(folder if folder is not None else dataset, method, window,
+                                  options, clean=clean, select=select,
                                   bound=bound, scheduler=scheduler, drift=drift,
                                   breaks=breaks, detect_steps=detect_steps, progress=progress)
     windowed_only = {"scheduler": scheduler, "drift": drift, "breaks": breaks}
@@ -276,9 +285,10 @@ def calibrate(
     return cal
 
 
-def _calibrate_windows(dataset: Dataset, method: str, window: float | str,
-                       options: dict[str, Any], *, select: str | None, bound: bool | None,
-                       progress: Progress | None, **chain: Any) -> Calibration:
+def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,
+                       window: float | str, options: dict[str, Any], *, clean: bool,
+                       select: str | None, bound: bool | None, progress: Progress | None,
+                       **chain: Any) -> Calibration:
     """``calibrate(window=...)``: the graph per window, chained (pipeline.windowed)."""
     from graphcal.core.durations import parse_duration
     from graphcal.pipeline.windowed import calibrate_windows
@@ -301,8 +311,8 @@ def _calibrate_windows(dataset: Dataset, method: str, window: float | str,
         robust_scale=options["robust_scale"], fixed=options.get("fixed") or {},
         max_iterations=options["max_iterations"],
         **({"max_gap_s": options["max_gap_s"]} if "max_gap_s" in options else {}))
-    return calibrate_windows(dataset, parse_duration(window), options=window_options,
-                             progress=progress, **chain)
+    return calibrate_windows(dataset, parse_duration(window), clean=clean,
+                             options=window_options, progress=progress, **chain)
 
 
 def _check_model(cal: Calibration, dataset: Dataset, *, use_adsb: bool,

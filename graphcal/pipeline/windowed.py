@@ -12,18 +12,21 @@ apply from now on) and which carries the contract's ``series`` and ``events``.
 
 from __future__ import annotations
 
+import os
 import time
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import replace
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from graphcal.core.errors import EstimationError
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY_NAMES, NAME_FROM_KEY, PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
-from graphcal.data.dataset import Dataset
+from graphcal.data.dataset import Dataset, Site
 from graphcal.data.windows import Window, split_window, split_windows, window_index
 from graphcal.model.information import observability
 from graphcal.model.parameters import RadarTerms, prior_sigmas
@@ -73,9 +76,10 @@ def parse_drift(items: Mapping[str, float]) -> dict[str, float]:
 
 
 def calibrate_windows(
-    dataset: Dataset,
+    dataset: Dataset | str | os.PathLike[str],
     window_s: float,
     *,
+    clean: bool = True,
     scheduler: str | None = None,
     drift: Mapping[str, float] | None = None,
     breaks: Mapping[str, Sequence[float]] | None = None,
@@ -88,9 +92,15 @@ def calibrate_windows(
 
     Parameters
     ----------
-    dataset : Dataset
+    dataset : Dataset or path
+        A loaded dataset, or a dataset folder, which is then read window by window
+        (:func:`graphcal.io.window_reader.iter_windows`): memory is bounded by a
+        window, not by the recording.  Sigmas missing from ``sites.toml`` are then
+        estimated from the first window.
     window_s : float
         Window length [s]; windows are aligned on multiples of it.
+    clean : bool
+        With a folder: clean each window (:mod:`graphcal.io.window_reader`).
     scheduler : str, optional
         ``synchronous`` (default), ``threads``, ``processes`` or a Dask address.
     drift : mapping, optional
@@ -117,24 +127,23 @@ def calibrate_windows(
     start = time.perf_counter()
     scheduler = check_scheduler(scheduler)
     rates = parse_drift(drift or {})
+    source = (_memory_source(dataset, window_s) if isinstance(dataset, Dataset)
+              else _folder_source(Path(dataset), window_s, clean))
     for rid in breaks or {}:
-        if rid not in dataset.sites:
+        if rid not in source.sites:
             raise ValueError(f"--break {rid}@...: unknown radar; known: "
-                             f"{', '.join(dataset.radar_ids)}")
-    dataset, sigma_info, sigma_warnings = filled_with_notes(dataset)
-    n_windows = len(np.unique(window_index(dataset.plots["time_s"].to_numpy(float),
-                                           window_s)))
+                             f"{', '.join(source.sites)}")
     options = options or WindowOptions()
-    summaries = [s for s in map_windows(summarise_window, split_windows(dataset, window_s),
+    summaries = [s for s in map_windows(summarise_window, source.windows(),
                                         scheduler=scheduler, args=(options,),
-                                        progress=progress, total=n_windows)
+                                        progress=progress, total=source.total)
                  if s is not None]
     elapsed = time.perf_counter() - start
     if progress is not None:
         progress("smoothing the chain", 0, 1)
     chain = {"random_walk_per_sqrt_s": rates, "breaks": breaks,
              "detect_steps": detect_steps, "step_false_alarm": step_false_alarm}
-    result = smooth_windows(summaries, dataset.sites, window_s, **chain)
+    result = smooth_windows(summaries, source.sites, window_s, **chain)
     changes = _changes(result, breaks or {})
     if changes:
         # A bias that changes inside a window does not fit one value there.  Each step
@@ -142,7 +151,10 @@ def calibrate_windows(
         # boundary where it was found); a window holding a change is cut there and its
         # parts calibrated; then the chain is smoothed again.
         t0 = time.perf_counter()
-        windows = {w.index: w for w in split_windows(dataset, window_s)}
+        # Read again only the windows around the changes.
+        needed = {i for when, _, _ in changes
+                  for i in (int(np.floor(when / window_s)), int(np.ceil(when / window_s)) - 1)}
+        windows = {w.index: w for w in source.windows() if w.index in needed}
         located = []
         for when, rid, statistic in changes:
             if statistic is not None:
@@ -168,18 +180,56 @@ def calibrate_windows(
                                                  total=len(parts)) if s is not None]
         summaries = sorted([s for s in summaries if s.index not in cuts] + part_summaries,
                            key=lambda s: (s.t_start_s, s.t_end_s))
-        result = smooth_windows(summaries, dataset.sites, window_s,
+        result = smooth_windows(summaries, source.sites, window_s,
                                 found_steps=located_steps, **chain)
         elapsed += time.perf_counter() - t0
     result.timing_s["summaries_s"] = elapsed
     result.timing_s["total_s"] = time.perf_counter() - start
-    cal = to_calibration(result, dataset)
-    if sigma_info is not None:
-        cal.info["estimated_sigmas"] = sigma_info
-        cal.warnings.extend(sigma_warnings)
+    cal = to_calibration(result, source.sites, source.cleaning_warnings)
+    if source.sigma_info is not None:
+        cal.info["estimated_sigmas"] = source.sigma_info
+        cal.warnings.extend(source.sigma_warnings)
     cal.info["windows"]["scheduler"] = scheduler
-    cal.info["windows"]["windows_without_data"] = n_windows - cal.info["windows"]["n_windows"]
+    cal.info["windows"]["streamed"] = not isinstance(dataset, Dataset)
     return cal
+
+
+@dataclass
+class _Source:
+    """Where the windows come from: a dataset in memory, or a folder read window by window."""
+
+    sites: dict[str, Site]
+    windows: Callable[[], Iterator[Window]]  # a fresh pass over the windows at each call
+    total: int | None
+    cleaning_warnings: list[str] = field(default_factory=list)
+    sigma_info: Any = None
+    sigma_warnings: list[str] = field(default_factory=list)
+
+
+def _memory_source(dataset: Dataset, window_s: float) -> _Source:
+    dataset, info, warnings = filled_with_notes(dataset)
+    total = len(np.unique(window_index(dataset.plots["time_s"].to_numpy(float), window_s)))
+    cleaning = list(dataset.cleaning.warnings) if dataset.cleaning is not None else []
+    return _Source(dataset.sites, lambda: split_windows(dataset, window_s), total, cleaning,
+                   info, warnings)
+
+
+def _folder_source(folder: Path, window_s: float, clean: bool) -> _Source:
+    from graphcal.io.dataset_span import dataset_span
+    from graphcal.io.window_reader import iter_windows
+
+    first = next(iter(iter_windows(folder, window_s, clean=clean)), None)
+    if first is None:
+        raise EstimationError(f"{folder}: no plots to calibrate")
+    filled, info, warnings = filled_with_notes(first.dataset)
+    sites = filled.sites
+
+    def windows() -> Iterator[Window]:
+        for window in iter_windows(folder, window_s, clean=clean):
+            yield replace(window, dataset=replace(window.dataset, sites=sites))
+
+    total = len(dataset_span(folder).window_indices(window_s))
+    return _Source(sites, windows, total, [], info, warnings)
 
 
 def _split_cost(window: Window, times: Sequence[float], options: WindowOptions) -> float:
@@ -270,13 +320,14 @@ def series_entry(window: WindowEstimate, terms: RadarTerms, eccentric: bool) -> 
     return entry
 
 
-def to_calibration(result: WindowedCalibration, dataset: Dataset) -> Calibration:
+def to_calibration(result: WindowedCalibration, sites: Mapping[str, Site],
+                   cleaning_warnings: Sequence[str] = ()) -> Calibration:
     """The windowed result as a :class:`Calibration`: the last window, plus ``series``
-    and ``events``."""
+    and ``events``; ``cleaning_warnings`` come first among its warnings."""
     radar_ids = list(result.series)
     labels = list(result.last_labels)
     prior = np.concatenate([
-        prior_sigmas(dataset.sites[rid], RadarTerms(rid, (name,), {})) for rid, name in labels])
+        prior_sigmas(sites[rid], RadarTerms(rid, (name,), {})) for rid, name in labels])
     information = np.linalg.inv(result.last_covariance)
     data_information = 0.5 * (information + information.T) - np.diag(prior ** -2.0)
     eccentric = any(name in ECCENTRICITY_NAMES for _, name in labels)
@@ -285,7 +336,7 @@ def to_calibration(result: WindowedCalibration, dataset: Dataset) -> Calibration
         "radars": {rid: [series_entry(w, result.terms[rid], eccentric)
                          for w in windows] for rid, windows in result.series.items()},
     }
-    warnings = list(dataset.cleaning.warnings) if dataset.cleaning is not None else []
+    warnings = list(cleaning_warnings)
     counted = Counter(w for s in result.summaries for w in s.warnings)
     n = len({s.index for s in result.summaries})
     warnings += [f"{text} (in {count} of {n} windows)" if n > 1 else text
@@ -317,7 +368,7 @@ def to_calibration(result: WindowedCalibration, dataset: Dataset) -> Calibration
     cal = Calibration(
         method="graph",
         radar_ids=radar_ids,
-        is_3d={rid: dataset.sites[rid].is_3d for rid in radar_ids},
+        is_3d={rid: sites[rid].is_3d for rid in radar_ids},
         labels=labels,
         estimate=np.asarray(result.last_estimate, dtype=float),
         covariance=np.asarray(result.last_covariance, dtype=float),

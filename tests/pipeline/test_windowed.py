@@ -158,3 +158,18 @@ def test_command_line_window_drift_and_break(stepping, tmp_path: Path) -> None:
     bad = runner.invoke(app, ["calibrate", str(folder), "--window", "15min",
                               "--break", "SUD1800"])
     assert bad.exit_code == 2 and "RADAR@TIME" in bad.output
+
+
+def test_a_folder_is_read_window_by_window_with_the_same_result(stepping, windowed,
+                                                                 tmp_path: Path) -> None:
+    """calibrate(folder, window=...) streams the folder (io.window_reader) instead of
+    loading it: the same series as the dataset in memory (within 0.01 sigma)."""
+    _, sim = stepping
+    folder = tmp_path / "ds"
+    write_dataset(sim.dataset, folder, fmt="parquet")
+    streamed = calibrate(folder, window="15min")
+    assert streamed.info["windows"]["streamed"] is True
+    for rid, entries in windowed.series["radars"].items():
+        for mine, theirs in zip(entries, streamed.series["radars"][rid], strict=True):
+            for key, sigma in mine["sigma"].items():
+                assert abs(mine[key] - theirs[key]) <= 0.01 * sigma, (rid, key)
