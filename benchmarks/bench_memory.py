@@ -12,6 +12,8 @@ Then the *measured function* runs on each folder in a fresh Python process, and 
 process's peak resident memory is read (:func:`peak_rss_mb`): in total, and above what
 the process held just before the call (the interpreter and the libraries).  The target:
 the peak for 17 hours at most 1.5 times the peak for 2 hours, the same window.
+``--function benchmarks.bench_memory:calibrate_windows`` measures the whole windowed
+calibration (``calibrate --window``) instead of the reading alone.
 
 The measured function is a parameter, ``--function MODULE:NAME``: any function
 ``NAME(folder: Path, window_s: float) -> dict`` (a summary, printed); the default,
@@ -61,6 +63,16 @@ def read_windows(folder: Path, window_s: float) -> dict:
         largest = max(largest, window.n_plots + n_adsb)
     return {"windows": windows, "plots": plots, "adsb_in_windows": adsb,
             "largest_window_rows": largest}
+
+
+def calibrate_windows(folder: Path, window_s: float) -> dict:
+    """The whole windowed calibration of the folder (``calibrate --window``), streamed."""
+    from graphcal.pipeline.calibrate import calibrate
+
+    cal = calibrate(folder, window=window_s)
+    return {"windows": cal.info["windows"]["n_windows"], "events": len(cal.events or []),
+            "radars": len(cal.radar_ids),
+            "summaries_s": round(cal.info["timing_s"].get("summaries_s", 0.0), 1)}
 
 
 def load_function(spec: str) -> Callable[[Path, float], dict]:
