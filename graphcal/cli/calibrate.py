@@ -136,13 +136,17 @@ def calibrate_command(
     ] = None,
 ) -> None:
     """Estimate every radar's biases from a dataset folder."""
+    import time
+
     from graphcal.data.calibration import load_result
     from graphcal.io.folder import load_dataset
     from graphcal.pipeline.calibrate import calibrate as run_calibration
     from graphcal.reporting.tables import calibration_table
 
     with errors_to_exit():
+        start = time.perf_counter()
         dataset = load_dataset(dataset_dir, clean=clean)
+        load_s = time.perf_counter() - start
         if dataset.cleaning is not None:
             for line in dataset.cleaning.summary():
                 err_console.print(f"cleaning: {line}", highlight=False)
@@ -161,6 +165,7 @@ def calibrate_command(
                 )
         except ValueError as exc:
             fail(str(exc), EXIT_BAD_INPUT)
+        cal.info.setdefault("timing_s", {})["load_s"] = load_s
         if "selection" in cal.info:
             _print_selection(cal.info["selection"])
         if cat063 is not None:
