@@ -60,6 +60,7 @@ from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY, RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.data.height import HEIGHT_MODEL_KEYS, HeightModelEstimate
+from graphcal.data.memo import shared
 from graphcal.model.cross_radar import gradient_noise_middle
 from graphcal.model.factors import AdsbFactor, PairwiseFactor
 from graphcal.model.height import HEIGHT_PRIOR_SIGMA
@@ -357,6 +358,7 @@ def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
 
 
 # --------------------------------------------------------------------------- the estimator
+@shared
 @fills_missing_sigmas
 def graph(
     dataset: Dataset,
