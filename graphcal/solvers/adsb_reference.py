@@ -216,58 +216,81 @@ def ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibr
 
 
 # --------------------------------------------------------------------------- FL
-def _fit_line(points: FloatArray) -> tuple[float, float, float]:
-    """Orthogonal-regression line through 2-D points ordered in time.
+def _fit_lines(points: FloatArray, starts: NDArray[np.int64]) -> tuple[FloatArray, ...]:
+    """Orthogonal-regression line through each window of 2-D points ordered in time.
 
-    Returns ``(direction angle [rad] counter-clockwise from east, oriented along
-    the motion; its variance [rad^2]; RMS perpendicular residual [m])``.
+    ``points`` holds the windows one after the other, window ``k`` from row
+    ``starts[k]``.  Returns per window ``(direction angle [rad] counter-clockwise
+    from east, oriented along the motion; its variance [rad^2]; RMS perpendicular
+    residual [m])``.  The direction is the principal axis of the centred points
+    (the first right singular vector of the centred window, from its 2x2 scatter
+    matrix in closed form).
     """
-    centred = points - points.mean(axis=0)
-    _, singular, vt = np.linalg.svd(centred, full_matrices=False)
-    direction = vt[0]
-    if np.dot(direction, points[-1] - points[0]) < 0:
-        direction = -direction
-    along = centred @ direction
-    perp = centred @ np.array([-direction[1], direction[0]])
-    n = len(points)
-    perp_var = float(np.sum(perp**2) / max(n - 2, 1))
-    spread = float(np.sum(along**2))
-    return float(np.arctan2(direction[1], direction[0])), perp_var / spread, np.sqrt(perp_var)
+    n = np.diff(np.r_[starts, len(points)])
+    window = np.repeat(np.arange(len(starts)), n)
+    centred = points - (np.add.reduceat(points, starts, axis=0) / n[:, None])[window]
+    sxx = np.add.reduceat(centred[:, 0] ** 2, starts)
+    syy = np.add.reduceat(centred[:, 1] ** 2, starts)
+    sxy = np.add.reduceat(centred[:, 0] * centred[:, 1], starts)
+    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    direction = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    motion = points[starts + n - 1] - points[starts]
+    direction[np.einsum("ki,ki->k", direction, motion) < 0] *= -1.0
+    d = direction[window]
+    along = centred[:, 0] * d[:, 0] + centred[:, 1] * d[:, 1]
+    perp = centred[:, 1] * d[:, 0] - centred[:, 0] * d[:, 1]
+    perp_var = np.add.reduceat(perp**2, starts) / np.maximum(n - 2, 1)
+    spread = np.add.reduceat(along**2, starts)
+    return np.arctan2(direction[:, 1], direction[:, 0]), perp_var / spread, np.sqrt(perp_var)
 
 
-def _windows(al: AdsbAlignment, max_gap_s: float) -> list[NDArray[np.int64]]:
-    """Index windows of consecutive plots of one aircraft without long gaps."""
-    windows = []
+def _windows(al: AdsbAlignment, max_gap_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Windows of consecutive plots of one aircraft without long gaps.
+
+    Each aircraft's plots in time order are cut where two are more than
+    ``max_gap_s`` apart; each piece into ``max(1, len // FL_WINDOW_PLOTS)``
+    windows of (almost) equal length (``numpy.array_split``); windows shorter
+    than :data:`FL_MIN_WINDOW_PLOTS` are dropped.  Returns the rows of ``al``
+    window after window (aircraft in sorted order) and each window's first position.
+    """
     targets = al.plots.target_id.astype(str)
-    for target in np.unique(targets):
-        rows = np.flatnonzero(targets == target)
-        rows = rows[np.argsort(al.plots.time_s[rows], kind="stable")]
-        breaks = np.flatnonzero(np.diff(al.plots.time_s[rows]) > max_gap_s) + 1
-        for segment in np.split(rows, breaks):
-            n_windows = max(1, len(segment) // FL_WINDOW_PLOTS)
-            for window in np.array_split(segment, n_windows):
-                if len(window) >= FL_MIN_WINDOW_PLOTS:
-                    windows.append(window)
-    return windows
+    time_s = al.plots.time_s
+    order = np.lexsort((time_s, targets))
+    n = len(order)
+    if n == 0:
+        return order, np.zeros(0, dtype=np.int64)
+    t, g = time_s[order], targets[order]
+    new = np.ones(n, dtype=bool)
+    new[1:] = (g[1:] != g[:-1]) | (np.diff(t) > max_gap_s)
+    piece_start = np.flatnonzero(new)
+    piece_len = np.diff(np.r_[piece_start, n])
+    piece = np.cumsum(new) - 1
+    position = np.arange(n) - piece_start[piece]
+    count = np.maximum(1, piece_len // FL_WINDOW_PLOTS)  # windows per piece
+    size, extra = (piece_len // count)[piece], (piece_len % count)[piece]
+    long_part = extra * (size + 1)  # array_split: the first `extra` windows one longer
+    within = np.where(position < long_part, position // (size + 1),
+                      extra + (position - long_part) // np.maximum(size, 1))
+    window = (np.cumsum(count) - count)[piece] + within
+    keep = np.bincount(window)[window] >= FL_MIN_WINDOW_PLOTS
+    rows, window = order[keep], window[keep]
+    starts = np.flatnonzero(np.r_[True, window[1:] != window[:-1]]) if len(rows) else window
+    return rows, starts.astype(np.int64)
 
 
 def fl_azimuth(site: Site, al: AdsbAlignment, max_gap_s: float = 60.0) -> tuple[float, float, dict]:
     """FL azimuth bias (paper 003 eq. 8-9, sign kept) with its variance [rad, rad^2]."""
     radar_xy = frames.polar_to_enu(*_plane_polar(site, measured_polar(al)).T)[:, :2]
     adsb_xy = frames.polar_to_enu(*_plane_polar(site, al.reference_polar).T)[:, :2]
-    angles, variances = [], []
-    skipped = 0
-    for window in _windows(al, max_gap_s):
-        alpha_a, var_a, rms_a = _fit_line(adsb_xy[window])
-        if rms_a > FL_MAX_LINE_RMS_M:
-            skipped += 1
-            continue
-        alpha_r, var_r, _ = _fit_line(radar_xy[window])
-        angles.append(frames.wrap_to_pi(alpha_a - alpha_r))
-        variances.append(var_a + var_r)
-    if not angles:
+    rows, starts = _windows(al, max_gap_s)
+    alpha_a, var_a, rms_a = _fit_lines(adsb_xy[rows], starts)
+    alpha_r, var_r, _ = _fit_lines(radar_xy[rows], starts)
+    straight = ~(rms_a > FL_MAX_LINE_RMS_M)
+    skipped = int(np.sum(~straight))
+    if not np.any(straight):
         raise EstimationError("no straight track segment for the line fit (FL)")
-    angles_arr, var_arr = np.asarray(angles), np.asarray(variances)
+    angles_arr = frames.wrap_to_pi(alpha_a - alpha_r)[straight]
+    var_arr = (var_a + var_r)[straight]
     weights = 1.0 / var_arr
     mean = float(np.sum(weights * angles_arr) / np.sum(weights))
     variance = float(1.0 / np.sum(weights))
