@@ -19,9 +19,16 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from numpy.typing import NDArray
 
-from graphcal.data.align import AdsbAlignment, align_adsb, pair_plots, plot_arrays
+from graphcal.data.align import (
+    AdsbAlignment,
+    adsb_track_table,
+    align_adsb,
+    pair_plots,
+    plot_arrays,
+)
 from graphcal.data.dataset import Dataset, Site
 from graphcal.model.cross_radar import RayExcessCache
 from graphcal.model.factors import AdsbFactor, PairwiseFactor, adsb_factor, pairwise_factor
@@ -164,7 +171,7 @@ def radars_with_adsb(dataset: Dataset) -> set[str]:
     """Radars with at least one plot whose ``target_id`` has ADS-B reports."""
     if dataset.adsb is None or len(dataset.adsb) == 0:
         return set()
-    targets = set(dataset.adsb["target_id"].astype(str)) - {""}
+    targets = adsb_track_table(dataset.adsb).targets
     plots = dataset.plots
-    seen = plots.loc[plots["target_id"].astype(str).isin(targets), "radar_id"]
-    return set(seen.astype(str))
+    seen = plots["radar_id"][plots["target_id"].astype(str).isin(targets)]
+    return {str(rid) for rid in pd.unique(seen)}

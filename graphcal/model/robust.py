@@ -37,7 +37,6 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 FloatArray = NDArray[np.float64]
 
@@ -47,10 +46,22 @@ KERNELS: tuple[str, ...] = ("huber", "cauchy", "none")
 DOWNWEIGHT_THRESHOLD = 0.5
 
 
+#: ``sqrt(scipy.stats.chi2.ppf(0.95, d))`` for the usual dimensions, as scipy computes it
+#: (``2 gammaincinv(d / 2, 0.95)``), so that building a kernel needs no scipy import.
+CHI_95: dict[int, float] = {
+    1: 1.9599639845400538, 2: 2.447746830680816, 3: 2.7954834829151074,
+    4: 3.080215745168048, 5: 3.327235743604043, 6: 3.54846265920102,
+}
+
+
 @lru_cache(maxsize=8)
 def default_threshold(dimension: int) -> float:
     """95 % point of the chi distribution with ``dimension`` degrees of freedom."""
-    return float(np.sqrt(stats.chi2.ppf(0.95, dimension)))
+    if dimension in CHI_95:
+        return CHI_95[dimension]
+    from scipy import special
+
+    return float(np.sqrt(2.0 * special.gammaincinv(dimension / 2.0, 0.95)))
 
 
 @dataclass(frozen=True)

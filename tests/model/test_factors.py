@@ -359,3 +359,14 @@ def test_quadratic_pairwise_factor_jacobians_match_numerical() -> None:
     positions, coefficients = f.plot_noise()
     assert positions.shape == coefficients.shape == (len(f), 4)
     np.testing.assert_allclose(coefficients.sum(axis=1), 0.0, atol=1e-12)
+
+
+def test_tabulated_kernel_thresholds_are_scipys_chi_quantiles() -> None:
+    """The thresholds tabulated so that no scipy import is needed are scipy's own values,
+    and other dimensions are computed the same way."""
+    from scipy import stats
+
+    from graphcal.model.robust import CHI_95
+
+    for dimension in [*CHI_95, 7, 9]:
+        assert default_threshold(dimension) == float(np.sqrt(stats.chi2.ppf(0.95, dimension)))
