@@ -75,6 +75,7 @@ from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.height import HEIGHT_MODEL_KEYS, HeightModel, height_jacobian
+from graphcal.data.memo import shared
 from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, MAX_2D_ELEVATION_RAD
 from graphcal.model.height import HEIGHT_PRIOR_SIGMA, adsb_height_segments
 from graphcal.model.information import pseudo_inverse
@@ -368,6 +369,7 @@ def _cross_information(
 
 
 # --------------------------------------------------------------------------- main
+@shared
 def crlb(
     dataset: Dataset,
     *,

@@ -9,16 +9,17 @@ to every later caller; outside, it simply computes it, so that a function called
 own behaves as before.
 
 A value is filed under a key and the objects it derives from (the tables, the site),
-by identity.  Those objects are held until the outermost block ends, so their ids
-cannot be taken by new objects meanwhile.  This is sound because nothing modifies a
-table in place during a calibration; a table changed between two calibrations is seen
-afresh, since every block starts empty.  A value handed out may be shared: callers
-treat it as read-only.
+by identity, and dropped as soon as one of those objects is freed (it is referenced
+weakly), so that a loop over many datasets (time windows) does not accumulate them.
+This is sound because nothing modifies a table in place during a calibration; a table
+changed between two calibrations is seen afresh, since every block starts empty.  A
+value handed out may be shared: callers treat it as read-only.
 """
 
 from __future__ import annotations
 
 import functools
+import weakref
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -27,9 +28,10 @@ from typing import Any, ParamSpec, TypeVar
 T = TypeVar("T")
 P = ParamSpec("P")
 
-#: The store of the active block: key -> (the objects the value derives from, value).
-_STORE: ContextVar[dict[tuple, tuple[tuple[object, ...], Any]] | None] = ContextVar(
-    "graphcal_memo", default=None
+#: The store of the active block: key -> (references to the objects the value derives
+#: from, value).
+_STORE: ContextVar[dict[tuple, tuple[tuple[Callable[[], object], ...], Any]] | None] = (
+    ContextVar("graphcal_memo", default=None)
 )
 
 
@@ -79,11 +81,20 @@ def remember(name: tuple, sources: tuple[object, ...], compute: Callable[[], T])
         return compute()
     key = (name, tuple(id(s) for s in sources))
     hit = store.get(key)
-    if hit is not None and all(a is b for a, b in zip(hit[0], sources, strict=True)):
+    if hit is not None and all(ref() is s for ref, s in zip(hit[0], sources, strict=True)):
         return hit[1]
     value = compute()
-    store[key] = (sources, value)
+    store[key] = (tuple(_reference(s, store, key) for s in sources), value)
     return value
+
+
+def _reference(source: object, store: dict, key: tuple) -> Callable[[], object]:
+    """A weak reference to ``source`` that drops ``store[key]`` when ``source`` is freed
+    (a strong one for objects that take no weak reference)."""
+    try:
+        return weakref.ref(source, lambda _: store.pop(key, None))
+    except TypeError:
+        return lambda: source
 
 
 def active() -> bool:

@@ -51,6 +51,7 @@ from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_ads
 from graphcal.data.bias import PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
+from graphcal.data.memo import shared
 from graphcal.model.information import (
     describe_weak_directions,
     observability,
@@ -209,6 +210,7 @@ def _run_ls(
     return _assemble(method, dataset, per_radar, alignments, info)
 
 
+@shared
 @fills_missing_sigmas
 def ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
     """Paper 003 LS (eq. 11-19) against ADS-B, every radar on its own."""
@@ -302,6 +304,7 @@ def fl_azimuth(site: Site, al: AdsbAlignment, max_gap_s: float = 60.0) -> tuple[
     return mean, variance, detail
 
 
+@shared
 @fills_missing_sigmas
 def fl(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
     """Paper 003 FL: line-fit azimuth bias, mean range (and elevation) difference."""
@@ -339,6 +342,7 @@ def fl(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibr
     return _assemble("fl", dataset, per_radar, alignments, info)
 
 
+@shared
 @fills_missing_sigmas
 def fl_ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
     """Paper 003 FL-LS: FL azimuth compensation (eq. 10, sign corrected), then LS."""

@@ -51,3 +51,20 @@ def test_nested_blocks_and_the_decorator_join_the_outer_block() -> None:
         assert inner() is outer
     assert not active()
     assert inner() == [4]
+
+
+def test_a_value_is_dropped_with_its_source() -> None:
+    """A loop over many tables (time windows) does not keep every table's values."""
+    import gc
+    import weakref
+
+    class Value(list):
+        pass
+
+    with sharing():
+        table = np.zeros(3)
+        value = remember(("x",), (table,), lambda: Value([1]))
+        kept = weakref.ref(value)
+        del value, table
+        gc.collect()
+        assert kept() is None
