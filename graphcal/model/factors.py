@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.batched import cholesky_inverse
 from graphcal.data.align import PlotArrays
 from graphcal.data.dataset import Site
 from graphcal.model.cross_radar import (
@@ -51,7 +52,7 @@ SPATIAL: list[int] = [0, 1, 2, 3, 5, 6]
 
 def whitening_matrices(cov: FloatArray) -> FloatArray:
     """``L^-1`` per measurement with ``L L^T = cov``, so ``||L^-1 r||^2 = r^T cov^-1 r``."""
-    return np.linalg.inv(np.linalg.cholesky(cov))
+    return cholesky_inverse(cov)
 
 
 def _flatten(

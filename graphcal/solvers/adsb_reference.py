@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.batched import sum_of_products
 from graphcal.core.errors import EstimationError
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_adsb
 from graphcal.data.bias import PARAMETER_NAMES
@@ -118,14 +119,14 @@ def ls_radar(
     jac_a = frames.polar_to_enu_jacobian(*reference.T)[:, :rows, :]
     ref_cov = reference_polar_covariance(al, site)
     if not site.is_3d:
+        ref_cov = ref_cov.copy()  # shared: not to be changed in place
         ref_cov[:, 2, :] = 0.0
         ref_cov[:, :, 2] = 0.0
     sigma = jac_r @ measurement_model(site).covar(len(al)) @ np.swapaxes(jac_r, 1, 2)
     sigma += jac_a @ ref_cov @ np.swapaxes(jac_a, 1, 2)
-    ht = np.swapaxes(h, 1, 2)
-    information = np.einsum("nip,niq->pq", h, h)
-    rhs = np.einsum("nip,ni->p", h, z)
-    middle = np.einsum("npi,nij,njq->pq", ht, sigma, h)
+    information = sum_of_products(h, None, h)
+    rhs = h.reshape(-1, h.shape[-1]).T @ z.reshape(-1)
+    middle = sum_of_products(h, sigma, h)
     sol = solve_normal_equations(information, rhs, middle)
     return sol.estimate, sol.covariance, information
 
