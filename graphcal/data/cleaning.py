@@ -245,7 +245,7 @@ def drop_duplicate_plots(plots: pd.DataFrame) -> tuple[pd.DataFrame, CleaningRep
         ``counts["plots_duplicate"]``.
     """
     key = [name for name in _PLOT_KEY if name in plots]
-    duplicate = plots.duplicated(subset=key, keep="first").to_numpy(dtype=bool)
+    duplicate = _duplicated(plots, key)
     return _keep(plots, ~duplicate), _report(plots_duplicate=int(duplicate.sum()))
 
 
@@ -258,8 +258,54 @@ def drop_duplicate_adsb(adsb: pd.DataFrame) -> tuple[pd.DataFrame, CleaningRepor
     report : CleaningReport
         ``counts["adsb_duplicate"]``.
     """
-    duplicate = adsb.duplicated(subset=list(_ADSB_KEY), keep="first").to_numpy(dtype=bool)
+    duplicate = _duplicated(adsb, list(_ADSB_KEY))
     return _keep(adsb, ~duplicate), _report(adsb_duplicate=int(duplicate.sum()))
+
+
+def _key_values(table: pd.DataFrame, name: str) -> NDArray:
+    """A key column as floats (numbers) or codes (anything else; -1 where missing)."""
+    column = table[name]
+    if pd.api.types.is_numeric_dtype(column) and not pd.api.types.is_bool_dtype(column):
+        return column.to_numpy(dtype=float, na_value=np.nan)
+    return pd.factorize(column)[0]
+
+
+def _same(a: NDArray, b: NDArray) -> BoolArray:
+    """Element-wise equality, NaN equal to NaN (as ``DataFrame.duplicated``)."""
+    if a.dtype.kind == "f":
+        return (a == b) | (np.isnan(a) & np.isnan(b))
+    return a == b
+
+
+def _duplicated(table: pd.DataFrame, key: list[str]) -> BoolArray:
+    """``table.duplicated(subset=key, keep="first")`` by sorting instead of hashing.
+
+    Rows are ordered by the first two key columns; only rows in runs of equal values
+    there are compared on the whole key (NaN equal to NaN, ``-0.0`` to ``0.0``, as
+    pandas), in their original order, so the first of each set of duplicates is kept.
+    """
+    n = len(table)
+    duplicate = np.zeros(n, dtype=bool)
+    if n < 2 or not key:
+        return duplicate
+    values = [_key_values(table, name) for name in key]
+    order = np.lexsort(values[:2][::-1])
+    same = np.ones(n - 1, dtype=bool)
+    for v in values[:2]:
+        sorted_v = v[order]
+        same &= _same(sorted_v[1:], sorted_v[:-1])
+    if not same.any():
+        return duplicate
+    in_run = np.zeros(n, dtype=bool)
+    in_run[1:] |= same
+    in_run[:-1] |= same
+    candidates = np.sort(order[in_run])
+    rows = candidates[np.lexsort([v[candidates] for v in values[::-1]])]
+    equal = np.ones(len(rows) - 1, dtype=bool)
+    for v in values:
+        equal &= _same(v[rows][1:], v[rows][:-1])
+    duplicate[rows[1:][equal]] = True
+    return duplicate
 
 
 # --------------------------------------------------------------------------- ADS-B order
@@ -348,7 +394,7 @@ def _jumps(
         return np.zeros(0, dtype=bool), np.zeros(0)
     same = flight[1:] == flight[:-1]
     dt = np.abs(np.diff(time_s))
-    distance = np.linalg.norm(np.diff(ecef_m, axis=0), axis=1)
+    distance = frames.row_norm(np.diff(ecef_m, axis=0))
     slack = gate_sigmas * _SIGMA_3D * np.hypot(sigma_m[1:], sigma_m[:-1])
     return same & (distance > max_speed_mps * dt + slack), distance
 
@@ -381,11 +427,11 @@ def _isolated_outliers(
     with np.errstate(invalid="ignore", divide="ignore"):
         w = np.where(span > 0, (t1 - t0) / span, 0.5)
     chord = ecef_m[:-2] + w[:, None] * (ecef_m[2:] - ecef_m[:-2])
-    deviation = np.where(inner, np.linalg.norm(ecef_m[1:-1] - chord, axis=1), 0.0)
+    deviation = np.where(inner, frames.row_norm(ecef_m[1:-1] - chord), 0.0)
     sigma = np.maximum(sigma_m[1:-1], np.maximum(sigma_m[:-2], sigma_m[2:]))
     slack = gate_sigmas * _SIGMA_3D * sigma * np.sqrt(1.5)
     allowed = 0.5 * max_accel_mps2 * (t1 - t0) * (t2 - t1) + slack
-    bypass = np.linalg.norm(ecef_m[2:] - ecef_m[:-2], axis=1)
+    bypass = frames.row_norm(ecef_m[2:] - ecef_m[:-2])
     consistent = bypass <= max_speed_mps * span + gate_sigmas * _SIGMA_3D * np.hypot(
         sigma_m[:-2], sigma_m[2:])
     padded = np.concatenate([[0.0], deviation, [0.0]])
@@ -522,10 +568,8 @@ def _interpolate_adsb(
     ok = np.zeros(n, dtype=bool)
     if len(adsb) < 2 or n == 0:
         return ref, ok
-    a_target = adsb["target_id"].astype(str).to_numpy(dtype=object)
-    categories = pd.Index(pd.unique(a_target))
-    a_code = categories.get_indexer(a_target)
-    q_code = categories.get_indexer(target_id.astype(str))
+    a_code, categories = pd.factorize(adsb["target_id"].astype(str))  # first-seen order
+    q_code = pd.Index(categories).get_indexer(target_id.astype(str))
     a_time = _column(adsb, "time_s")
     t0 = min(a_time.min(), time_s.min())
     span = max(a_time.max(), time_s.max()) - t0 + 4.0 * max_gap_s + 1.0

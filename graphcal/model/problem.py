@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from graphcal.core import frames
 from graphcal.data.align import (
     AdsbAlignment,
     adsb_track_table,
@@ -88,8 +89,8 @@ def polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
     """
     enu = site.enu_from_ecef(al.reference_ecef_m)
     velocity = al.reference_velocity_ecef_m_s
-    plausible = np.linalg.norm(velocity, axis=1) <= ADSB_MAX_SPEED_M_S
-    velocity_enu = np.where(plausible[:, None], velocity, 0.0) @ site.ecef_to_enu.T
+    plausible = frames.row_norm(velocity) <= ADSB_MAX_SPEED_M_S
+    velocity_enu = frames.rotate(np.where(plausible[:, None], velocity, 0.0), site.ecef_to_enu)
     jac = al.reference_polar_jacobian
     if jac is None or site.atmosphere is None:
         _, jac = measurement_model(site).enu_jacobian(enu)

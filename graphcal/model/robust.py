@@ -38,6 +38,8 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
+from graphcal.core import frames
+
 FloatArray = NDArray[np.float64]
 
 #: Kernel names accepted by :class:`RobustKernel`.
@@ -114,7 +116,7 @@ class RobustKernel:
         if self.name == "none":
             return residual, jacobians
         m = residual.shape[1]
-        s = np.linalg.norm(residual, axis=1)
+        s = frames.row_norm(residual)
         if jacobians is None:
             scale = np.sqrt(2.0 * self.loss(s, m)) / np.where(s > 0, s, 1.0)
             scale = np.where(s > 0, scale, 1.0)
@@ -126,5 +128,5 @@ class RobustKernel:
         """Measurements (rows of whitened ``residual``) whose weight is below 0.5."""
         if self.name == "none" or len(residual) == 0:
             return np.zeros(len(residual), dtype=bool)
-        s = np.linalg.norm(residual, axis=1)
+        s = frames.row_norm(residual)
         return self.weight(s, residual.shape[1]) < DOWNWEIGHT_THRESHOLD

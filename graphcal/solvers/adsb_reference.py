@@ -59,7 +59,6 @@ from graphcal.model.information import (
     solve_normal_equations,
 )
 from graphcal.model.measurement import (
-    RadarMeasurementModel,
     measured_polar,
     measurement_model,
     reference_polar_covariance,
@@ -112,17 +111,23 @@ def ls_radar(
     reference = _plane_polar(site, al.reference_polar)
     rows = 3 if site.is_3d else 2
     z = (frames.polar_to_enu(*measured.T) - frames.polar_to_enu(*reference.T))[:, :rows]
-    jac_r = frames.polar_to_enu_jacobian(*measured.T)[:, :rows, :]
-    positions = [PARAMETER_NAMES.index(n) for n in names]
-    h = jac_r @ RadarMeasurementModel.bias_jacobian(measured[:, 0])[:, :, positions]
-    # Noise of z: radar noise plus the ADS-B noise, both mapped to the plane.
-    jac_a = frames.polar_to_enu_jacobian(*reference.T)[:, :rows, :]
+    jac_r = np.ascontiguousarray(frames.polar_to_enu_jacobian(*measured.T)[:, :rows, :])
+    # h = jac_r @ RadarMeasurementModel.bias_jacobian(r)[:, :, positions]: the bias
+    # Jacobian's columns are unit vectors, the gain's scaled by the range, so h is
+    # made of jac_r's columns, exactly as that product gives them.
+    columns = {"range_offset": jac_r[:, :, 0], "range_gain": jac_r[:, :, 0] * measured[:, :1],
+               "azimuth_bias": jac_r[:, :, 1], "elevation_bias": jac_r[:, :, 2]}
+    h = np.stack([columns[name] for name in names], axis=-1)
+    # Noise of z: radar noise plus the ADS-B noise, both mapped to the plane; the radar's
+    # is diagonal, so jac_r @ covar is jac_r with its columns scaled.
+    jac_a = np.ascontiguousarray(frames.polar_to_enu_jacobian(*reference.T)[:, :rows, :])
     ref_cov = reference_polar_covariance(al, site)
     if not site.is_3d:
         ref_cov = ref_cov.copy()  # shared: not to be changed in place
         ref_cov[:, 2, :] = 0.0
         ref_cov[:, :, 2] = 0.0
-    sigma = jac_r @ measurement_model(site).covar(len(al)) @ np.swapaxes(jac_r, 1, 2)
+    variances = np.diagonal(measurement_model(site).covar(1)[0])
+    sigma = (jac_r * variances) @ np.swapaxes(jac_r, 1, 2)
     sigma += jac_a @ ref_cov @ np.swapaxes(jac_a, 1, 2)
     information = sum_of_products(h, None, h)
     rhs = h.reshape(-1, h.shape[-1]).T @ z.reshape(-1)

@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from graphcal.core import frames
 from graphcal.core.errors import EstimationError
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY, RadarBias
@@ -159,7 +160,7 @@ def _pairwise_sandwich_terms(
     for f in problem.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
         e, jacobians = f.whitened(_pair_values(f, values))
-        w = f.kernel.weight(np.linalg.norm(e, axis=1), 3)
+        w = f.kernel.weight(frames.row_norm(e), 3)
         cols = columns[ra] + columns[rb]
         if f.height_key is not None:
             cols = cols + columns[HEIGHT]
