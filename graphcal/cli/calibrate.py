@@ -145,7 +145,8 @@ def calibrate_command(
 
     with errors_to_exit():
         start = time.perf_counter()
-        dataset = load_dataset(dataset_dir, clean=clean)
+        with progress_bar("loading"):
+            dataset = load_dataset(dataset_dir, clean=clean)
         load_s = time.perf_counter() - start
         if dataset.cleaning is not None:
             for line in dataset.cleaning.summary():

@@ -463,6 +463,8 @@ def graph(
     keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
     # ---------------------------------------------------------------- initial values
     t0 = time.perf_counter()
+    if progress is not None:
+        progress("initial values", 0, 1)
     init_biases, init_method, init_notes = initial_biases(
         dataset, have_adsb, "none" if cross == "none" else cross, init
     )
