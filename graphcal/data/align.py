@@ -95,34 +95,40 @@ def neighbour_plots(plots: PlotArrays, skip: int = 1, half_width: int = 4) -> Pl
     plots (the errors-in-variables bias of evaluating it at the plots themselves).
     """
     n = len(plots)
-    targets = plots.target_id.astype(str)
-    order = np.lexsort((plots.time_s, targets))
-    sorted_targets = targets[order]
+    # Aircraft as codes (-1: unknown), so that tracks are sorted and compared as integers.
+    codes, names = pd.factorize(plots.target_id.astype(str))
+    unknown = np.asarray(names == "", dtype=bool)
+    codes = np.where((codes < 0) | unknown[np.maximum(codes, 0)], -1, codes)
+    order = np.lexsort((plots.time_s, codes))
+    codes = codes[order]
     values = {
         "range_m": plots.range_m[order],
         "elevation_rad": plots.elevation_rad[order],
         "altitude_m": plots.altitude_m[order],
     }
+    finite = {name: np.isfinite(v) for name, v in values.items()}
     sums = {name: np.zeros(n) for name in values}
     counts = {name: np.zeros(n) for name in values}
     east = np.zeros(n)
     north = np.zeros(n)
     az = plots.azimuth_rad[order]
+    sin_az, cos_az = np.sin(az), np.cos(az)
     n_neighbours = np.zeros(n)
+    index = np.arange(n)
     for step in range(skip + 1, skip + half_width + 1):
         for shift in (step, -step):
-            src = np.arange(n) + shift
-            ok = (src >= 0) & (src < n)
-            ok[ok] &= sorted_targets[src[ok]] == sorted_targets[ok]
-            ok[ok] &= sorted_targets[ok] != ""
-            dst, src = np.flatnonzero(ok), src[ok]
+            # Plot k takes plot k + shift of the same aircraft; masked sums add 0.0, which
+            # leaves every sum as the gathered additions would (in the same order).
+            src = np.clip(index + shift, 0, max(n - 1, 0))
+            ok = (index + shift >= 0) & (index + shift < n) & (codes >= 0)
+            ok &= codes[src] == codes
             for name, v in values.items():
-                finite = np.isfinite(v[src])
-                sums[name][dst[finite]] += v[src][finite]
-                counts[name][dst[finite]] += 1
-            east[dst] += np.sin(az[src])
-            north[dst] += np.cos(az[src])
-            n_neighbours[dst] += 1
+                use = ok & finite[name][src]
+                sums[name] += np.where(use, v[src], 0.0)
+                counts[name] += use
+            east += np.where(ok, sin_az[src], 0.0)
+            north += np.where(ok, cos_az[src], 0.0)
+            n_neighbours += ok
     out = {}
     for name, v in values.items():
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -158,7 +158,13 @@ def _reference_polar_covariance(al: AdsbAlignment, site: Site | None) -> FloatAr
     else:
         enu = frames.polar_to_enu(*al.reference_polar.T)
         jac = frames.enu_to_polar_jacobian(enu)
-    return jac @ al.reference_enu_cov_m2 @ np.swapaxes(jac, -1, -2)
+    cov = al.reference_enu_cov_m2
+    if cov.ndim == 3 and cov.shape[1:] == (3, 3) and not np.any(
+            cov[:, [0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]]):
+        # Diagonal (as align_adsb makes it): jac @ cov is jac with its columns scaled,
+        # exactly, so one product is spared.
+        return (jac * np.diagonal(cov, axis1=1, axis2=2)[:, None, :]) @ np.swapaxes(jac, -1, -2)
+    return jac @ cov @ np.swapaxes(jac, -1, -2)
 
 
 def residual_stats(site: Site, al: AdsbAlignment, bias: RadarBias) -> ResidualStats:

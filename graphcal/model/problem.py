@@ -92,7 +92,9 @@ def polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
     plausible = frames.row_norm(velocity) <= ADSB_MAX_SPEED_M_S
     velocity_enu = frames.rotate(np.where(plausible[:, None], velocity, 0.0), site.ecef_to_enu)
     jac = al.reference_polar_jacobian
-    if jac is None or site.atmosphere is None:
+    if site.atmosphere is None:
+        jac = frames.enu_to_polar_jacobian(enu)  # measurement_model(site).enu_jacobian's
+    elif jac is None:
         _, jac = measurement_model(site).enu_jacobian(enu)
     return np.einsum("nij,nj->ni", jac, velocity_enu)
 
