@@ -481,7 +481,8 @@ def pair_plots(
     b = plot_arrays(dataset, radar_b)
     # Sort a by (target, time) so that each target's plots are contiguous.
     a_targets = a.target_id.astype(str)
-    order = np.lexsort((a.time_s, a_targets))
+    # By aircraft (codes in sorted order, the order of the text) then time.
+    order = np.lexsort((a.time_s, pd.factorize(a_targets, sort=True)[0]))
     a = a.subset(order)
     a_targets = a_targets[order]
     # a's tracks: block k holds target names[k], rows start[k]:end[k].

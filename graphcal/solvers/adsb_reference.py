@@ -43,6 +43,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
@@ -261,7 +262,8 @@ def _windows(al: AdsbAlignment, max_gap_s: float) -> tuple[NDArray[np.int64], ND
     than :data:`FL_MIN_WINDOW_PLOTS` are dropped.  Returns the rows of ``al``
     window after window (aircraft in sorted order) and each window's first position.
     """
-    targets = al.plots.target_id.astype(str)
+    # Aircraft as codes in sorted order: the order of sorting by the text, much faster.
+    targets = pd.factorize(al.plots.target_id.astype(str), sort=True)[0]
     time_s = al.plots.time_s
     order = np.lexsort((time_s, targets))
     n = len(order)
