@@ -27,8 +27,10 @@ Then two commands are timed end to end, as subprocesses, alternately and
 
 The table gives, per size, the median wall times, their ratio, the child's peak
 memory and graphcal's own stage timings (``info["timing_s"]`` of the result:
-loading, initial values, factors, optimisation, marginals, Cramér-Rao bound, model
-checks); "start-up, output" is the rest of the wall time (interpreter and imports,
+loading, ADS-B association, initial values, factors, optimisation, marginals,
+Cramér-Rao bound, model checks, and "other": the rest of the calibration, e.g. the
+check of the time offsets and the residual statistics); "start-up, output" is the rest
+of the wall time (interpreter and imports,
 the JSON written, exit).  The agreement of the two estimates, in graphcal's sigmas,
 is printed as a sanity check: they fit different models (graphcal adds the time
 offsets, the cross-radar observations and a robust kernel), so a few sigma is usual.
@@ -71,6 +73,7 @@ DATASET_VERSION = 1
 #: ``info["timing_s"]`` entries shown as stages, in order, with their labels.
 STAGES: tuple[tuple[str, str], ...] = (
     ("load_s", "load"),
+    ("association_s", "assoc"),
     ("initialisation_s", "init"),
     ("factors_s", "factors"),
     ("optimisation_s", "optimise"),
@@ -169,8 +172,9 @@ def make_dataset(n_plots: int, traffic: str, scenario: Any, seed: int, fmt: str,
 
 
 # --------------------------------------------------------------------------- timing
-def run_timed(command: list[str], env: dict[str, str], cwd: Path) -> tuple[float, float]:
-    """Run ``command`` in ``cwd``; return its wall time [s] and peak resident memory [MiB].
+def run_timed(command: list[str], env: dict[str, str], cwd: Path) -> tuple[float, float, float]:
+    """Run ``command`` in ``cwd``: its wall time [s], CPU time (user + system) [s] and
+    peak resident memory [MiB].
 
     Raises
     ------
@@ -189,7 +193,7 @@ def run_timed(command: list[str], env: dict[str, str], cwd: Path) -> tuple[float
         raise RuntimeError(f"{' '.join(command)} failed ({child.returncode}):\n"
                            f"{log.read_text()}")
     scale = 1024.0**2 if sys.platform == "darwin" else 1024.0
-    return wall, usage.ru_maxrss / scale
+    return wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / scale
 
 
 def environment_for(root: Path) -> dict[str, str]:
@@ -230,26 +234,29 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
     commands["scipy"] = ([sys.executable, "-m", "benchmarks.scipy_adsb", str(folder), "--out",
                           str(work / "scipy.json")], environment_for(ROOT))
     walls: dict[str, list[float]] = {name: [] for name in commands}
+    cpu: dict[str, list[float]] = {name: [] for name in commands}
     memory: dict[str, list[float]] = {name: [] for name in commands}
     stages: dict[str, list[dict[str, float]]] = {name: [] for name in roots}
     for repeat in range(repeats):
         for name, (command, env) in commands.items():
-            wall, rss = run_timed(command, env, work)  # not the root: it would come first
+            wall, seconds, rss = run_timed(command, env, work)  # not the root: it would come first
             walls[name].append(wall)
+            cpu[name].append(seconds)
             memory[name].append(rss)
             if name in roots:
                 stages[name].append(json.loads((work / f"{name}.json").read_text())
                                     ["info"].get("timing_s", {}))
-            print(f"  [{label}] repeat {repeat + 1}/{repeats} {name}: {wall:.2f} s, "
-                  f"{rss:.0f} MiB", flush=True)
+            print(f"  [{label}] repeat {repeat + 1}/{repeats} {name}: {wall:.2f} s "
+                  f"(CPU {seconds:.2f} s), {rss:.0f} MiB", flush=True)
     plain = json.loads((work / "scipy.json").read_text())
     truth = json.loads((folder / "truth.json").read_text())
     out: dict[str, Any] = {
         "label": label, "dataset": str(folder), "repeats": repeats,
         "n_plots": int(sum(e["n_plots"] for e in truth["radars"].values())),
         "wall_s": {name: {"median": statistics.median(t), "all": t} for name, t in walls.items()},
+        "cpu_s": {name: {"median": statistics.median(t), "all": t} for name, t in cpu.items()},
         "peak_rss_mib": {name: max(m) for name, m in memory.items()},
-        "stages_s": {}, "ratio_to_scipy": {}, "agreement_sigma": {},
+        "stages_s": {}, "ratio_to_scipy": {}, "cpu_ratio_to_scipy": {}, "agreement_sigma": {},
     }
     for name in roots:
         median_wall = statistics.median(walls[name])
@@ -261,6 +268,8 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
             "total_s", 0.0)
         out["stages_s"][name] = timing
         out["ratio_to_scipy"][name] = median_wall / statistics.median(walls["scipy"])
+        out["cpu_ratio_to_scipy"][name] = (statistics.median(cpu[name])
+                                           / statistics.median(cpu["scipy"]))
         graph = json.loads((work / f"{name}.json").read_text())
         out["agreement_sigma"][name] = agreement(graph, plain)
     return out
@@ -268,7 +277,7 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
 
 def print_table(results: list[dict[str, Any]], names: list[str]) -> None:
     """Print the size / graphcal / scipy / ratio / stages table."""
-    header = ["size", "plots", "run", "wall s", "scipy s", "ratio", "MiB",
+    header = ["size", "plots", "run", "wall s", "scipy s", "ratio", "CPU ratio", "MiB",
               *[label for _, label in STAGES], "other", "start-up, output"]
     rows = []
     for r in results:
@@ -277,6 +286,7 @@ def print_table(results: list[dict[str, Any]], names: list[str]) -> None:
             rows.append([
                 r["label"], f"{r['n_plots']:,}", name, f"{r['wall_s'][name]['median']:.2f}",
                 f"{r['wall_s']['scipy']['median']:.2f}", f"{r['ratio_to_scipy'][name]:.2f}",
+                f"{r['cpu_ratio_to_scipy'][name]:.2f}",
                 f"{r['peak_rss_mib'][name]:.0f}",
                 *[f"{timing.get(key, 0.0):.2f}" for key, _ in STAGES],
                 f"{timing['other_s']:.2f}",
@@ -287,7 +297,8 @@ def print_table(results: list[dict[str, Any]], names: list[str]) -> None:
     for row in [header, ["-" * w for w in widths], *rows]:
         print("  ".join(str(c).rjust(w) for c, w in zip(row, widths, strict=True)))
     print("\n(wall: median end to end of `graphcal calibrate DIR --out x.json`; ratio: over the "
-          "scipy script's; stages: graphcal's info['timing_s'], medians)")
+          "scipy script's; CPU ratio: the same for user + system CPU time, less sensitive to "
+          "other load; stages: graphcal's info['timing_s'], medians)")
     for r in results:
         if len(names) > 1:
             base = r["wall_s"][names[-1]]["median"]

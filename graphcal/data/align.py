@@ -175,6 +175,9 @@ class AdsbAlignment:
         ``d reference_polar / d enu`` (radar ENU) along the refracted rays, for a
         radar with refraction (traced once here, used by the noise conversion and
         the time-offset rates); ``None`` for straight lines.
+    target_code : ndarray, shape (n,), of int, or None
+        Each plot's aircraft as its position among the ADS-B aircraft sorted by
+        identity (:attr:`AdsbTrackTable.targets`): the identities' order, as integers.
     """
 
     radar_id: str
@@ -186,6 +189,7 @@ class AdsbAlignment:
     reference_velocity_ecef_m_s: FloatArray | None = None
     time_offset_s: float = 0.0
     reference_polar_jacobian: FloatArray | None = None
+    target_code: NDArray[np.int64] | None = None
 
     def __len__(self) -> int:
         return len(self.plots)
@@ -417,7 +421,7 @@ def _align_adsb(
     else:
         polar = np.stack(site.polar_from_ecef(ref), axis=-1)
     return AdsbAlignment(radar_id, plots, ref, polar, cov, int(n - matched.sum()), vel,
-                         float(time_offset_s), jacobian)
+                         float(time_offset_s), jacobian, code[matched])
 
 
 @dataclass

@@ -262,8 +262,11 @@ def _windows(al: AdsbAlignment, max_gap_s: float) -> tuple[NDArray[np.int64], ND
     than :data:`FL_MIN_WINDOW_PLOTS` are dropped.  Returns the rows of ``al``
     window after window (aircraft in sorted order) and each window's first position.
     """
-    # Aircraft as codes in sorted order: the order of sorting by the text, much faster.
-    targets = pd.factorize(al.plots.target_id.astype(str), sort=True)[0]
+    # Aircraft as codes in the order of their identities: sorting by them is sorting by
+    # the text, much faster.
+    targets = al.target_code
+    if targets is None:
+        targets = pd.factorize(al.plots.target_id.astype(str), sort=True)[0]
     time_s = al.plots.time_s
     order = np.lexsort((time_s, targets))
     n = len(order)

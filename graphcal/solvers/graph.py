@@ -224,6 +224,8 @@ class _Solved:
     variable: set[str]
     realignments: int
     height: FloatArray | None = None
+    #: The joint covariance of some variables at the solution, once computed: (keys, matrix).
+    joint: tuple[list[int], FloatArray] | None = None
 
 
 def _solve(
@@ -335,6 +337,7 @@ def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
     """
     keys = [solved.problem.keys[rid] for rid in solved.radars]
     marginal = solved.fg.joint_covariance(solved.result.values, keys)
+    solved.joint = (keys, marginal)  # the marginals of the result, when nothing is re-solved
     labels = [(rid, name) for rid in solved.radars for name in solved.terms[rid].free]
     information = np.linalg.inv(marginal)
     sigma = np.sqrt(np.diag(marginal))
@@ -459,6 +462,16 @@ def graph(
             "or no cross-radar factors, not in target-state mode"
         )
     want_time = have_adsb and cross != "target-state" if auto_time else bool(time_offset)
+    # ---------------------------------------------------------------- ADS-B association
+    if have_adsb and cross != "target-state":
+        # Every radar's plots aligned with ADS-B at zero time offset, kept for the
+        # initial values and the first factors (graph runs inside data.memo.sharing).
+        t0 = time.perf_counter()
+        for i, rid in enumerate(radar_ids):
+            align_adsb(dataset, rid, max_gap_s)
+            if progress is not None:
+                progress("ADS-B association", i + 1, len(radar_ids))
+        timing["association_s"] = time.perf_counter() - t0
     tau_radars = radars_with_adsb(dataset) if want_time else set()
     keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
     # ---------------------------------------------------------------- initial values
@@ -497,7 +510,10 @@ def graph(
     joint_keys = [keys[rid] for rid in radars]
     if solved.height is not None:  # the height model joins the joint covariance last
         joint_keys.append(settings.height_key)
-    marginal = fg.joint_covariance(result.values, joint_keys)
+    if solved.joint is not None and solved.joint[0] == joint_keys:
+        marginal = solved.joint[1]  # computed by the time-offset check, same graph and values
+    else:
+        marginal = fg.joint_covariance(result.values, joint_keys)
     labels = [(rid, name) for rid in radars for name in terms[rid].free]
     p = len(labels)
     columns: dict[str, list[int]] = {rid: [] for rid in radar_ids}
@@ -690,13 +706,14 @@ def add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: s
 
 
 def _plots_used(problem: Problem, radars: list[str]) -> dict[str, int]:
-    used: dict[str, set[int]] = {rid: set() for rid in problem.terms}
+    used: dict[str, list[NDArray[np.int64]]] = {rid: [] for rid in problem.terms}
     for rid, f in problem.adsb.items():
-        used[rid].update(f.plot_rows.tolist())
+        used[rid].append(f.plot_rows)
     for f in problem.pairs:
-        used[f.terms_a.radar_id].update(f.a_plots.index.tolist())
-        used[f.terms_b.radar_id].update(f.b_plots.index.tolist())
-    counts = {rid: len(used[rid]) for rid in radars}
+        used[f.terms_a.radar_id].append(f.a_plots.index)
+        used[f.terms_b.radar_id].append(f.b_plots.index)
+    counts = {rid: len(np.unique(np.concatenate(used[rid]))) if used[rid] else 0
+              for rid in radars}
     if problem.target_state is not None:
         counts.update({
             rid: n for rid, n in problem.target_state.plots_per_radar().items() if rid in counts
