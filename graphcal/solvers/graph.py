@@ -538,7 +538,7 @@ def graph(
         covariance = covariance[:p, :p]
         information = np.linalg.inv(marginal[:p, :p])
         information = 0.5 * (information + information.T)
-    timing["marginals_s"] = time.perf_counter() - t0
+    timing["marginals_s"] = timing.get("marginals_s", 0.0) + time.perf_counter() - t0
     data_information = information - prior_information
     obs = observability(data_information)
     # ---------------------------------------------------------------- result
