@@ -202,6 +202,29 @@ def polar_to_enu(range_m: ArrayLike, azimuth_rad: ArrayLike, elevation_rad: Arra
     )
 
 
+def polar_to_enu_and_jacobian(
+    range_m: ArrayLike, azimuth_rad: ArrayLike, elevation_rad: ArrayLike
+) -> tuple[Array, Array]:
+    """:func:`polar_to_enu` and :func:`polar_to_enu_jacobian` at once, from one set of sines
+    and cosines (the same values as the two functions give)."""
+    r = np.asarray(range_m, dtype=float)
+    if np.any(r < 0):
+        raise ValueError("range must be non-negative")
+    r, az, el = np.broadcast_arrays(r, np.asarray(azimuth_rad, dtype=float),
+                                    np.asarray(elevation_rad, dtype=float))
+    sa, ca = np.sin(az), np.cos(az)
+    se, ce = np.sin(el), np.cos(el)
+    ground = r * ce
+    enu = np.stack([ground * sa, ground * ca, r * se], axis=-1)
+    zero = np.zeros_like(r)
+    rows = [
+        [ce * sa, ground * ca, -r * se * sa],
+        [ce * ca, -r * ce * sa, -r * se * ca],
+        [se, zero, ground],
+    ]
+    return enu, np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+
+
 def polar_to_enu_jacobian(
     range_m: ArrayLike, azimuth_rad: ArrayLike, elevation_rad: ArrayLike
 ) -> Array:

@@ -53,7 +53,7 @@ from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_ads
 from graphcal.data.bias import PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
-from graphcal.data.memo import shared
+from graphcal.data.memo import remember, shared
 from graphcal.model.information import (
     describe_weak_directions,
     observability,
@@ -88,6 +88,14 @@ def _plane_polar(site: Site, polar: FloatArray) -> FloatArray:
     return out
 
 
+def _plane_reference(site: Site, al: AdsbAlignment) -> tuple[FloatArray, FloatArray]:
+    """ENU of the ADS-B references in the plane projection and ``d enu / d polar`` there
+    (kept within a calibration: FL and LS both use them)."""
+    polar = _plane_polar(site, al.reference_polar)
+    return remember(("plane_reference", site.is_3d), (al,),
+                    lambda: frames.polar_to_enu_and_jacobian(*polar.T))
+
+
 def _alignments(dataset: Dataset, max_gap_s: float) -> dict[str, AdsbAlignment]:
     if dataset.adsb is None:
         raise EstimationError(
@@ -109,10 +117,11 @@ def ls_radar(
     """
     measured = _plane_polar(site, measured_polar(al))
     measured[:, 1] = measured[:, 1] - azimuth_compensation_rad
-    reference = _plane_polar(site, al.reference_polar)
+    reference_enu, reference_jac = _plane_reference(site, al)
     rows = 3 if site.is_3d else 2
-    z = (frames.polar_to_enu(*measured.T) - frames.polar_to_enu(*reference.T))[:, :rows]
-    jac_r = np.ascontiguousarray(frames.polar_to_enu_jacobian(*measured.T)[:, :rows, :])
+    measured_enu, measured_jac = frames.polar_to_enu_and_jacobian(*measured.T)
+    z = (measured_enu - reference_enu)[:, :rows]
+    jac_r = np.ascontiguousarray(measured_jac[:, :rows, :])
     # h = jac_r @ RadarMeasurementModel.bias_jacobian(r)[:, :, positions]: the bias
     # Jacobian's columns are unit vectors, the gain's scaled by the range, so h is
     # made of jac_r's columns, exactly as that product gives them.
@@ -121,7 +130,7 @@ def ls_radar(
     h = np.stack([columns[name] for name in names], axis=-1)
     # Noise of z: radar noise plus the ADS-B noise, both mapped to the plane; the radar's
     # is diagonal, so jac_r @ covar is jac_r with its columns scaled.
-    jac_a = np.ascontiguousarray(frames.polar_to_enu_jacobian(*reference.T)[:, :rows, :])
+    jac_a = np.ascontiguousarray(reference_jac[:, :rows, :])
     ref_cov = reference_polar_covariance(al, site)
     if not site.is_3d:
         ref_cov = ref_cov.copy()  # shared: not to be changed in place
@@ -294,7 +303,7 @@ def _windows(al: AdsbAlignment, max_gap_s: float) -> tuple[NDArray[np.int64], ND
 def fl_azimuth(site: Site, al: AdsbAlignment, max_gap_s: float = 60.0) -> tuple[float, float, dict]:
     """FL azimuth bias (paper 003 eq. 8-9, sign kept) with its variance [rad, rad^2]."""
     radar_xy = frames.polar_to_enu(*_plane_polar(site, measured_polar(al)).T)[:, :2]
-    adsb_xy = frames.polar_to_enu(*_plane_polar(site, al.reference_polar).T)[:, :2]
+    adsb_xy = _plane_reference(site, al)[0][:, :2]
     rows, starts = _windows(al, max_gap_s)
     alpha_a, var_a, rms_a = _fit_lines(adsb_xy[rows], starts)
     alpha_r, var_r, _ = _fit_lines(radar_xy[rows], starts)
