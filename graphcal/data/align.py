@@ -390,7 +390,8 @@ def _align_adsb(
     plots = plot_arrays(dataset, radar_id)
     tracks = adsb_track_table(dataset.adsb)
     n = len(plots)
-    code = tracks.codes(plots.target_id)
+    code = remember(("adsb_codes", radar_id), (dataset.plots, dataset.adsb),
+                    lambda: tracks.codes(plots.target_id))
     j, w, matched = tracks.bracket(code, plots.time_s - time_offset_s, max_gap_s)
     j, w = j[matched], w[matched]
     lo, hi = tracks.start[code[matched]], tracks.start[code[matched] + 1]
