@@ -185,33 +185,33 @@ class AdsbFactor:
         e = np.einsum("nij,nj->ni", w, res)
         if not jacobians:
             return e, None
-        columns = []
-        for name in self.terms.free:
+        jac = np.empty((len(r_true), m, len(self.terms.free)))
+        for k, name in enumerate(self.terms.free):
             if name == "range_offset":
-                columns.append(-w[:, :, 0])
+                np.negative(w[:, :, 0], out=jac[:, :, k])
             elif name == "range_gain":
-                columns.append(w[:, :, 0] * -r_true[:, None])
+                np.multiply(w[:, :, 0], -r_true[:, None], out=jac[:, :, k])
             elif name == "azimuth_bias":
-                columns.append(-w[:, :, 1])
+                np.negative(w[:, :, 1], out=jac[:, :, k])
             elif name == "elevation_bias":
-                columns.append(-w[:, :, 2])
+                np.negative(w[:, :, 2], out=jac[:, :, k])
             elif name == "azimuth_sin":
-                columns.append(w[:, :, 1] * -np.sin(az_true)[:, None])
+                np.multiply(w[:, :, 1], -np.sin(az_true)[:, None], out=jac[:, :, k])
             elif name == "azimuth_cos":
-                columns.append(w[:, :, 1] * -np.cos(az_true)[:, None])
+                np.multiply(w[:, :, 1], -np.cos(az_true)[:, None], out=jac[:, :, k])
             elif name == "time_offset" and self.rate is not None:
                 rate = self.rate[:, :m].copy()
                 rate[:, 0] *= 1.0 + gain
-                columns.append(np.einsum("nij,nj->ni", w, rate))
+                jac[:, :, k] = np.einsum("nij,nj->ni", w, rate)
             else:  # the time offset without a rate: the residual does not depend on it
-                columns.append(np.zeros((len(r_true), m)))
-        return e, [np.stack(columns, axis=-1)]
+                jac[:, :, k] = 0.0
+        return e, [jac]
 
     def error(
         self, values: list[FloatArray], want_jacobians: bool
     ) -> tuple[FloatArray, list[FloatArray] | None]:
         e, jac = self.whitened(values, want_jacobians)
-        return _flatten(*self.kernel.apply(e, jac))
+        return _flatten(*self.kernel.apply(e, jac, in_place=True))  # arrays of this call
 
 
 def adsb_factor(

@@ -106,12 +106,15 @@ class RobustKernel:
         return 0.5 * s**2
 
     def apply(
-        self, residual: FloatArray, jacobians: list[FloatArray] | None
+        self, residual: FloatArray, jacobians: list[FloatArray] | None, *,
+        in_place: bool = False,
     ) -> tuple[FloatArray, list[FloatArray] | None]:
         """Robustify whitened residuals ``(n, m)`` and their Jacobians ``(n, m, p)``.
 
         Without Jacobians (cost evaluation) returns ``r sqrt(2 rho(s)) / s``;
         with them (linearisation) returns ``sqrt(w) r`` and ``sqrt(w) J``.
+        ``in_place``: scale the given arrays themselves (the caller's own, fresh ones),
+        sparing the memory of a copy.
         """
         if self.name == "none":
             return residual, jacobians
@@ -122,6 +125,11 @@ class RobustKernel:
             scale = np.where(s > 0, scale, 1.0)
             return residual * scale[:, None], None
         root_w = np.sqrt(self.weight(s, m))
+        if in_place:
+            residual *= root_w[:, None]
+            for j in jacobians:
+                j *= root_w[:, None, None]
+            return residual, jacobians
         return residual * root_w[:, None], [j * root_w[:, None, None] for j in jacobians]
 
     def downweighted(self, residual: FloatArray) -> NDArray[np.bool_]:

@@ -53,7 +53,7 @@ from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_ads
 from graphcal.data.bias import PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
-from graphcal.data.memo import remember, shared
+from graphcal.data.memo import shared
 from graphcal.model.information import (
     describe_weak_directions,
     observability,
@@ -89,11 +89,8 @@ def _plane_polar(site: Site, polar: FloatArray) -> FloatArray:
 
 
 def _plane_reference(site: Site, al: AdsbAlignment) -> tuple[FloatArray, FloatArray]:
-    """ENU of the ADS-B references in the plane projection and ``d enu / d polar`` there
-    (kept within a calibration: FL and LS both use them)."""
-    polar = _plane_polar(site, al.reference_polar)
-    return remember(("plane_reference", site.is_3d), (al,),
-                    lambda: frames.polar_to_enu_and_jacobian(*polar.T))
+    """ENU of the ADS-B references in the plane projection and ``d enu / d polar`` there."""
+    return frames.polar_to_enu_and_jacobian(*_plane_polar(site, al.reference_polar).T)
 
 
 def _alignments(dataset: Dataset, max_gap_s: float) -> dict[str, AdsbAlignment]:
@@ -107,17 +104,20 @@ def _alignments(dataset: Dataset, max_gap_s: float) -> dict[str, AdsbAlignment]:
 
 # --------------------------------------------------------------------------- LS
 def ls_radar(
-    site: Site, al: AdsbAlignment, names: list[str], azimuth_compensation_rad: float = 0.0
+    site: Site, al: AdsbAlignment, names: list[str], azimuth_compensation_rad: float = 0.0,
+    *, reference_plane: tuple[FloatArray, FloatArray] | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Paper 003 LS for one radar.
 
     Returns ``(estimate, covariance, information)`` over ``names`` (SI units).
     ``azimuth_compensation_rad`` is subtracted from the measured azimuths first
     (FL-LS, eq. 10 corrected); the returned azimuth estimate excludes it.
+    ``reference_plane``: the ADS-B references' plane ENU and its Jacobian, when
+    already computed (FL-LS computes them once for FL and LS).
     """
     measured = _plane_polar(site, measured_polar(al))
     measured[:, 1] = measured[:, 1] - azimuth_compensation_rad
-    reference_enu, reference_jac = _plane_reference(site, al)
+    reference_enu, reference_jac = reference_plane or _plane_reference(site, al)
     rows = 3 if site.is_3d else 2
     measured_enu, measured_jac = frames.polar_to_enu_and_jacobian(*measured.T)
     z = (measured_enu - reference_enu)[:, :rows]
@@ -198,7 +198,8 @@ def _run_ls(
     method: str,
     dataset: Dataset,
     max_gap_s: float,
-    azimuth_precompensation: Callable[[Site, AdsbAlignment], tuple[float, dict]] | None,
+    azimuth_precompensation: Callable[[Site, AdsbAlignment, FloatArray], tuple[float, dict]]
+    | None,
 ) -> Calibration:
     alignments = _alignments(dataset, max_gap_s)
     layout = ParameterLayout.for_sites(list(dataset.sites.values()))
@@ -210,12 +211,13 @@ def _run_ls(
             warnings.append(_skip_warning(rid, al, max(len(names), 3)))
             continue
         compensation, detail = 0.0, {}
+        plane = _plane_reference(site, al)  # for FL and LS
         if azimuth_precompensation is not None:
             try:
-                compensation, detail = azimuth_precompensation(site, al)
+                compensation, detail = azimuth_precompensation(site, al, plane[0])
             except EstimationError as exc:
                 warnings.append(f"radar {rid}: {exc}; LS without FL compensation")
-        est, cov, inf = ls_radar(site, al, names, compensation)
+        est, cov, inf = ls_radar(site, al, names, compensation, reference_plane=plane)
         if "azimuth_bias" in names:
             est[names.index("azimuth_bias")] += compensation
         per_radar[rid] = (names, est, cov, inf)
@@ -300,10 +302,18 @@ def _windows(al: AdsbAlignment, max_gap_s: float) -> tuple[NDArray[np.int64], ND
     return rows, starts.astype(np.int64)
 
 
-def fl_azimuth(site: Site, al: AdsbAlignment, max_gap_s: float = 60.0) -> tuple[float, float, dict]:
-    """FL azimuth bias (paper 003 eq. 8-9, sign kept) with its variance [rad, rad^2]."""
+def fl_azimuth(
+    site: Site, al: AdsbAlignment, max_gap_s: float = 60.0, *,
+    reference_enu: FloatArray | None = None,
+) -> tuple[float, float, dict]:
+    """FL azimuth bias (paper 003 eq. 8-9, sign kept) with its variance [rad, rad^2].
+
+    ``reference_enu``: the ADS-B references' plane ENU, when already computed.
+    """
     radar_xy = frames.polar_to_enu(*_plane_polar(site, measured_polar(al)).T)[:, :2]
-    adsb_xy = _plane_reference(site, al)[0][:, :2]
+    if reference_enu is None:
+        reference_enu = _plane_reference(site, al)[0]
+    adsb_xy = reference_enu[:, :2]
     rows, starts = _windows(al, max_gap_s)
     alpha_a, var_a, rms_a = _fit_lines(adsb_xy[rows], starts)
     alpha_r, var_r, _ = _fit_lines(radar_xy[rows], starts)
@@ -367,8 +377,8 @@ def fl(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibr
 def fl_ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
     """Paper 003 FL-LS: FL azimuth compensation (eq. 10, sign corrected), then LS."""
 
-    def precompensate(site: Site, al: AdsbAlignment) -> tuple[float, dict]:
-        az, _, detail = fl_azimuth(site, al)
+    def precompensate(site: Site, al: AdsbAlignment, enu: FloatArray) -> tuple[float, dict]:
+        az, _, detail = fl_azimuth(site, al, reference_enu=enu)
         return az, detail
 
     return _run_ls("fl-ls", dataset, max_gap_s, precompensate)
