@@ -25,20 +25,21 @@ Then two commands are timed end to end, as subprocesses, alternately and
   alone (range offset, gain, azimuth and elevation biases per radar, ADS-B
   interpolated to the plot times).
 
-The table gives, per size, the median wall times, their ratio, the child's peak
-memory and graphcal's own stage timings (``info["timing_s"]`` of the result:
-loading, ADS-B association, initial values, factors, optimisation, marginals,
-Cramér-Rao bound, model checks, and "other": the rest of the calibration, e.g. the
-check of the time offsets and the residual statistics); "start-up, output" is the rest
-of the wall time (interpreter and imports,
-the JSON written, exit).  The agreement of the two estimates, in graphcal's sigmas,
-is printed as a sanity check: they fit different models (graphcal adds the time
+The table gives, per size, the median wall times, their ratio (and that of the CPU
+times, less sensitive to other load on the machine), the child's peak memory and
+graphcal's own stage timings (``info["timing_s"]`` of the result): loading, ADS-B
+association, initial values, factors, optimisation, marginals (with the time-offset
+check's), Cramér-Rao bound, model checks, and "other", the rest of the calibration
+(residual statistics, down-weighting counts, observability); "start-up, output" is
+the rest of the wall time (interpreter and imports, the command line, the JSON
+written, exit).  The agreement of the two estimates, in graphcal's sigmas, is
+printed as a sanity check: they fit different models (graphcal adds the time
 offsets, the cross-radar observations and a robust kernel), so a few sigma is usual.
 
-With ``--compare-root DIR`` the graphcal command is also run from the package
-tree in ``DIR`` (e.g. an older checkout), in the same alternation, so that a
-before/after ratio is measured under the same load.  The figures go to
-``benchmarks/results/bench_speed.json``.
+With ``--compare-root DIR`` the graphcal command is also run from the package tree
+in ``DIR`` (e.g. an older checkout, with its ``models/``), labelled ``compared``, in
+the same alternation, so that a before/after ratio is measured under the same load.
+The figures go to ``benchmarks/results/bench_speed.json``.
 """
 
 from __future__ import annotations
@@ -329,13 +330,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="where the simulated datasets are kept between runs")
     parser.add_argument("--compare-root", type=Path, default=None,
                         help="also time `graphcal calibrate` from the package tree in this "
-                             "folder (labelled 'other'), alternating with this one")
+                             "folder (labelled 'compared'), alternating with this one")
     args = parser.parse_args(argv)
 
     traffic, scenario = choose_traffic(args.traffic, args.opensky)
     roots = {"graphcal": ROOT}
     if args.compare_root is not None:
-        roots["other"] = args.compare_root.resolve()
+        roots["compared"] = args.compare_root.resolve()
     load = os.getloadavg()[0]
     print(f"traffic: {traffic}; load average {load:.2f} on {os.cpu_count()} CPUs "
           "(wall times: other load inflates them)")

@@ -155,14 +155,14 @@ def ecef_to_enu(ecef_m: ArrayLike, lat_rad: float, lon_rad: float, alt_m: float)
     origin = geodetic_to_ecef(lat_rad, lon_rad, alt_m)
     rotation = ecef_to_enu_rotation(lat_rad, lon_rad)
     delta = np.asarray(ecef_m, dtype=float) - origin
-    return rotate(delta, rotation)
+    return delta @ rotation.T
 
 
 def enu_to_ecef(enu_m: ArrayLike, lat_rad: float, lon_rad: float, alt_m: float) -> Array:
     """ENU points [m] of the site at ``(lat, lon, alt)`` to ECEF [m]."""
     origin = geodetic_to_ecef(lat_rad, lon_rad, alt_m)
     rotation = ecef_to_enu_rotation(lat_rad, lon_rad)
-    return rotate(enu_m, rotation.T) + origin
+    return np.asarray(enu_m, dtype=float) @ rotation + origin
 
 
 def enu_to_polar(enu_m: ArrayLike) -> tuple[Array, Array, Array]:
