@@ -252,7 +252,7 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
     plain = json.loads((work / "scipy.json").read_text())
     truth = json.loads((folder / "truth.json").read_text())
     out: dict[str, Any] = {
-        "label": label, "dataset": str(folder), "repeats": repeats,
+        "label": label, "dataset": folder.name, "repeats": repeats,
         "n_plots": int(sum(e["n_plots"] for e in truth["radars"].values())),
         "wall_s": {name: {"median": statistics.median(t), "all": t} for name, t in walls.items()},
         "cpu_s": {name: {"median": statistics.median(t), "all": t} for name, t in cpu.items()},
@@ -354,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
         "benchmark": "bench_speed",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "traffic": traffic, "format": args.fmt, "seed": args.seed,
-        "roots": {name: str(root) for name, root in roots.items()},
+        "roots": {name: root.name for name, root in roots.items()},
         "environment": {"load_average_1min": load, "cpu_count": os.cpu_count(),
                         "python": platform.python_version(), "machine": platform.machine()},
         "results": results,
