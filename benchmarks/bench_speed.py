@@ -354,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
         "benchmark": "bench_speed",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "traffic": traffic, "format": args.fmt, "seed": args.seed,
-        "roots": {name: root.name for name, root in roots.items()},
+        "runs": list(roots),
         "environment": {"load_average_1min": load, "cpu_count": os.cpu_count(),
                         "python": platform.python_version(), "machine": platform.machine()},
         "results": results,
