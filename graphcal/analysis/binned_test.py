@@ -54,7 +54,9 @@ the p-values follow the uniform law on data without structure.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import pandas as pd
@@ -178,10 +180,20 @@ class TermsFit:
     normal_inverse: FloatArray
     rows: NDArray[np.bool_]
 
-    @property
+    @cached_property
     def fitted(self) -> FloatArray:
-        """What the terms explain, per plot."""
+        """What the terms explain, per plot (kept: the same for every test of the residuals)."""
         return self.regressors @ self.coefficients
+
+    @cached_property
+    def fitted_rows(self) -> IntArray:
+        """Positions of :attr:`rows` (kept)."""
+        return np.flatnonzero(self.rows)
+
+    @cached_property
+    def fitted_regressors(self) -> FloatArray:
+        """The regressors of :attr:`fitted_rows` (kept)."""
+        return self.regressors[self.fitted_rows]
 
 
 def weights(variance: FloatArray) -> FloatArray:
@@ -217,13 +229,16 @@ def fit_terms(residual: FloatArray, variance: FloatArray, regressors: FloatArray
 def log_chi2_sf(x: float, dof: float) -> float:
     """``log P(chi2_dof > x)``, finite far into the tail.
 
-    scipy's ``logsf``, and where that underflows (``x`` of a few hundred and
-    more) :func:`log_chi2_sf_series`.
+    ``scipy.special.chdtrc`` (scipy.special, not scipy.stats: a tenth of the import
+    time), and where that underflows (``x`` of a few hundred and more)
+    :func:`log_chi2_sf_series`.
     """
-    from scipy import stats
+    from scipy import special
 
-    value = float(stats.chi2.logsf(x, dof))
-    return value if np.isfinite(value) else log_chi2_sf_series(x, dof)
+    value = float(special.chdtrc(dof, x))
+    if value > 0.5:  # near 1: from the lower tail, for full relative accuracy
+        return math.log1p(-float(special.chdtr(dof, x)))
+    return math.log(value) if value > 0.0 else log_chi2_sf_series(x, dof)
 
 
 def log_chi2_sf_series(x: float, dof: float, terms: int = 8) -> float:
@@ -233,14 +248,12 @@ def log_chi2_sf_series(x: float, dof: float, terms: int = 8) -> float:
     ``y = x / 2``: ``Q(a, y) = y^(a-1) e^-y / Gamma(a) * (1 + (a-1)/y +
     (a-1)(a-2)/y^2 + ...)``.
     """
-    from scipy import special
-
     a, y = 0.5 * dof, 0.5 * x
     series, term = 1.0, 1.0
     for k in range(1, terms):
         term *= (a - k) / y
         series += term
-    return float((a - 1.0) * np.log(y) - y - special.gammaln(a) + np.log(max(series, 1e-300)))
+    return float((a - 1.0) * np.log(y) - y - math.lgamma(a) + np.log(max(series, 1e-300)))
 
 
 def binned_test(
@@ -294,7 +307,7 @@ def binned_test(
     bins[ok] = quantile_bins(x[ok], k)
     # Keep bins with enough plots and segments; renumber them 0 .. K-1.
     n = np.bincount(bins[ok], minlength=k)
-    pieces = pd.factorize(segment[ok] * k + bins[ok])[0]
+    pieces = _piece_codes(segment[ok], bins[ok], k)
     n_seg = np.bincount(_piece_bins(pieces, bins[ok]), minlength=k)
     keep = (n >= MIN_BIN_PLOTS) & (n_seg >= MIN_BIN_SEGMENTS)
     if keep.sum() < MIN_DOF + 1:
@@ -314,7 +327,7 @@ def binned_test(
     phi = np.bincount(b_in, w[inside] * d * d, minlength=k) / np.maximum(n - 1, 1)
     phi = np.where(phi > 0, phi, 1.0)
     # The pooled within-segment correlation, from the pieces of segments in bins.
-    pieces = pd.factorize(segment[inside] * k + b_in)[0]
+    pieces = _piece_codes(segment[inside], b_in, k)
     y = d * np.sqrt(w[inside] / phi[b_in])
     rho = _segment_correlation(np.bincount(pieces, y), np.bincount(pieces).astype(float),
                                _piece_bins(pieces, b_in), k)
@@ -324,22 +337,32 @@ def binned_test(
                     + rho * np.bincount(_piece_bins(pieces, b_in),
                                         np.bincount(pieces, own) ** 2, minlength=k))
     # Covariance of the excesses: each fitted residual's share of them is
-    # l_k = M_k - xb A x_k w_k (M_k its share of the bin means, xb the terms' bin means).
-    rows = np.flatnonzero(fit)
-    share = np.zeros((len(rows), k))
-    in_rows = bins[rows] >= 0
-    share[np.flatnonzero(in_rows), bins[rows][in_rows]] = (w[rows][in_rows]
-                                                          / big_w[bins[rows][in_rows]])
-    x_fit = terms.regressors[rows]
-    if x_fit.shape[1]:
-        xb = share.T @ x_fit  # (K, p)
-        # As (K x p)(p x n), transposed: much faster than (n x p)(p x K) with BLAS.
-        share -= ((xb @ terms.normal_inverse) @ (x_fit * w[rows, None]).T).T
+    # l_k = s_k (M_k - B w_k x_k), with M_k = (w_k / W_b) e_b its share of its bin's mean,
+    # B = xb A (xb the terms' bin means) and s_k its noise.  The sums of l l^T, plain and
+    # per segment, are formed from sums per bin and per segment, without the n x K shares.
+    rows = terms.fitted_rows
+    b_rows = bins[rows]
+    in_rows = b_rows >= 0
+    b_safe = np.maximum(b_rows, 0)
+    m = np.where(in_rows, w[rows] / big_w[b_safe], 0.0)
     phi_mean = float(np.sum(phi * big_w) / np.sum(big_w))
-    share *= np.sqrt(np.where(in_rows, phi[np.maximum(bins[rows], 0)], phi_mean)
-                     / w[rows])[:, None]
-    grouped = _sum_by(pd.factorize(segment[rows])[0], share)
-    cov = (1.0 - rho) * (share.T @ share) + rho * (grouped.T @ grouped)
+    s = np.sqrt(np.where(in_rows, phi[b_safe], phi_mean) / w[rows])
+    sm = s * m
+    seg, n_seg = _dense_codes(segment[rows])
+    cov_own = np.diag(np.bincount(b_safe, sm**2, minlength=k))
+    per_segment = np.bincount(seg * k + b_safe, sm, minlength=n_seg * k).reshape(n_seg, k)
+    cov_seg = per_segment.T @ per_segment
+    x_fit = terms.fitted_regressors
+    if x_fit.shape[1]:
+        xb = _sum_by(b_safe, m[:, None] * x_fit, k)  # (K, p)
+        b_mat = xb @ terms.normal_inverse
+        sv = (s * w[rows])[:, None] * x_fit  # s_k w_k x_k
+        cross = _sum_by(b_safe, sm[:, None] * sv, k)  # sum over a bin of s m (s w x)^T
+        cov_own += b_mat @ (sv.T @ sv) @ b_mat.T - cross @ b_mat.T - b_mat @ cross.T
+        y = _sum_by(seg, sv, n_seg)  # (segments, p)
+        py = per_segment.T @ y
+        cov_seg += b_mat @ (y.T @ y) @ b_mat.T - py @ b_mat.T - b_mat @ py.T
+    cov = (1.0 - rho) * cov_own + rho * cov_seg
     normalised = cov / np.outer(sigma, sigma)
     lam = np.clip(np.linalg.eigvalsh(0.5 * (normalised + normalised.T)), 0.0, None)
     dof = float(np.sum(lam))
@@ -385,10 +408,28 @@ def _segment_correlation(big_y: FloatArray, n_u: FloatArray, piece_bin: IntArray
     return float(np.clip((float(np.sum(big_y**2)) - a0) / a1, 0.0, MAX_RHO))
 
 
-def _sum_by(codes: IntArray, values: FloatArray) -> FloatArray:
-    """Row sums of ``values`` grouped by ``codes`` (0 .. max), one row per code."""
-    size = int(codes.max()) + 1
+def _sum_by(codes: IntArray, values: FloatArray, size: int | None = None) -> FloatArray:
+    """Row sums of ``values`` grouped by ``codes`` (0 .. size - 1), one row per code."""
+    size = int(codes.max()) + 1 if size is None else size
     return np.stack([np.bincount(codes, column, minlength=size) for column in values.T], axis=1)
+
+
+def _dense_codes(segment: IntArray) -> tuple[IntArray, int]:
+    """Segment numbers as codes ``0 .. n - 1`` and ``n``: as given when they already are
+    small non-negative numbers (:func:`segment_codes`), else factorised."""
+    if len(segment) and segment.min() >= 0 and segment.max() < 4 * len(segment) + 16:
+        return segment, int(segment.max()) + 1
+    codes, uniques = pd.factorize(segment)
+    return codes.astype(np.int64), len(uniques)
+
+
+def _piece_codes(segment: IntArray, bins: IntArray, k: int) -> IntArray:
+    """A code per (segment, bin) piece present, ``0 .. pieces - 1`` (in key order)."""
+    seg, n_seg = _dense_codes(segment)
+    key = seg * k + bins
+    present = np.zeros(n_seg * k, dtype=bool)
+    present[key] = True
+    return (np.cumsum(present) - 1)[key]
 
 
 def _piece_bins(pieces: IntArray, bins: IntArray) -> IntArray:
@@ -399,5 +440,6 @@ def _piece_bins(pieces: IntArray, bins: IntArray) -> IntArray:
 
 
 __all__ = ["MIN_BIN_PLOTS", "MIN_BIN_SEGMENTS", "N_BINS", "BinnedMeans", "TermsFit",
-           "binned_test", "fit_terms", "log_chi2_sf", "log_chi2_sf_series", "quantile_bins",
+           "binned_test", "fit_terms", "log_chi2_sf", "log_chi2_sf_series",
+           "quantile_bins",
            "segment_codes", "weights"]

@@ -69,12 +69,14 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.batched import cholesky_inverse, sum_of_products
 from graphcal.core.refraction import apparent_elevation_from_height, target_from_refracted
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb, plot_arrays
 from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.height import HEIGHT_MODEL_KEYS, HeightModel, height_jacobian
+from graphcal.data.memo import shared
 from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, MAX_2D_ELEVATION_RAD
 from graphcal.model.height import HEIGHT_PRIOR_SIGMA, adsb_height_segments
 from graphcal.model.information import pseudo_inverse
@@ -219,16 +221,16 @@ def _adsb_information(
     p: int,
     truth: pd.DataFrame | None,
     max_gap_s: float,
-) -> tuple[FloatArray, set[int], dict[str, int]]:
+) -> tuple[FloatArray, NDArray[np.int64], dict[str, int]]:
     """Fisher information of the ADS-B-matched plots; the matched plot rows; counts."""
     fisher = np.zeros((p, p))
-    matched: set[int] = set()
+    matched: list[NDArray[np.int64]] = []
     counts: dict[str, int] = {}
     for rid, site in dataset.sites.items():
         al = align_adsb(dataset, rid, max_gap_s)
         if len(al) == 0:
             continue
-        matched.update(al.plots.index.tolist())
+        matched.append(al.plots.index)
         counts[rid] = len(al)
         if not columns.get(rid):
             continue
@@ -254,17 +256,17 @@ def _adsb_information(
         # Azimuth eccentricity: d az / d (s, c) = (sin az, cos az).
         jac[:, 1, 5] = np.sin(polar[:, 1])
         jac[:, 1, 6] = np.cos(polar[:, 1])
-        jac = jac[:, :, list(pos)]
-        info = np.einsum("nip,nij,njq->pq", jac, np.linalg.inv(cov), jac)
+        whitened = cholesky_inverse(cov) @ jac[:, :, list(pos)]
+        info = sum_of_products(whitened, None, whitened)
         fisher[np.ix_(glob, glob)] += info
-    return fisher, matched, counts
+    return fisher, np.concatenate(matched) if matched else np.zeros(0, np.int64), counts
 
 
 def _cross_information(
     dataset: Dataset,
     columns: dict[str, list[tuple[int, int]]],
     p: int,
-    exclude: set[int],
+    exclude: NDArray[np.int64],
     event_s: float,
     height: tuple[HeightModel, list[int]] | None = None,
 ) -> tuple[FloatArray, dict[str, Any]]:
@@ -276,7 +278,7 @@ def _cross_information(
     blocks = []  # per radar: event key parts and whitened Jacobians
     for r_index, (rid, site) in enumerate(dataset.sites.items()):
         plots = plot_arrays(dataset, rid)
-        keep = (plots.target_id.astype(str) != "") & ~np.isin(plots.index, list(exclude))
+        keep = (plots.target_id.astype(str) != "") & ~np.isin(plots.index, exclude)
         plots = plots.subset(keep)
         if len(plots) == 0:
             continue
@@ -368,6 +370,7 @@ def _cross_information(
 
 
 # --------------------------------------------------------------------------- main
+@shared
 def crlb(
     dataset: Dataset,
     *,
@@ -450,7 +453,7 @@ def crlb(
     size = p + len(height_cols)
     fisher = np.zeros((size, size))
     info: dict[str, Any] = {}
-    matched: set[int] = set()
+    matched = np.zeros(0, np.int64)
     if have_adsb:
         f_adsb, matched, counts = _adsb_information(dataset, columns, size, truth, max_gap_s)
         fisher += f_adsb

@@ -58,6 +58,7 @@ from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
+from graphcal.data.memo import shared
 
 #: Family-wise false-alarm rate per radar (Bonferroni over its tests).  Nominally 0.2 %:
 #: the tests are somewhat liberal without ADS-B (``benchmarks/model_checks_study.py``),
@@ -358,6 +359,7 @@ def _explaining_partner(res: RadarResiduals, checks: RadarChecks) -> str | None:
     return best
 
 
+@shared
 def model_checks(
     dataset: Dataset,
     calibration: Calibration | Mapping[str, RadarBias],

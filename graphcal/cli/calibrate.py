@@ -188,6 +188,8 @@ def calibrate_command(
     ] = None,
 ) -> None:
     """Estimate every radar's biases from a dataset folder."""
+    import time
+
     from graphcal.data.calibration import load_result
     from graphcal.io.folder import SITES_FILE, load_dataset, load_sites
     from graphcal.pipeline.calibrate import calibrate as run_calibration
@@ -197,6 +199,7 @@ def calibrate_command(
         if history is not None and not history.parent.resolve().is_dir():
             fail(f"--history {history}: the folder {history.parent} does not exist",
                  EXIT_BAD_INPUT)
+        start = time.perf_counter()
         if window is not None:
             if report is not None:
                 fail("--report draws one batch of plots; with --window, write the result "
@@ -205,8 +208,10 @@ def calibrate_command(
             dataset = None
             sites = load_sites(dataset_dir / SITES_FILE)
         else:
-            dataset = load_dataset(dataset_dir, clean=clean)
+            with progress_bar("loading"):
+                dataset = load_dataset(dataset_dir, clean=clean)
             sites = dataset.sites
+        load_s = time.perf_counter() - start
         if dataset is not None and dataset.cleaning is not None:
             for line in dataset.cleaning.summary():
                 err_console.print(f"cleaning: {line}", highlight=False)
@@ -237,6 +242,7 @@ def calibrate_command(
                 )
         except ValueError as exc:
             fail(str(exc), EXIT_BAD_INPUT)
+        cal.info.setdefault("timing_s", {})["load_s"] = load_s
         if "selection" in cal.info:
             _print_selection(cal.info["selection"])
         if cat063 is not None:

@@ -1,5 +1,5 @@
 """What every command shares: the consoles, the exit codes, errors as one-line messages, the
-progress bar.
+progress bar (plain progress lines when standard error is not a terminal).
 
 A leaf of :mod:`graphcal.cli`: it imports no other command-line module, so every command
 module can import it and :mod:`graphcal.cli.app` can import every command module.  It
@@ -8,7 +8,10 @@ stays light (no numpy), because ``graphcal --help`` imports it.
 
 from __future__ import annotations
 
+import os
 import sys
+import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import NoReturn
@@ -24,6 +27,10 @@ PLAIN_WIDTH = 120
 console = Console(width=None if sys.stdout.isatty() else PLAIN_WIDTH)
 #: Standard error: errors, warnings about files, ``wrote FILE`` lines, progress bars.
 err_console = Console(stderr=True)
+
+#: Seconds between plain progress lines (standard error not a terminal); the environment
+#: variable ``GRAPHCAL_PROGRESS_S`` overrides it.
+PLAIN_PROGRESS_INTERVAL_S = 5.0
 
 #: Exit status for bad input.
 EXIT_BAD_INPUT = 2
@@ -50,7 +57,18 @@ def errors_to_exit() -> Iterator[None]:
 
 @contextmanager
 def progress_bar(description: str) -> Iterator[Callable[..., None]]:
-    """A rich progress bar yielding ``callback([stage,] done, total)``; silent off a terminal."""
+    """A progress display yielding ``callback([stage,] done, total)``.
+
+    On a terminal a rich progress bar on standard error.  Otherwise (a pipe, a log
+    file) plain lines on standard error, at most one every
+    :data:`PLAIN_PROGRESS_INTERVAL_S` seconds and only while the work lasts that long,
+    e.g. ``graphcal: graph: optimising, 15 s`` or ``graphcal: graph: ADS-B association
+    50% (2/4), 10 s``: a short run prints nothing.
+    """
+    if not err_console.is_terminal:
+        with _plain_progress(description) as callback:
+            yield callback
+        return
     from rich.progress import (
         BarColumn,
         Progress,
@@ -83,9 +101,56 @@ def progress_bar(description: str) -> Iterator[Callable[..., None]]:
         yield callback
 
 
+def _progress_interval() -> float:
+    """:data:`PLAIN_PROGRESS_INTERVAL_S`, or ``GRAPHCAL_PROGRESS_S`` when set to a number."""
+    try:
+        value = float(os.environ.get("GRAPHCAL_PROGRESS_S", PLAIN_PROGRESS_INTERVAL_S))
+    except ValueError:
+        return PLAIN_PROGRESS_INTERVAL_S
+    return value if value > 0 else PLAIN_PROGRESS_INTERVAL_S
+
+
+@contextmanager
+def _plain_progress(description: str) -> Iterator[Callable[..., None]]:
+    """Plain progress lines from a timer thread; the callback only records the state."""
+    interval = _progress_interval()
+    start = time.monotonic()
+    state: list[object] = ["", 0, None]  # stage, done, total
+    lock = threading.Lock()
+    stop = threading.Event()
+
+    def callback(*args: object) -> None:
+        with lock:
+            state[3 - len(args):] = args
+
+    def report() -> None:
+        while not stop.wait(interval):
+            with lock:
+                stage, done, total = state
+            line = f"graphcal: {description}"
+            if stage:
+                line += f": {stage}"
+            if isinstance(done, int | float) and isinstance(total, int | float) and total > 1:
+                line += f" {100.0 * done / total:.0f}% ({done}/{total})"
+            line += f", {time.monotonic() - start:.0f} s"
+            try:
+                print(line, file=sys.stderr, flush=True)
+            except (OSError, ValueError):  # the stream went away
+                return
+
+    thread = threading.Thread(target=report, name="graphcal-progress", daemon=True)
+    thread.start()
+    try:
+        yield callback
+    finally:
+        stop.set()
+        thread.join()
+
+
 __all__ = [
     "EXIT_BAD_INPUT",
     "EXIT_ESTIMATION_FAILED",
+    "PLAIN_PROGRESS_INTERVAL_S",
     "PLAIN_WIDTH",
     "console",
     "err_console",

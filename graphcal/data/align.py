@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.refraction import refracted_polar_jacobian
 from graphcal.data.dataset import Dataset, Site
+from graphcal.data.memo import remember
 
 #: Default longest gap [s] between two ADS-B reports that is bridged by interpolation.
 DEFAULT_ADSB_MAX_GAP_S = 10.0
@@ -60,7 +61,15 @@ class PlotArrays:
 
 
 def plot_arrays(dataset: Dataset, radar_id: str) -> PlotArrays:
-    """The plots of ``radar_id`` in time order, as SI arrays."""
+    """The plots of ``radar_id`` in time order, as SI arrays.
+
+    Shared within a calibration (:mod:`graphcal.data.memo`): treat as read-only.
+    """
+    return remember(("plot_arrays", radar_id), (dataset.plots,),
+                    lambda: _plot_arrays(dataset, radar_id))
+
+
+def _plot_arrays(dataset: Dataset, radar_id: str) -> PlotArrays:
     plots = dataset.plots_of(radar_id)
     altitude = plots["altitude_m"] if "altitude_m" in plots else pd.Series(np.nan, plots.index)
     return PlotArrays(
@@ -86,34 +95,40 @@ def neighbour_plots(plots: PlotArrays, skip: int = 1, half_width: int = 4) -> Pl
     plots (the errors-in-variables bias of evaluating it at the plots themselves).
     """
     n = len(plots)
-    targets = plots.target_id.astype(str)
-    order = np.lexsort((plots.time_s, targets))
-    sorted_targets = targets[order]
+    # Aircraft as codes (-1: unknown), so that tracks are sorted and compared as integers.
+    codes, names = pd.factorize(plots.target_id.astype(str))
+    unknown = np.asarray(names == "", dtype=bool)
+    codes = np.where((codes < 0) | unknown[np.maximum(codes, 0)], -1, codes)
+    order = np.lexsort((plots.time_s, codes))
+    codes = codes[order]
     values = {
         "range_m": plots.range_m[order],
         "elevation_rad": plots.elevation_rad[order],
         "altitude_m": plots.altitude_m[order],
     }
+    finite = {name: np.isfinite(v) for name, v in values.items()}
     sums = {name: np.zeros(n) for name in values}
     counts = {name: np.zeros(n) for name in values}
     east = np.zeros(n)
     north = np.zeros(n)
     az = plots.azimuth_rad[order]
+    sin_az, cos_az = np.sin(az), np.cos(az)
     n_neighbours = np.zeros(n)
+    index = np.arange(n)
     for step in range(skip + 1, skip + half_width + 1):
         for shift in (step, -step):
-            src = np.arange(n) + shift
-            ok = (src >= 0) & (src < n)
-            ok[ok] &= sorted_targets[src[ok]] == sorted_targets[ok]
-            ok[ok] &= sorted_targets[ok] != ""
-            dst, src = np.flatnonzero(ok), src[ok]
+            # Plot k takes plot k + shift of the same aircraft; masked sums add 0.0, which
+            # leaves every sum as the gathered additions would (in the same order).
+            src = np.clip(index + shift, 0, max(n - 1, 0))
+            ok = (index + shift >= 0) & (index + shift < n) & (codes >= 0)
+            ok &= codes[src] == codes
             for name, v in values.items():
-                finite = np.isfinite(v[src])
-                sums[name][dst[finite]] += v[src][finite]
-                counts[name][dst[finite]] += 1
-            east[dst] += np.sin(az[src])
-            north[dst] += np.cos(az[src])
-            n_neighbours[dst] += 1
+                use = ok & finite[name][src]
+                sums[name] += np.where(use, v[src], 0.0)
+                counts[name] += use
+            east += np.where(ok, sin_az[src], 0.0)
+            north += np.where(ok, cos_az[src], 0.0)
+            n_neighbours += ok
     out = {}
     for name, v in values.items():
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -160,6 +175,9 @@ class AdsbAlignment:
         ``d reference_polar / d enu`` (radar ENU) along the refracted rays, for a
         radar with refraction (traced once here, used by the noise conversion and
         the time-offset rates); ``None`` for straight lines.
+    target_code : ndarray, shape (n,), of int, or None
+        Each plot's aircraft as its position among the ADS-B aircraft sorted by
+        identity (:attr:`AdsbTrackTable.targets`): the identities' order, as integers.
     """
 
     radar_id: str
@@ -171,6 +189,7 @@ class AdsbAlignment:
     reference_velocity_ecef_m_s: FloatArray | None = None
     time_offset_s: float = 0.0
     reference_polar_jacobian: FloatArray | None = None
+    target_code: NDArray[np.int64] | None = None
 
     def __len__(self) -> int:
         return len(self.plots)
@@ -230,6 +249,105 @@ def bracket(
     return j, np.clip(w, 0.0, 1.0), ok
 
 
+@dataclass
+class AdsbTrackTable:
+    """Every aircraft's ADS-B reports in one set of arrays, by aircraft then time.
+
+    The reports of :func:`adsb_tracks`' tracks (time-sorted per aircraft, repeated
+    times and empty identities dropped), concatenated in the order of
+    :attr:`targets`, so that plots of any aircraft are aligned by one vectorised
+    search instead of one per aircraft.
+
+    Attributes
+    ----------
+    targets : pandas.Index
+        Aircraft identities; aircraft ``k``'s reports are rows
+        ``start[k]:start[k + 1]``.
+    start : ndarray (k + 1,) of int
+    time_s : ndarray (m,)
+    ecef_m : ndarray (m, 3)
+    sigma_m : ndarray (m,)
+    key : ndarray (m,) of complex
+        ``k + 1j * time_s``: numpy orders complex numbers by real then imaginary
+        part, so this is sorted and searchable by (aircraft, time).
+    """
+
+    targets: pd.Index
+    start: NDArray[np.int64]
+    time_s: FloatArray
+    ecef_m: FloatArray
+    sigma_m: FloatArray
+    key: NDArray[np.complex128]
+
+    def codes(self, target_id: NDArray[np.object_]) -> NDArray[np.int64]:
+        """Position in :attr:`targets` of each identity, ``-1`` where it has no track."""
+        return self.targets.get_indexer(pd.Index(target_id, dtype=object)).astype(np.int64)
+
+    def bracket(
+        self, code: NDArray[np.int64], query_time_s: FloatArray, max_gap_s: float
+    ) -> tuple[NDArray[np.int64], FloatArray, NDArray[np.bool_]]:
+        """:func:`bracket` of each query in its aircraft's track, row indices global.
+
+        ``code`` from :meth:`codes`; ``ok`` is False also where ``code`` is -1 or
+        the track has fewer than two reports.
+        """
+        known = code >= 0
+        c = np.where(known, code, 0)
+        j, w, ok = bracket_in_blocks(self.time_s, self.key, c, self.start[c],
+                                     self.start[c + 1], query_time_s, max_gap_s)
+        return j, w, ok & known
+
+
+def bracket_in_blocks(
+    time_s: FloatArray, key: NDArray[np.complex128], code: NDArray[np.int64],
+    lo: NDArray[np.int64], hi: NDArray[np.int64], query_time_s: FloatArray, max_gap_s: float,
+) -> tuple[NDArray[np.int64], FloatArray, NDArray[np.bool_]]:
+    """:func:`bracket` of each query within its own block of a blocked, sorted series.
+
+    The series holds blocks (tracks) one after the other, each sorted by time;
+    ``key`` is ``block number + 1j * time_s`` (sorted, as numpy orders complex
+    numbers by real then imaginary part).  Query ``i`` is bracketed in block
+    ``code[i]``, rows ``lo[i]:hi[i]``, exactly as :func:`bracket` would on that
+    block alone; the returned ``j`` are global rows.
+    """
+    position = np.searchsorted(key, code + 1j * query_time_s, side="right")
+    j = np.clip(position - 1, lo, np.maximum(hi - 2, lo))
+    last = max(len(time_s) - 1, 0)
+    t0, t1 = time_s[j], time_s[np.minimum(j + 1, last)]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = (query_time_s - t0) / (t1 - t0)
+    on_sample = (w == 0.0) | (w == 1.0)
+    ok = (hi - lo >= 2) & (w >= 0.0) & (w <= 1.0) & ((t1 - t0 <= max_gap_s) | on_sample)
+    return j, np.clip(w, 0.0, 1.0), ok
+
+
+def adsb_track_table(adsb: pd.DataFrame) -> AdsbTrackTable:
+    """The ADS-B table as an :class:`AdsbTrackTable` (shared within a calibration)."""
+    return remember(("adsb_track_table",), (adsb,), lambda: _adsb_track_table(adsb))
+
+
+def _adsb_track_table(adsb: pd.DataFrame) -> AdsbTrackTable:
+    target = adsb["target_id"]
+    valid = (target.notna() & (target.astype(str) != "")).to_numpy(dtype=bool)
+    codes, names = pd.factorize(target[valid].astype(str), sort=True)
+    time_s = adsb["time_s"].to_numpy(float)[valid]
+    # As tracks_by_target: per aircraft in time order (stable), repeated times dropped.
+    order = np.lexsort((time_s, codes))
+    codes, time_s = codes[order], time_s[order]
+    keep = np.ones(len(order), dtype=bool)
+    keep[1:] = (codes[1:] != codes[:-1]) | (np.diff(time_s) > 0)
+    rows = np.flatnonzero(valid)[order[keep]]
+    codes, time_s = codes[keep].astype(np.int64), time_s[keep]
+    ecef = frames.geodetic_to_ecef(
+        np.deg2rad(adsb["lat_deg"].to_numpy(float)[rows]),
+        np.deg2rad(adsb["lon_deg"].to_numpy(float)[rows]),
+        adsb["alt_m"].to_numpy(float)[rows],
+    )
+    start = np.searchsorted(codes, np.arange(len(names) + 1)).astype(np.int64)
+    return AdsbTrackTable(pd.Index(names, dtype=object), start, time_s, ecef,
+                          adsb["sigma_m"].to_numpy(float)[rows], codes + 1j * time_s)
+
+
 def align_adsb(
     dataset: Dataset,
     radar_id: str,
@@ -253,42 +371,44 @@ def align_adsb(
     Returns
     -------
     AdsbAlignment
+        At zero time offset shared within a calibration (:mod:`graphcal.data.memo`:
+        the initial values, the first factors and the bound align there): read-only.
     """
     if dataset.adsb is None:
         raise ValueError("the dataset has no ADS-B table")
+    if time_offset_s != 0.0:
+        return _align_adsb(dataset, radar_id, max_gap_s, time_offset_s)
+    return remember(("align_adsb", radar_id, float(max_gap_s)),
+                    (dataset.plots, dataset.adsb, dataset.sites[radar_id]),
+                    lambda: _align_adsb(dataset, radar_id, max_gap_s, 0.0))
+
+
+def _align_adsb(
+    dataset: Dataset, radar_id: str, max_gap_s: float, time_offset_s: float
+) -> AdsbAlignment:
     site = dataset.sites[radar_id]
     plots = plot_arrays(dataset, radar_id)
-    tracks = adsb_tracks(dataset.adsb)
+    tracks = adsb_track_table(dataset.adsb)
     n = len(plots)
-    ref = np.full((n, 3), np.nan)
-    vel = np.full((n, 3), np.nan)
-    var_h = np.full(n, np.nan)
-    matched = np.zeros(n, dtype=bool)
-    true_time_s = plots.time_s - time_offset_s
-    for target in pd.unique(plots.target_id):
-        if target not in tracks:
-            continue
-        rows = np.flatnonzero(plots.target_id == target)
-        t, ecef, sigma = tracks[target]
-        j, w, ok = bracket(t, true_time_s[rows], max_gap_s)
-        rows, j, w = rows[ok], j[ok], w[ok]
-        ref[rows] = (1.0 - w)[:, None] * ecef[j] + w[:, None] * ecef[j + 1]
-        # Velocity from the reports around the bracketing pair, not from the pair itself:
-        # the pair's noise is in the interpolated position, and a velocity sharing it
-        # would correlate the time-offset Jacobian with the residual.
-        lo = np.clip(j - 1, 0, len(t) - 1)
-        hi = np.clip(j + 2, 0, len(t) - 1)
-        outer = (hi - lo >= 3) & (t[hi] - t[lo] <= 3.0 * max_gap_s)
-        lo = np.where(outer, lo, j)
-        hi = np.where(outer, hi, j + 1)
-        vel[rows] = (ecef[hi] - ecef[lo]) / (t[hi] - t[lo])[:, None]
-        # Independent reports: the interpolated variance is w0^2 s0^2 + w1^2 s1^2.
-        var_h[rows] = (1.0 - w) ** 2 * sigma[j] ** 2 + w**2 * sigma[j + 1] ** 2
-        matched[rows] = True
+    code = remember(("adsb_codes", radar_id), (dataset.plots, dataset.adsb),
+                    lambda: tracks.codes(plots.target_id))
+    j, w, matched = tracks.bracket(code, plots.time_s - time_offset_s, max_gap_s)
+    j, w = j[matched], w[matched]
+    lo, hi = tracks.start[code[matched]], tracks.start[code[matched] + 1]
+    t, ecef, sigma = tracks.time_s, tracks.ecef_m, tracks.sigma_m
+    ref = (1.0 - w)[:, None] * ecef[j] + w[:, None] * ecef[j + 1]
+    # Velocity from the reports around the bracketing pair, not from the pair itself:
+    # the pair's noise is in the interpolated position, and a velocity sharing it
+    # would correlate the time-offset Jacobian with the residual.
+    before = np.clip(j - 1, lo, hi - 1)
+    after = np.clip(j + 2, lo, hi - 1)
+    outer = (after - before >= 3) & (t[after] - t[before] <= 3.0 * max_gap_s)
+    before = np.where(outer, before, j)
+    after = np.where(outer, after, j + 1)
+    vel = (ecef[after] - ecef[before]) / (t[after] - t[before])[:, None]
+    # Independent reports: the interpolated variance is w0^2 s0^2 + w1^2 s1^2.
+    var_h = (1.0 - w) ** 2 * sigma[j] ** 2 + w**2 * sigma[j + 1] ** 2
     plots = plots.subset(matched)
-    ref = ref[matched]
-    vel = vel[matched]
-    var_h = var_h[matched]
     cov = np.zeros((len(plots), 3, 3))
     cov[:, 0, 0] = var_h
     cov[:, 1, 1] = var_h
@@ -302,7 +422,7 @@ def align_adsb(
     else:
         polar = np.stack(site.polar_from_ecef(ref), axis=-1)
     return AdsbAlignment(radar_id, plots, ref, polar, cov, int(n - matched.sum()), vel,
-                         float(time_offset_s), jacobian)
+                         float(time_offset_s), jacobian, code[matched])
 
 
 @dataclass
@@ -365,39 +485,29 @@ def pair_plots(
     a = plot_arrays(dataset, radar_a)
     b = plot_arrays(dataset, radar_b)
     # Sort a by (target, time) so that each target's plots are contiguous.
-    order = np.lexsort((a.time_s, a.target_id.astype(str)))
-    a = a.subset(order)
-    a_index0: list[NDArray[np.int64]] = []
-    weights: list[FloatArray] = []
-    b_index: list[NDArray[np.int64]] = []
-    a_index2: list[NDArray[np.int64]] = []
-    quadratic: list[FloatArray] = []
     a_targets = a.target_id.astype(str)
-    starts = {}
-    for target in pd.unique(a_targets):
-        rows = np.flatnonzero(a_targets == target)
-        starts[target] = (rows[0], rows[-1] + 1)
+    # By aircraft (codes in sorted order, the order of the text) then time.
+    order = np.lexsort((a.time_s, pd.factorize(a_targets, sort=True)[0]))
+    a = a.subset(order)
+    a_targets = a_targets[order]
+    # a's tracks: block k holds target names[k], rows start[k]:end[k].
+    boundaries = np.flatnonzero(a_targets[1:] != a_targets[:-1]) + 1
+    start = np.r_[0, boundaries].astype(np.int64) if len(a) else np.zeros(0, np.int64)
+    end = np.r_[boundaries, len(a)].astype(np.int64) if len(a) else np.zeros(0, np.int64)
+    block = np.repeat(np.arange(len(start)), end - start)
     b_targets = b.target_id.astype(str)
-    for target in pd.unique(b_targets):
-        if not target or target not in starts:
-            continue
-        lo, hi = starts[target]
-        rows_b = np.flatnonzero(b_targets == target)
-        query = b.time_s[rows_b] + shift_s
-        j, w, ok = bracket(a.time_s[lo:hi], query, max_gap_s)
-        a_index0.append(j[ok] + lo)
-        weights.append(w[ok])
-        b_index.append(rows_b[ok])
-        third, lagrange = quadratic_third(a.time_s[lo:hi], query[ok], j[ok], w[ok], max_gap_s)
-        a_index2.append(np.where(third >= 0, third + lo, -1))
-        quadratic.append(lagrange)
-    if b_index:
-        ia, ww, ib = np.concatenate(a_index0), np.concatenate(weights), np.concatenate(b_index)
-        i2, q = np.concatenate(a_index2), np.concatenate(quadratic)
-    else:
-        ia, ww, ib = np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64)
-        i2, q = np.zeros(0, np.int64), np.zeros((0, 3))
-    order_b = np.argsort(b.time_s[ib], kind="stable")
+    code = pd.Index(a_targets[start], dtype=object).get_indexer(b_targets).astype(np.int64)
+    rows_b = np.flatnonzero((code >= 0) & (b_targets != ""))
+    code = code[rows_b]
+    lo, hi = start[code], end[code]
+    query = b.time_s[rows_b] + shift_s
+    j, w, ok = bracket_in_blocks(a.time_s, block + 1j * a.time_s, code, lo, hi, query,
+                                 max_gap_s)
+    ia, ww, ib = j[ok], w[ok], rows_b[ok]
+    i2, q = quadratic_third_in_blocks(a.time_s, query[ok], ia, ww, lo[ok], hi[ok], max_gap_s)
+    # In time order; ties as in one pass over b's targets by first appearance.
+    rank = pd.factorize(b_targets)[0]
+    order_b = np.lexsort((ib, rank[ib], b.time_s[ib]))
     return PlotPairs(radar_a, radar_b, a, b, ia[order_b], ww[order_b], ib[order_b],
                      i2[order_b], q[order_b])
 
@@ -423,22 +533,38 @@ def quadratic_third(
         Weights of samples ``j``, ``j + 1`` and ``third``; they sum to 1.
     """
     n = len(track_time_s)
-    linear = np.stack([1.0 - w, w, np.zeros_like(w)], axis=1)
     if n < 3 or len(j) == 0:
+        linear = np.stack([1.0 - w, w, np.zeros_like(w)], axis=1)
         return np.full(len(j), -1, dtype=np.int64), linear
-    t0, t1 = track_time_s[j], track_time_s[np.minimum(j + 1, n - 1)]
+    zero = np.zeros(len(j), dtype=np.int64)
+    return quadratic_third_in_blocks(track_time_s, query_time_s, j, w, zero, zero + n,
+                                     max_gap_s)
+
+
+def quadratic_third_in_blocks(
+    time_s: FloatArray, query_time_s: FloatArray, j: NDArray[np.int64], w: FloatArray,
+    lo: NDArray[np.int64], hi: NDArray[np.int64], max_gap_s: float,
+) -> tuple[NDArray[np.int64], FloatArray]:
+    """:func:`quadratic_third` of each query within its own block ``lo[i]:hi[i]``.
+
+    ``j`` are global rows (as :func:`bracket_in_blocks` returns them); so is the third.
+    """
+    linear = np.stack([1.0 - w, w, np.zeros_like(w)], axis=1)
+    if len(j) == 0:
+        return np.full(0, -1, dtype=np.int64), linear
+    t0, t1 = time_s[j], time_s[np.minimum(j + 1, hi - 1)]
     before = j - 1
     after = j + 2
-    ok_before = before >= 0
-    ok_after = after < n
-    t_before = track_time_s[np.maximum(before, 0)]
-    t_after = track_time_s[np.minimum(after, n - 1)]
+    ok_before = before >= lo
+    ok_after = after < hi
+    t_before = time_s[np.maximum(before, lo)]
+    t_after = time_s[np.minimum(after, hi - 1)]
     ok_before &= (t0 - t_before) <= max_gap_s
     ok_after &= (t_after - t1) <= max_gap_s
     use_after = ok_after & (~ok_before | (t_after - query_time_s < query_time_s - t_before))
     third = np.where(use_after, after, np.where(ok_before, before, -1))
     has = third >= 0
-    t2 = track_time_s[np.clip(third, 0, n - 1)]
+    t2 = time_s[np.clip(third, lo, hi - 1)]
     t = query_time_s
     with np.errstate(invalid="ignore", divide="ignore"):
         l0 = (t - t1) * (t - t2) / ((t0 - t1) * (t0 - t2))

@@ -245,7 +245,7 @@ def drop_duplicate_plots(plots: pd.DataFrame) -> tuple[pd.DataFrame, CleaningRep
         ``counts["plots_duplicate"]``.
     """
     key = [name for name in _PLOT_KEY if name in plots]
-    duplicate = plots.duplicated(subset=key, keep="first").to_numpy(dtype=bool)
+    duplicate = _duplicated(plots, key)
     return _keep(plots, ~duplicate), _report(plots_duplicate=int(duplicate.sum()))
 
 
@@ -258,8 +258,54 @@ def drop_duplicate_adsb(adsb: pd.DataFrame) -> tuple[pd.DataFrame, CleaningRepor
     report : CleaningReport
         ``counts["adsb_duplicate"]``.
     """
-    duplicate = adsb.duplicated(subset=list(_ADSB_KEY), keep="first").to_numpy(dtype=bool)
+    duplicate = _duplicated(adsb, list(_ADSB_KEY))
     return _keep(adsb, ~duplicate), _report(adsb_duplicate=int(duplicate.sum()))
+
+
+def _key_values(table: pd.DataFrame, name: str) -> NDArray:
+    """A key column as floats (numbers) or codes (anything else; -1 where missing)."""
+    column = table[name]
+    if pd.api.types.is_numeric_dtype(column) and not pd.api.types.is_bool_dtype(column):
+        return column.to_numpy(dtype=float, na_value=np.nan)
+    return pd.factorize(column)[0]
+
+
+def _same(a: NDArray, b: NDArray) -> BoolArray:
+    """Element-wise equality, NaN equal to NaN (as ``DataFrame.duplicated``)."""
+    if a.dtype.kind == "f":
+        return (a == b) | (np.isnan(a) & np.isnan(b))
+    return a == b
+
+
+def _duplicated(table: pd.DataFrame, key: list[str]) -> BoolArray:
+    """``table.duplicated(subset=key, keep="first")`` by sorting instead of hashing.
+
+    Rows are ordered by the first two key columns; only rows in runs of equal values
+    there are compared on the whole key (NaN equal to NaN, ``-0.0`` to ``0.0``, as
+    pandas), in their original order, so the first of each set of duplicates is kept.
+    """
+    n = len(table)
+    duplicate = np.zeros(n, dtype=bool)
+    if n < 2 or not key:
+        return duplicate
+    values = [_key_values(table, name) for name in key]
+    order = np.lexsort(values[:2][::-1])
+    same = np.ones(n - 1, dtype=bool)
+    for v in values[:2]:
+        sorted_v = v[order]
+        same &= _same(sorted_v[1:], sorted_v[:-1])
+    if not same.any():
+        return duplicate
+    in_run = np.zeros(n, dtype=bool)
+    in_run[1:] |= same
+    in_run[:-1] |= same
+    candidates = np.sort(order[in_run])
+    rows = candidates[np.lexsort([v[candidates] for v in values[::-1]])]
+    equal = np.ones(len(rows) - 1, dtype=bool)
+    for v in values:
+        equal &= _same(v[rows][1:], v[rows][:-1])
+    duplicate[rows[1:][equal]] = True
+    return duplicate
 
 
 # --------------------------------------------------------------------------- ADS-B order
@@ -348,7 +394,7 @@ def _jumps(
         return np.zeros(0, dtype=bool), np.zeros(0)
     same = flight[1:] == flight[:-1]
     dt = np.abs(np.diff(time_s))
-    distance = np.linalg.norm(np.diff(ecef_m, axis=0), axis=1)
+    distance = frames.row_norm(np.diff(ecef_m, axis=0))
     slack = gate_sigmas * _SIGMA_3D * np.hypot(sigma_m[1:], sigma_m[:-1])
     return same & (distance > max_speed_mps * dt + slack), distance
 
@@ -380,12 +426,13 @@ def _isolated_outliers(
     span = t2 - t0
     with np.errstate(invalid="ignore", divide="ignore"):
         w = np.where(span > 0, (t1 - t0) / span, 0.5)
-    chord = ecef_m[:-2] + w[:, None] * (ecef_m[2:] - ecef_m[:-2])
-    deviation = np.where(inner, np.linalg.norm(ecef_m[1:-1] - chord, axis=1), 0.0)
+    across = ecef_m[2:] - ecef_m[:-2]  # from each report's predecessor to its successor
+    chord = ecef_m[:-2] + w[:, None] * across
+    deviation = np.where(inner, frames.row_norm(ecef_m[1:-1] - chord), 0.0)
     sigma = np.maximum(sigma_m[1:-1], np.maximum(sigma_m[:-2], sigma_m[2:]))
     slack = gate_sigmas * _SIGMA_3D * sigma * np.sqrt(1.5)
     allowed = 0.5 * max_accel_mps2 * (t1 - t0) * (t2 - t1) + slack
-    bypass = np.linalg.norm(ecef_m[2:] - ecef_m[:-2], axis=1)
+    bypass = frames.row_norm(across)
     consistent = bypass <= max_speed_mps * span + gate_sigmas * _SIGMA_3D * np.hypot(
         sigma_m[:-2], sigma_m[2:])
     padded = np.concatenate([[0.0], deviation, [0.0]])
@@ -450,9 +497,25 @@ def gate_adsb_kinematics(
     adsb : pandas.DataFrame
     report : CleaningReport
     """
+    keep, report = _gate_keep(adsb, _ecef(adsb), max_speed_mps, max_accel_mps2, gate_sigmas,
+                              max_wild_run, min_track_reports, flight_gap_s)
+    return _keep(adsb, keep), report
+
+
+def _gate_keep(
+    adsb: pd.DataFrame,
+    ecef_all: FloatArray,
+    max_speed_mps: float,
+    max_accel_mps2: float,
+    gate_sigmas: float,
+    max_wild_run: int,
+    min_track_reports: int,
+    flight_gap_s: float,
+) -> tuple[BoolArray, CleaningReport]:
+    """:func:`gate_adsb_kinematics`'s rows to keep, with the reports' ECEF positions given."""
     report = _report()
     if len(adsb) < 2:
-        return _keep(adsb, np.ones(len(adsb), dtype=bool)), report
+        return np.ones(len(adsb), dtype=bool), report
     order, codes_all = _track_order(adsb)
     codes = codes_all[order]
     time_s = _column(adsb, "time_s")[order]
@@ -460,7 +523,7 @@ def gate_adsb_kinematics(
     flight = np.cumsum(gap) - 1
     size = np.bincount(flight)
     judged = size[flight] >= min_track_reports
-    ecef = _ecef(adsb)[order]
+    ecef = ecef_all[order]
     sigma = _sigma(adsb)[order]
     wild = judged & _isolated_outliers(flight, time_s, ecef, sigma, max_speed_mps,
                                        max_accel_mps2, gate_sigmas)
@@ -505,16 +568,18 @@ def gate_adsb_kinematics(
     report.counts["adsb_jumping_aircraft"] = int(whole.sum())
     keep = np.ones(len(codes), dtype=bool)
     keep[order[wild | whole]] = False
-    return _keep(adsb, keep), report
+    return keep, report
 
 
 # --------------------------------------------------------------------------- identities
 def _interpolate_adsb(
-    adsb: pd.DataFrame, target_id: NDArray[np.object_], time_s: FloatArray, max_gap_s: float
+    adsb: pd.DataFrame, ecef_all: FloatArray, target_code: NDArray[np.int64],
+    target_names: pd.Index, time_s: FloatArray, max_gap_s: float,
 ) -> tuple[FloatArray, BoolArray]:
     """ADS-B ECEF position [m] of each (target, time), linear in time; ``ok`` where bridged.
 
-    Vectorised over all aircraft: rows are keyed by ``code * span + time``
+    The targets are ``target_names[target_code]``; ``ecef_all`` the reports' ECEF
+    positions.  Vectorised over all aircraft: rows are keyed by ``code * span + time``
     so that one ``searchsorted`` finds every bracket.
     """
     n = len(time_s)
@@ -522,17 +587,16 @@ def _interpolate_adsb(
     ok = np.zeros(n, dtype=bool)
     if len(adsb) < 2 or n == 0:
         return ref, ok
-    a_target = adsb["target_id"].astype(str).to_numpy(dtype=object)
-    categories = pd.Index(pd.unique(a_target))
-    a_code = categories.get_indexer(a_target)
-    q_code = categories.get_indexer(target_id.astype(str))
+    a_code, categories = pd.factorize(adsb["target_id"].astype(str))  # first-seen order
+    to_category = pd.Index(categories).get_indexer(target_names.astype(str))
+    q_code = np.where(target_code >= 0, to_category[np.maximum(target_code, 0)], -1)
     a_time = _column(adsb, "time_s")
     t0 = min(a_time.min(), time_s.min())
     span = max(a_time.max(), time_s.max()) - t0 + 4.0 * max_gap_s + 1.0
     a_key = a_code * span + (a_time - t0)
     order = np.argsort(a_key, kind="stable")
     a_key, a_code_s, a_time_s = a_key[order], a_code[order], a_time[order]
-    ecef = _ecef(adsb)[order]
+    ecef = ecef_all[order]
     q_key = q_code * span + (time_s - t0)
     j = np.searchsorted(a_key, q_key, side="right") - 1
     valid = (q_code >= 0) & (j >= 0) & (j < len(a_key) - 1)
@@ -623,21 +687,42 @@ def check_identities(
     report : CleaningReport
         ``counts["plots_identity_cleared"]`` and :attr:`CleaningReport.mislabelled`.
     """
+    return _check_identities(plots, adsb, None, sites, floor_m, z_limit, min_aircraft,
+                             min_plots, max_gap_s)
+
+
+def _check_identities(
+    plots: pd.DataFrame,
+    adsb: pd.DataFrame,
+    adsb_ecef: FloatArray | None,
+    sites: Mapping[str, Site],
+    floor_m: float,
+    z_limit: float,
+    min_aircraft: int,
+    min_plots: int,
+    max_gap_s: float,
+) -> tuple[pd.DataFrame, CleaningReport]:
+    """:func:`check_identities`, with the ADS-B reports' ECEF positions when known."""
     report = _report()
     out = plots.reset_index(drop=True)
     if len(out) == 0 or len(adsb) < 2:
         return out, report
-    target = out["target_id"].astype(str).to_numpy(dtype=object)
-    has_id = target != ""
+    # Identities and radars as integer codes (first-seen order, as grouping them by text).
+    target, names = pd.factorize(out["target_id"].astype(str))
+    names = pd.Index(names)
+    has_id = np.append(np.asarray(names != "", dtype=bool), False)[target]  # -1: missing
     time_s = _column(out, "time_s")
-    ref, ok = _interpolate_adsb(adsb, np.where(has_id, target, ""), time_s, max_gap_s)
+    ref, ok = _interpolate_adsb(adsb, _ecef(adsb) if adsb_ecef is None else adsb_ecef,
+                                np.where(has_id, target, -1), names, time_s, max_gap_s)
     ok &= has_id
-    radar = out["radar_id"].astype(str).to_numpy(dtype=object)
+    radar, radar_names = pd.factorize(out["radar_id"].astype(str))
+    radar_code = {str(name): code for code, name in enumerate(radar_names)}
     range_m = _column(out, "range_m")
     azimuth = np.deg2rad(_column(out, "azimuth_deg"))
     clear = np.zeros(len(out), dtype=bool)
     for rid, site in sites.items():
-        rows = np.flatnonzero(ok & (radar == rid))
+        mine = radar == radar_code.get(rid, -2)
+        rows = np.flatnonzero(ok & mine)
         if len(rows) == 0:
             continue
         r_ref, az_ref, _ = site.polar_from_ecef(ref[rows])
@@ -661,9 +746,10 @@ def check_identities(
         if not flagged.any():
             continue
         agree = float(np.max(offset[~flagged]))
-        for address, off in zip(per.index[flagged], offset[flagged], strict=True):
-            sel = rows[target[rows] == address]
-            all_rows = np.flatnonzero((radar == rid) & (target == address))
+        for code, off in zip(per.index[flagged], offset[flagged], strict=True):
+            address = names[code]
+            sel = rows[target[rows] == code]
+            all_rows = np.flatnonzero(mine & (target == code))
             clear[all_rows] = True
             report.mislabelled.append((rid, str(address), float(off)))
             report.warnings.append(
@@ -824,14 +910,15 @@ def clean_dataset(
         for check in (drop_non_finite_adsb, drop_duplicate_adsb, drop_stale_adsb):
             adsb, step = check(adsb)
             report.merge(step)
-        adsb, step = gate_adsb_kinematics(
-            adsb, max_speed_mps=max_speed_mps, max_accel_mps2=max_accel_mps2,
-            gate_sigmas=gate_sigmas, max_wild_run=max_wild_run)
+        ecef = _ecef(adsb)  # shared by the gate and the identity check
+        keep, step = _gate_keep(adsb, ecef, max_speed_mps, max_accel_mps2, gate_sigmas,
+                                max_wild_run, DEFAULT_MIN_TRACK_REPORTS, DEFAULT_FLIGHT_GAP_S)
+        adsb, ecef = _keep(adsb, keep), ecef[keep]
         report.merge(step)
         if check_identity:
-            plots, step = check_identities(
-                plots, adsb, dataset.sites, floor_m=identity_floor_m, z_limit=identity_z,
-                max_gap_s=max_gap_s)
+            plots, step = _check_identities(
+                plots, adsb, ecef, dataset.sites, identity_floor_m, identity_z,
+                DEFAULT_IDENTITY_MIN_AIRCRAFT, DEFAULT_IDENTITY_MIN_PLOTS, max_gap_s)
             report.merge(step)
     if adsb is not None and len(adsb) == 0:
         if dataset.adsb is not None and len(dataset.adsb):

@@ -174,11 +174,11 @@ class Site:
 
     def enu_from_ecef(self, ecef_m: NDArray[np.float64]) -> NDArray[np.float64]:
         """ECEF points [m] to this radar's ENU frame [m]."""
-        return (np.asarray(ecef_m, dtype=float) - self.ecef_m) @ self.ecef_to_enu.T
+        return frames.rotate(np.asarray(ecef_m, dtype=float) - self.ecef_m, self.ecef_to_enu)
 
     def ecef_from_enu(self, enu_m: NDArray[np.float64]) -> NDArray[np.float64]:
         """This radar's ENU [m] to ECEF [m]."""
-        return np.asarray(enu_m, dtype=float) @ self.ecef_to_enu + self.ecef_m
+        return frames.rotate(enu_m, self.ecef_to_enu.T) + self.ecef_m
 
     def polar_from_ecef(self, ecef_m: NDArray[np.float64]):
         """ECEF [m] to ``(range_m, azimuth_rad, elevation_rad)`` of this radar."""

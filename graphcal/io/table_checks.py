@@ -271,7 +271,9 @@ def validate_adsb(table: RawRows, *, extra: ExtraCheck | None = None) -> pd.Data
         "sigma_m": sigma_m,
     }
     if nacp is not None:
-        columns["nacp"] = pd.array(np.where(np.isnan(nacp), None, nacp), dtype="Int64")
+        missing = np.isnan(nacp)  # the others are integers 0..11 (checked above)
+        columns["nacp"] = pd.arrays.IntegerArray(
+            np.where(missing, 0, nacp).astype(np.int64), missing)
     if baro_alt_m is not None:
         columns["baro_alt_m"] = baro_alt_m
     return _assemble(table, columns)

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.batched import cholesky_inverse
 from graphcal.data.align import PlotArrays
 from graphcal.data.dataset import Site
 from graphcal.model.cross_radar import (
@@ -51,7 +52,7 @@ SPATIAL: list[int] = [0, 1, 2, 3, 5, 6]
 
 def whitening_matrices(cov: FloatArray) -> FloatArray:
     """``L^-1`` per measurement with ``L L^T = cov``, so ``||L^-1 r||^2 = r^T cov^-1 r``."""
-    return np.linalg.inv(np.linalg.cholesky(cov))
+    return cholesky_inverse(cov)
 
 
 def _flatten(
@@ -154,18 +155,63 @@ class AdsbFactor:
             jac[:, 0, 4] *= 1.0 + gain
         return res, jac
 
-    def whitened(self, values: list[FloatArray]) -> tuple[FloatArray, list[FloatArray]]:
-        res, jac = self.residual(self.terms.full(values[0]), self.terms.time_offset(values[0]),
-                                 self.terms.eccentricity(values[0]))
-        e = np.einsum("nij,nj->ni", self.whitening, res)
-        j = self.whitening @ self.terms.select(jac)
-        return e, [j]
+    def whitened(
+        self, values: list[FloatArray], jacobians: bool = True
+    ) -> tuple[FloatArray, list[FloatArray] | None]:
+        """Whitened residual ``(n, m)`` and, with ``jacobians``, ``[(n, m, k)]`` over the free
+        terms: ``W e`` and ``W J`` of :meth:`residual`.
+
+        Only the free terms' columns are formed.  Those of the biases and of the
+        eccentricity are unit vectors (or multiples) in :meth:`residual`'s Jacobian, so
+        their whitened columns are columns of ``W``, exactly as the product gives them.
+        """
+        x = values[0]
+        terms = self.terms.full_terms(x)
+        offset, gain, az_bias, el_bias, tau, s, c = terms
+        m = self.rows
+        reference = self.reference
+        if self.rate is not None:
+            reference = reference + self.rate * (self.tau0 - tau)
+        r_true, az_true = reference[:, 0], reference[:, 1]
+        res = np.empty((len(r_true), m))
+        res[:, 0] = self.measured[:, 0] - ((1.0 + gain) * r_true + offset)
+        az_pred = az_true + az_bias
+        if s != 0.0 or c != 0.0:
+            az_pred = az_pred + s * np.sin(az_true) + c * np.cos(az_true)
+        res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - az_pred)
+        if m == 3:
+            res[:, 2] = self.measured[:, 2] - (reference[:, 2] + el_bias)
+        w = self.whitening
+        e = np.einsum("nij,nj->ni", w, res)
+        if not jacobians:
+            return e, None
+        jac = np.empty((len(r_true), m, len(self.terms.free)))
+        for k, name in enumerate(self.terms.free):
+            if name == "range_offset":
+                np.negative(w[:, :, 0], out=jac[:, :, k])
+            elif name == "range_gain":
+                np.multiply(w[:, :, 0], -r_true[:, None], out=jac[:, :, k])
+            elif name == "azimuth_bias":
+                np.negative(w[:, :, 1], out=jac[:, :, k])
+            elif name == "elevation_bias":
+                np.negative(w[:, :, 2], out=jac[:, :, k])
+            elif name == "azimuth_sin":
+                np.multiply(w[:, :, 1], -np.sin(az_true)[:, None], out=jac[:, :, k])
+            elif name == "azimuth_cos":
+                np.multiply(w[:, :, 1], -np.cos(az_true)[:, None], out=jac[:, :, k])
+            elif name == "time_offset" and self.rate is not None:
+                rate = self.rate[:, :m].copy()
+                rate[:, 0] *= 1.0 + gain
+                jac[:, :, k] = np.einsum("nij,nj->ni", w, rate)
+            else:  # the time offset without a rate: the residual does not depend on it
+                jac[:, :, k] = 0.0
+        return e, [jac]
 
     def error(
         self, values: list[FloatArray], want_jacobians: bool
     ) -> tuple[FloatArray, list[FloatArray] | None]:
-        e, jac = self.whitened(values)
-        return _flatten(*self.kernel.apply(e, jac if want_jacobians else None))
+        e, jac = self.whitened(values, want_jacobians)
+        return _flatten(*self.kernel.apply(e, jac, in_place=True))  # arrays of this call
 
 
 def adsb_factor(

@@ -30,6 +30,7 @@ from graphcal.data.align import AdsbAlignment
 from graphcal.data.bias import RadarBias, apply_bias, correct_bias, measurement_bias_jacobian
 from graphcal.data.calibration import ResidualStats
 from graphcal.data.dataset import Site
+from graphcal.data.memo import remember
 
 FloatArray = NDArray[np.float64]
 
@@ -139,8 +140,17 @@ def reference_polar_covariance(al: AdsbAlignment, site: Site | None = None) -> F
 
     ``J C J^T`` with ``J = d polar / d enu`` at the reference (paper 002's
     first-order conversion, eq. 17-19); along refracted rays when ``site`` has
-    an atmosphere.
+    an atmosphere.  Shared within a calibration (:mod:`graphcal.data.memo`: the
+    initial values, the factors and the residual statistics use it): read-only.
     """
+    if site is not None and site.atmosphere is not None:
+        return remember(("reference_polar_covariance",), (al, site),
+                        lambda: _reference_polar_covariance(al, site))
+    return remember(("reference_polar_covariance",), (al,),
+                    lambda: _reference_polar_covariance(al, None))
+
+
+def _reference_polar_covariance(al: AdsbAlignment, site: Site | None) -> FloatArray:
     if site is not None and site.atmosphere is not None:
         jac = al.reference_polar_jacobian
         if jac is None:
@@ -148,7 +158,13 @@ def reference_polar_covariance(al: AdsbAlignment, site: Site | None = None) -> F
     else:
         enu = frames.polar_to_enu(*al.reference_polar.T)
         jac = frames.enu_to_polar_jacobian(enu)
-    return jac @ al.reference_enu_cov_m2 @ np.swapaxes(jac, -1, -2)
+    cov = al.reference_enu_cov_m2
+    if cov.ndim == 3 and cov.shape[1:] == (3, 3) and not np.any(
+            cov[:, [0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]]):
+        # Diagonal (as align_adsb makes it): jac @ cov is jac with its columns scaled,
+        # exactly, so one product is spared.
+        return (jac * np.diagonal(cov, axis1=1, axis2=2)[:, None, :]) @ np.swapaxes(jac, -1, -2)
+    return jac @ cov @ np.swapaxes(jac, -1, -2)
 
 
 def residual_stats(site: Site, al: AdsbAlignment, bias: RadarBias) -> ResidualStats:

@@ -19,9 +19,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from numpy.typing import NDArray
 
-from graphcal.data.align import AdsbAlignment, align_adsb, pair_plots, plot_arrays
+from graphcal.core import frames
+from graphcal.data.align import (
+    AdsbAlignment,
+    adsb_track_table,
+    align_adsb,
+    pair_plots,
+    plot_arrays,
+)
 from graphcal.data.dataset import Dataset, Site
 from graphcal.model.cross_radar import RayExcessCache
 from graphcal.model.factors import AdsbFactor, PairwiseFactor, adsb_factor, pairwise_factor
@@ -81,10 +89,12 @@ def polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
     """
     enu = site.enu_from_ecef(al.reference_ecef_m)
     velocity = al.reference_velocity_ecef_m_s
-    plausible = np.linalg.norm(velocity, axis=1) <= ADSB_MAX_SPEED_M_S
-    velocity_enu = np.where(plausible[:, None], velocity, 0.0) @ site.ecef_to_enu.T
+    plausible = frames.row_norm(velocity) <= ADSB_MAX_SPEED_M_S
+    velocity_enu = frames.rotate(np.where(plausible[:, None], velocity, 0.0), site.ecef_to_enu)
     jac = al.reference_polar_jacobian
-    if jac is None or site.atmosphere is None:
+    if site.atmosphere is None:
+        jac = frames.enu_to_polar_jacobian(enu)  # measurement_model(site).enu_jacobian's
+    elif jac is None:
         _, jac = measurement_model(site).enu_jacobian(enu)
     return np.einsum("nij,nj->ni", jac, velocity_enu)
 
@@ -164,7 +174,7 @@ def radars_with_adsb(dataset: Dataset) -> set[str]:
     """Radars with at least one plot whose ``target_id`` has ADS-B reports."""
     if dataset.adsb is None or len(dataset.adsb) == 0:
         return set()
-    targets = set(dataset.adsb["target_id"].astype(str)) - {""}
+    targets = adsb_track_table(dataset.adsb).targets
     plots = dataset.plots
-    seen = plots.loc[plots["target_id"].astype(str).isin(targets), "radar_id"]
-    return set(seen.astype(str))
+    seen = plots["radar_id"][plots["target_id"].astype(str).isin(targets)]
+    return {str(rid) for rid in pd.unique(seen)}

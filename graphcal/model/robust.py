@@ -37,7 +37,8 @@ from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
+
+from graphcal.core import frames
 
 FloatArray = NDArray[np.float64]
 
@@ -49,8 +50,11 @@ DOWNWEIGHT_THRESHOLD = 0.5
 
 @lru_cache(maxsize=8)
 def default_threshold(dimension: int) -> float:
-    """95 % point of the chi distribution with ``dimension`` degrees of freedom."""
-    return float(np.sqrt(stats.chi2.ppf(0.95, dimension)))
+    """95 % point of the chi distribution with ``dimension`` degrees of freedom
+    (``scipy.special.chdtri``: the chi-square quantile, without scipy.stats' import)."""
+    from scipy import special
+
+    return float(np.sqrt(special.chdtri(dimension, 0.05)))
 
 
 @dataclass(frozen=True)
@@ -93,27 +97,35 @@ class RobustKernel:
         return 0.5 * s**2
 
     def apply(
-        self, residual: FloatArray, jacobians: list[FloatArray] | None
+        self, residual: FloatArray, jacobians: list[FloatArray] | None, *,
+        in_place: bool = False,
     ) -> tuple[FloatArray, list[FloatArray] | None]:
         """Robustify whitened residuals ``(n, m)`` and their Jacobians ``(n, m, p)``.
 
         Without Jacobians (cost evaluation) returns ``r sqrt(2 rho(s)) / s``;
         with them (linearisation) returns ``sqrt(w) r`` and ``sqrt(w) J``.
+        ``in_place``: scale the given arrays themselves (the caller's own, fresh ones),
+        sparing the memory of a copy.
         """
         if self.name == "none":
             return residual, jacobians
         m = residual.shape[1]
-        s = np.linalg.norm(residual, axis=1)
+        s = frames.row_norm(residual)
         if jacobians is None:
             scale = np.sqrt(2.0 * self.loss(s, m)) / np.where(s > 0, s, 1.0)
             scale = np.where(s > 0, scale, 1.0)
             return residual * scale[:, None], None
         root_w = np.sqrt(self.weight(s, m))
+        if in_place:
+            residual *= root_w[:, None]
+            for j in jacobians:
+                j *= root_w[:, None, None]
+            return residual, jacobians
         return residual * root_w[:, None], [j * root_w[:, None, None] for j in jacobians]
 
     def downweighted(self, residual: FloatArray) -> NDArray[np.bool_]:
         """Measurements (rows of whitened ``residual``) whose weight is below 0.5."""
         if self.name == "none" or len(residual) == 0:
             return np.zeros(len(residual), dtype=bool)
-        s = np.linalg.norm(residual, axis=1)
+        s = frames.row_norm(residual)
         return self.weight(s, residual.shape[1]) < DOWNWEIGHT_THRESHOLD

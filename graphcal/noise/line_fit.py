@@ -51,7 +51,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import stats
 
 from graphcal.core import frames
 from graphcal.data.align import plot_arrays
@@ -521,6 +520,8 @@ def _window_chi2_keep(lf: LineFitResiduals, sigma: FloatArray, p_value: float) -
         contrib = np.where(valid, lf.polar_residual**2 / var * (1.0 - lf.leverage)[:, None], 0.0)
     q = np.bincount(lf.window, weights=contrib.sum(axis=1))
     dof = np.bincount(lf.window, weights=(valid * (1.0 - lf.leverage)[:, None]).sum(axis=1))
+    from scipy import stats
+
     limit = stats.chi2.isf(p_value, np.maximum(dof, 1.0))
     bad = q > limit
     return ~bad[lf.window]

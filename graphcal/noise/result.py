@@ -18,13 +18,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from scipy import stats
-
 #: Standard error of a MAD-based sigma is ``MAD_SE_FACTOR * sigma / sqrt(n)``
 #: (asymptotic variance ``1.3605 sigma^2 / n``, efficiency 37 % of the standard deviation).
-MAD_SE_FACTOR = math.sqrt(
-    0.25 / (2.0 * stats.norm.pdf(stats.norm.ppf(0.75))) ** 2 / stats.norm.ppf(0.75) ** 2
-)
+#: ``sqrt(0.25 / (2 phi(q))^2 / q^2)`` with ``q = Phi^-1(3/4)`` (the value scipy gives).
+MAD_SE_FACTOR = 1.1663872874444212
 
 
 @dataclass(frozen=True)

@@ -58,14 +58,14 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
 
 from graphcal.core.covariance import polar_covariance, polar_to_enu_covariance
 
 FloatArray = NDArray[np.float64]
 
-#: ``sigma = MAD_TO_SIGMA * MAD`` for Gaussian data (``1 / Phi^-1(3/4)``).
-MAD_TO_SIGMA = 1.0 / stats.norm.ppf(0.75)
+#: ``sigma = MAD_TO_SIGMA * MAD`` for Gaussian data (``1 / Phi^-1(3/4)``, the value of
+#: ``1 / scipy.stats.norm.ppf(0.75)``).
+MAD_TO_SIGMA = 1.482602218505602
 
 
 # --------------------------------------------------------------------------- eq. 1-2

@@ -25,6 +25,7 @@ from graphcal.analysis.observability import report_from_information
 from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY, from_contract_units
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
+from graphcal.data.memo import shared
 from graphcal.io.folder import SITES_FILE, load_dataset, load_sites
 from graphcal.noise import filled_with_notes
 from graphcal.solvers.registry import METHODS, get_estimator
@@ -101,6 +102,7 @@ def _method_options(method: str, given: Mapping[str, Any], sites: Mapping[str, A
     return options
 
 
+@shared
 def calibrate(
     dataset: Dataset | str | os.PathLike[str],
     method: str = "graph",

@@ -43,21 +43,23 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.batched import sum_of_products
 from graphcal.core.errors import EstimationError
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_adsb
 from graphcal.data.bias import PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
+from graphcal.data.memo import shared
 from graphcal.model.information import (
     describe_weak_directions,
     observability,
     solve_normal_equations,
 )
 from graphcal.model.measurement import (
-    RadarMeasurementModel,
     measured_polar,
     measurement_model,
     reference_polar_covariance,
@@ -86,6 +88,11 @@ def _plane_polar(site: Site, polar: FloatArray) -> FloatArray:
     return out
 
 
+def _plane_reference(site: Site, al: AdsbAlignment) -> tuple[FloatArray, FloatArray]:
+    """ENU of the ADS-B references in the plane projection and ``d enu / d polar`` there."""
+    return frames.polar_to_enu_and_jacobian(*_plane_polar(site, al.reference_polar).T)
+
+
 def _alignments(dataset: Dataset, max_gap_s: float) -> dict[str, AdsbAlignment]:
     if dataset.adsb is None:
         raise EstimationError(
@@ -97,34 +104,44 @@ def _alignments(dataset: Dataset, max_gap_s: float) -> dict[str, AdsbAlignment]:
 
 # --------------------------------------------------------------------------- LS
 def ls_radar(
-    site: Site, al: AdsbAlignment, names: list[str], azimuth_compensation_rad: float = 0.0
+    site: Site, al: AdsbAlignment, names: list[str], azimuth_compensation_rad: float = 0.0,
+    *, reference_plane: tuple[FloatArray, FloatArray] | None = None,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Paper 003 LS for one radar.
 
     Returns ``(estimate, covariance, information)`` over ``names`` (SI units).
     ``azimuth_compensation_rad`` is subtracted from the measured azimuths first
     (FL-LS, eq. 10 corrected); the returned azimuth estimate excludes it.
+    ``reference_plane``: the ADS-B references' plane ENU and its Jacobian, when
+    already computed (FL-LS computes them once for FL and LS).
     """
     measured = _plane_polar(site, measured_polar(al))
     measured[:, 1] = measured[:, 1] - azimuth_compensation_rad
-    reference = _plane_polar(site, al.reference_polar)
+    reference_enu, reference_jac = reference_plane or _plane_reference(site, al)
     rows = 3 if site.is_3d else 2
-    z = (frames.polar_to_enu(*measured.T) - frames.polar_to_enu(*reference.T))[:, :rows]
-    jac_r = frames.polar_to_enu_jacobian(*measured.T)[:, :rows, :]
-    positions = [PARAMETER_NAMES.index(n) for n in names]
-    h = jac_r @ RadarMeasurementModel.bias_jacobian(measured[:, 0])[:, :, positions]
-    # Noise of z: radar noise plus the ADS-B noise, both mapped to the plane.
-    jac_a = frames.polar_to_enu_jacobian(*reference.T)[:, :rows, :]
+    measured_enu, measured_jac = frames.polar_to_enu_and_jacobian(*measured.T)
+    z = (measured_enu - reference_enu)[:, :rows]
+    jac_r = np.ascontiguousarray(measured_jac[:, :rows, :])
+    # h = jac_r @ RadarMeasurementModel.bias_jacobian(r)[:, :, positions]: the bias
+    # Jacobian's columns are unit vectors, the gain's scaled by the range, so h is
+    # made of jac_r's columns, exactly as that product gives them.
+    columns = {"range_offset": jac_r[:, :, 0], "range_gain": jac_r[:, :, 0] * measured[:, :1],
+               "azimuth_bias": jac_r[:, :, 1], "elevation_bias": jac_r[:, :, 2]}
+    h = np.stack([columns[name] for name in names], axis=-1)
+    # Noise of z: radar noise plus the ADS-B noise, both mapped to the plane; the radar's
+    # is diagonal, so jac_r @ covar is jac_r with its columns scaled.
+    jac_a = np.ascontiguousarray(reference_jac[:, :rows, :])
     ref_cov = reference_polar_covariance(al, site)
     if not site.is_3d:
+        ref_cov = ref_cov.copy()  # shared: not to be changed in place
         ref_cov[:, 2, :] = 0.0
         ref_cov[:, :, 2] = 0.0
-    sigma = jac_r @ measurement_model(site).covar(len(al)) @ np.swapaxes(jac_r, 1, 2)
+    variances = np.diagonal(measurement_model(site).covar(1)[0])
+    sigma = (jac_r * variances) @ np.swapaxes(jac_r, 1, 2)
     sigma += jac_a @ ref_cov @ np.swapaxes(jac_a, 1, 2)
-    ht = np.swapaxes(h, 1, 2)
-    information = np.einsum("nip,niq->pq", h, h)
-    rhs = np.einsum("nip,ni->p", h, z)
-    middle = np.einsum("npi,nij,njq->pq", ht, sigma, h)
+    information = sum_of_products(h, None, h)
+    rhs = h.reshape(-1, h.shape[-1]).T @ z.reshape(-1)
+    middle = sum_of_products(h, sigma, h)
     sol = solve_normal_equations(information, rhs, middle)
     return sol.estimate, sol.covariance, information
 
@@ -181,7 +198,8 @@ def _run_ls(
     method: str,
     dataset: Dataset,
     max_gap_s: float,
-    azimuth_precompensation: Callable[[Site, AdsbAlignment], tuple[float, dict]] | None,
+    azimuth_precompensation: Callable[[Site, AdsbAlignment, FloatArray], tuple[float, dict]]
+    | None,
 ) -> Calibration:
     alignments = _alignments(dataset, max_gap_s)
     layout = ParameterLayout.for_sites(list(dataset.sites.values()))
@@ -193,12 +211,13 @@ def _run_ls(
             warnings.append(_skip_warning(rid, al, max(len(names), 3)))
             continue
         compensation, detail = 0.0, {}
+        plane = _plane_reference(site, al)  # for FL and LS
         if azimuth_precompensation is not None:
             try:
-                compensation, detail = azimuth_precompensation(site, al)
+                compensation, detail = azimuth_precompensation(site, al, plane[0])
             except EstimationError as exc:
                 warnings.append(f"radar {rid}: {exc}; LS without FL compensation")
-        est, cov, inf = ls_radar(site, al, names, compensation)
+        est, cov, inf = ls_radar(site, al, names, compensation, reference_plane=plane)
         if "azimuth_bias" in names:
             est[names.index("azimuth_bias")] += compensation
         per_radar[rid] = (names, est, cov, inf)
@@ -209,6 +228,7 @@ def _run_ls(
     return _assemble(method, dataset, per_radar, alignments, info)
 
 
+@shared
 @fills_missing_sigmas
 def ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
     """Paper 003 LS (eq. 11-19) against ADS-B, every radar on its own."""
@@ -216,58 +236,93 @@ def ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibr
 
 
 # --------------------------------------------------------------------------- FL
-def _fit_line(points: FloatArray) -> tuple[float, float, float]:
-    """Orthogonal-regression line through 2-D points ordered in time.
+def _fit_lines(points: FloatArray, starts: NDArray[np.int64]) -> tuple[FloatArray, ...]:
+    """Orthogonal-regression line through each window of 2-D points ordered in time.
 
-    Returns ``(direction angle [rad] counter-clockwise from east, oriented along
-    the motion; its variance [rad^2]; RMS perpendicular residual [m])``.
+    ``points`` holds the windows one after the other, window ``k`` from row
+    ``starts[k]``.  Returns per window ``(direction angle [rad] counter-clockwise
+    from east, oriented along the motion; its variance [rad^2]; RMS perpendicular
+    residual [m])``.  The direction is the principal axis of the centred points
+    (the first right singular vector of the centred window, from its 2x2 scatter
+    matrix in closed form).
     """
-    centred = points - points.mean(axis=0)
-    _, singular, vt = np.linalg.svd(centred, full_matrices=False)
-    direction = vt[0]
-    if np.dot(direction, points[-1] - points[0]) < 0:
-        direction = -direction
-    along = centred @ direction
-    perp = centred @ np.array([-direction[1], direction[0]])
-    n = len(points)
-    perp_var = float(np.sum(perp**2) / max(n - 2, 1))
-    spread = float(np.sum(along**2))
-    return float(np.arctan2(direction[1], direction[0])), perp_var / spread, np.sqrt(perp_var)
+    n = np.diff(np.r_[starts, len(points)])
+    window = np.repeat(np.arange(len(starts)), n)
+    centred = points - (np.add.reduceat(points, starts, axis=0) / n[:, None])[window]
+    sxx = np.add.reduceat(centred[:, 0] ** 2, starts)
+    syy = np.add.reduceat(centred[:, 1] ** 2, starts)
+    sxy = np.add.reduceat(centred[:, 0] * centred[:, 1], starts)
+    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    direction = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    motion = points[starts + n - 1] - points[starts]
+    direction[np.einsum("ki,ki->k", direction, motion) < 0] *= -1.0
+    d = direction[window]
+    along = centred[:, 0] * d[:, 0] + centred[:, 1] * d[:, 1]
+    perp = centred[:, 1] * d[:, 0] - centred[:, 0] * d[:, 1]
+    perp_var = np.add.reduceat(perp**2, starts) / np.maximum(n - 2, 1)
+    spread = np.add.reduceat(along**2, starts)
+    return np.arctan2(direction[:, 1], direction[:, 0]), perp_var / spread, np.sqrt(perp_var)
 
 
-def _windows(al: AdsbAlignment, max_gap_s: float) -> list[NDArray[np.int64]]:
-    """Index windows of consecutive plots of one aircraft without long gaps."""
-    windows = []
-    targets = al.plots.target_id.astype(str)
-    for target in np.unique(targets):
-        rows = np.flatnonzero(targets == target)
-        rows = rows[np.argsort(al.plots.time_s[rows], kind="stable")]
-        breaks = np.flatnonzero(np.diff(al.plots.time_s[rows]) > max_gap_s) + 1
-        for segment in np.split(rows, breaks):
-            n_windows = max(1, len(segment) // FL_WINDOW_PLOTS)
-            for window in np.array_split(segment, n_windows):
-                if len(window) >= FL_MIN_WINDOW_PLOTS:
-                    windows.append(window)
-    return windows
+def _windows(al: AdsbAlignment, max_gap_s: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Windows of consecutive plots of one aircraft without long gaps.
+
+    Each aircraft's plots in time order are cut where two are more than
+    ``max_gap_s`` apart; each piece into ``max(1, len // FL_WINDOW_PLOTS)``
+    windows of (almost) equal length (``numpy.array_split``); windows shorter
+    than :data:`FL_MIN_WINDOW_PLOTS` are dropped.  Returns the rows of ``al``
+    window after window (aircraft in sorted order) and each window's first position.
+    """
+    # Aircraft as codes in the order of their identities: sorting by them is sorting by
+    # the text, much faster.
+    targets = al.target_code
+    if targets is None:
+        targets = pd.factorize(al.plots.target_id.astype(str), sort=True)[0]
+    time_s = al.plots.time_s
+    order = np.lexsort((time_s, targets))
+    n = len(order)
+    if n == 0:
+        return order, np.zeros(0, dtype=np.int64)
+    t, g = time_s[order], targets[order]
+    new = np.ones(n, dtype=bool)
+    new[1:] = (g[1:] != g[:-1]) | (np.diff(t) > max_gap_s)
+    piece_start = np.flatnonzero(new)
+    piece_len = np.diff(np.r_[piece_start, n])
+    piece = np.cumsum(new) - 1
+    position = np.arange(n) - piece_start[piece]
+    count = np.maximum(1, piece_len // FL_WINDOW_PLOTS)  # windows per piece
+    size, extra = (piece_len // count)[piece], (piece_len % count)[piece]
+    long_part = extra * (size + 1)  # array_split: the first `extra` windows one longer
+    within = np.where(position < long_part, position // (size + 1),
+                      extra + (position - long_part) // np.maximum(size, 1))
+    window = (np.cumsum(count) - count)[piece] + within
+    keep = np.bincount(window)[window] >= FL_MIN_WINDOW_PLOTS
+    rows, window = order[keep], window[keep]
+    starts = np.flatnonzero(np.r_[True, window[1:] != window[:-1]]) if len(rows) else window
+    return rows, starts.astype(np.int64)
 
 
-def fl_azimuth(site: Site, al: AdsbAlignment, max_gap_s: float = 60.0) -> tuple[float, float, dict]:
-    """FL azimuth bias (paper 003 eq. 8-9, sign kept) with its variance [rad, rad^2]."""
+def fl_azimuth(
+    site: Site, al: AdsbAlignment, max_gap_s: float = 60.0, *,
+    reference_enu: FloatArray | None = None,
+) -> tuple[float, float, dict]:
+    """FL azimuth bias (paper 003 eq. 8-9, sign kept) with its variance [rad, rad^2].
+
+    ``reference_enu``: the ADS-B references' plane ENU, when already computed.
+    """
     radar_xy = frames.polar_to_enu(*_plane_polar(site, measured_polar(al)).T)[:, :2]
-    adsb_xy = frames.polar_to_enu(*_plane_polar(site, al.reference_polar).T)[:, :2]
-    angles, variances = [], []
-    skipped = 0
-    for window in _windows(al, max_gap_s):
-        alpha_a, var_a, rms_a = _fit_line(adsb_xy[window])
-        if rms_a > FL_MAX_LINE_RMS_M:
-            skipped += 1
-            continue
-        alpha_r, var_r, _ = _fit_line(radar_xy[window])
-        angles.append(frames.wrap_to_pi(alpha_a - alpha_r))
-        variances.append(var_a + var_r)
-    if not angles:
+    if reference_enu is None:
+        reference_enu = _plane_reference(site, al)[0]
+    adsb_xy = reference_enu[:, :2]
+    rows, starts = _windows(al, max_gap_s)
+    alpha_a, var_a, rms_a = _fit_lines(adsb_xy[rows], starts)
+    alpha_r, var_r, _ = _fit_lines(radar_xy[rows], starts)
+    straight = ~(rms_a > FL_MAX_LINE_RMS_M)
+    skipped = int(np.sum(~straight))
+    if not np.any(straight):
         raise EstimationError("no straight track segment for the line fit (FL)")
-    angles_arr, var_arr = np.asarray(angles), np.asarray(variances)
+    angles_arr = frames.wrap_to_pi(alpha_a - alpha_r)[straight]
+    var_arr = (var_a + var_r)[straight]
     weights = 1.0 / var_arr
     mean = float(np.sum(weights * angles_arr) / np.sum(weights))
     variance = float(1.0 / np.sum(weights))
@@ -279,6 +334,7 @@ def fl_azimuth(site: Site, al: AdsbAlignment, max_gap_s: float = 60.0) -> tuple[
     return mean, variance, detail
 
 
+@shared
 @fills_missing_sigmas
 def fl(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
     """Paper 003 FL: line-fit azimuth bias, mean range (and elevation) difference."""
@@ -316,12 +372,13 @@ def fl(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibr
     return _assemble("fl", dataset, per_radar, alignments, info)
 
 
+@shared
 @fills_missing_sigmas
 def fl_ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
     """Paper 003 FL-LS: FL azimuth compensation (eq. 10, sign corrected), then LS."""
 
-    def precompensate(site: Site, al: AdsbAlignment) -> tuple[float, dict]:
-        az, _, detail = fl_azimuth(site, al)
+    def precompensate(site: Site, al: AdsbAlignment, enu: FloatArray) -> tuple[float, dict]:
+        az, _, detail = fl_azimuth(site, al, reference_enu=enu)
         return az, detail
 
     return _run_ls("fl-ls", dataset, max_gap_s, precompensate)

@@ -54,12 +54,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from graphcal.core import frames
 from graphcal.core.errors import EstimationError
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY, RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.data.height import HEIGHT_MODEL_KEYS, HeightModelEstimate
+from graphcal.data.memo import shared
 from graphcal.model.cross_radar import gradient_noise_middle
 from graphcal.model.factors import AdsbFactor, PairwiseFactor
 from graphcal.model.height import HEIGHT_PRIOR_SIGMA
@@ -158,7 +160,7 @@ def _pairwise_sandwich_terms(
     for f in problem.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
         e, jacobians = f.whitened(_pair_values(f, values))
-        w = f.kernel.weight(np.linalg.norm(e, axis=1), 3)
+        w = f.kernel.weight(frames.row_norm(e), 3)
         cols = columns[ra] + columns[rb]
         if f.height_key is not None:
             cols = cols + columns[HEIGHT]
@@ -222,6 +224,8 @@ class _Solved:
     variable: set[str]
     realignments: int
     height: FloatArray | None = None
+    #: The joint covariance of some variables at the solution, once computed: (keys, matrix).
+    joint: tuple[list[int], FloatArray] | None = None
 
 
 def _solve(
@@ -333,6 +337,7 @@ def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
     """
     keys = [solved.problem.keys[rid] for rid in solved.radars]
     marginal = solved.fg.joint_covariance(solved.result.values, keys)
+    solved.joint = (keys, marginal)  # the marginals of the result, when nothing is re-solved
     labels = [(rid, name) for rid in solved.radars for name in solved.terms[rid].free]
     information = np.linalg.inv(marginal)
     sigma = np.sqrt(np.diag(marginal))
@@ -357,6 +362,7 @@ def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
 
 
 # --------------------------------------------------------------------------- the estimator
+@shared
 @fills_missing_sigmas
 def graph(
     dataset: Dataset,
@@ -456,10 +462,22 @@ def graph(
             "or no cross-radar factors, not in target-state mode"
         )
     want_time = have_adsb and cross != "target-state" if auto_time else bool(time_offset)
+    # ---------------------------------------------------------------- ADS-B association
+    if have_adsb and cross != "target-state":
+        # Every radar's plots aligned with ADS-B at zero time offset, kept for the
+        # initial values and the first factors (graph runs inside data.memo.sharing).
+        t0 = time.perf_counter()
+        for i, rid in enumerate(radar_ids):
+            align_adsb(dataset, rid, max_gap_s)
+            if progress is not None:
+                progress("ADS-B association", i + 1, len(radar_ids))
+        timing["association_s"] = time.perf_counter() - t0
     tau_radars = radars_with_adsb(dataset) if want_time else set()
     keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
     # ---------------------------------------------------------------- initial values
     t0 = time.perf_counter()
+    if progress is not None:
+        progress("initial values", 0, 1)
     init_biases, init_method, init_notes = initial_biases(
         dataset, have_adsb, "none" if cross == "none" else cross, init
     )
@@ -470,7 +488,9 @@ def graph(
     solved = _solve(dataset, fixed, tau_radars, keys, init_biases, settings, timing)
     time_notes: list[str] = []
     if auto_time and tau_radars:
-        poor = _poorly_determined_time_offsets(solved)
+        t0 = time.perf_counter()
+        poor = _poorly_determined_time_offsets(solved)  # computes the marginals
+        timing["marginals_s"] = timing.get("marginals_s", 0.0) + time.perf_counter() - t0
         if poor:
             time_notes = [
                 f"{rid} time offset not estimated: {why}; assumed 0 s"
@@ -492,7 +512,10 @@ def graph(
     joint_keys = [keys[rid] for rid in radars]
     if solved.height is not None:  # the height model joins the joint covariance last
         joint_keys.append(settings.height_key)
-    marginal = fg.joint_covariance(result.values, joint_keys)
+    if solved.joint is not None and solved.joint[0] == joint_keys:
+        marginal = solved.joint[1]  # computed by the time-offset check, same graph and values
+    else:
+        marginal = fg.joint_covariance(result.values, joint_keys)
     labels = [(rid, name) for rid in radars for name in terms[rid].free]
     p = len(labels)
     columns: dict[str, list[int]] = {rid: [] for rid in radar_ids}
@@ -515,7 +538,7 @@ def graph(
         covariance = covariance[:p, :p]
         information = np.linalg.inv(marginal[:p, :p])
         information = 0.5 * (information + information.T)
-    timing["marginals_s"] = time.perf_counter() - t0
+    timing["marginals_s"] = timing.get("marginals_s", 0.0) + time.perf_counter() - t0
     data_information = information - prior_information
     obs = observability(data_information)
     # ---------------------------------------------------------------- result
@@ -685,13 +708,14 @@ def add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: s
 
 
 def _plots_used(problem: Problem, radars: list[str]) -> dict[str, int]:
-    used: dict[str, set[int]] = {rid: set() for rid in problem.terms}
+    used: dict[str, list[NDArray[np.int64]]] = {rid: [] for rid in problem.terms}
     for rid, f in problem.adsb.items():
-        used[rid].update(f.plot_rows.tolist())
+        used[rid].append(f.plot_rows)
     for f in problem.pairs:
-        used[f.terms_a.radar_id].update(f.a_plots.index.tolist())
-        used[f.terms_b.radar_id].update(f.b_plots.index.tolist())
-    counts = {rid: len(used[rid]) for rid in radars}
+        used[f.terms_a.radar_id].append(f.a_plots.index)
+        used[f.terms_b.radar_id].append(f.b_plots.index)
+    counts = {rid: len(np.unique(np.concatenate(used[rid]))) if used[rid] else 0
+              for rid in radars}
     if problem.target_state is not None:
         counts.update({
             rid: n for rid, n in problem.target_state.plots_per_radar().items() if rid in counts

@@ -35,6 +35,7 @@ from graphcal.data.bias import RadarBias, compose_bias
 from graphcal.data.calibration import Calibration
 from graphcal.data.correct import correct_plots
 from graphcal.data.dataset import Dataset
+from graphcal.data.memo import shared
 from graphcal.model.cross_radar import CrossObservations, cross_observations, shared_noise_middle
 from graphcal.model.information import (
     describe_weak_directions,
@@ -198,6 +199,7 @@ def _adsb_residuals(cal: Calibration, dataset: Dataset) -> None:
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, cal.bias(rid))
 
 
+@shared
 @fills_missing_sigmas
 def wls(
     dataset: Dataset,
@@ -216,6 +218,7 @@ def wls(
     return _run_wls("wls", dataset, False, iterations, max_gap_s, progress, linearise)
 
 
+@shared
 @fills_missing_sigmas
 def wls_pruned(
     dataset: Dataset,

@@ -149,6 +149,19 @@ def test_too_few_plots_give_no_test() -> None:
     assert binned_test(x, np.zeros(50), np.ones(50), np.arange(50)) is None
 
 
+def test_chi2_survival_function_agrees_with_scipy() -> None:
+    """log_chi2_sf (scipy.special) against scipy.stats' chi2.logsf over the tests' range of
+    dof and x, from the bulk (Q near 1) to the far tail."""
+    rng = np.random.default_rng(4)
+    dof = rng.uniform(0.3, 60.0, 3000)
+    x = dof * rng.choice([0.01, 0.3, 1.0, 3.0, 20.0], 3000) * rng.uniform(0.0, 1.5, 3000)
+    expected = stats.chi2.logsf(x, dof)
+    got = np.array([log_chi2_sf(u, d) for u, d in zip(x, dof, strict=True)])
+    finite = np.isfinite(expected) & (expected < 0)
+    assert finite.sum() > 2500
+    np.testing.assert_allclose(got[finite], expected[finite], rtol=1e-12, atol=0)
+
+
 def test_chi2_tail_beyond_scipys_range() -> None:
     for x, dof in ((300.0, 9.0), (150.0, 4.5), (500.0, 12.0)):
         assert log_chi2_sf_series(x, dof) == pytest.approx(stats.chi2.logsf(x, dof), rel=1e-6)

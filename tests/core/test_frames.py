@@ -11,6 +11,7 @@ import numpy as np
 import pymap3d
 import pytest
 
+from graphcal.core import frames
 from graphcal.core.frames import (
     TWO_PI,
     WGS84_A_M,
@@ -751,3 +752,14 @@ def test_elevation_from_height_simple_cases():
         elevation_from_height(r, h0, lat0, h0), np.arcsin(-r / (2 * (gauss + h0))), rtol=1e-12
     )
     assert np.isnan(elevation_from_height(np.nan, 1000.0, lat0, h0))
+
+
+def test_rotate_and_row_norm_are_the_matrix_product_and_numpys_norm() -> None:
+    """frames.rotate is ``v @ M.T`` and row_norm is numpy's norm, bit for bit."""
+    rng = np.random.default_rng(7)
+    v = rng.normal(size=(1000, 3)) * 1e6
+    m = frames.ecef_to_enu_rotation(0.8, 0.04)
+    np.testing.assert_allclose(frames.rotate(v, m), v @ m.T, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(frames.rotate(v[0], m), m @ v[0], rtol=0, atol=1e-9)
+    for width in (2, 3):
+        assert np.array_equal(frames.row_norm(v[:, :width]), np.linalg.norm(v[:, :width], axis=1))

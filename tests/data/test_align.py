@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from graphcal.data.align import align_adsb, bracket, pair_max_gap_s, pair_plots
+from graphcal.data.align import align_adsb, bracket, pair_max_gap_s, pair_plots, quadratic_third
 from graphcal.data.bias import RadarBias
 from tests.synthetic import Track, make_dataset, site_at
 
@@ -134,3 +134,38 @@ def test_cross_radar_pairs_carry_the_quadratic_third_plot() -> None:
                                      pair_max_gap_s(a))
     np.testing.assert_array_equal(third, pairs.a_index2)
     np.testing.assert_allclose(weights, pairs.quadratic_weights)
+
+
+def test_blocked_bracketing_equals_bracketing_each_track_alone() -> None:
+    """One search over all tracks gives bracket()'s answer on each track alone, including
+    repeated times, one-sample tracks, queries on samples and outside the tracks."""
+    from graphcal.data.align import bracket_in_blocks, quadratic_third_in_blocks
+
+    rng = np.random.default_rng(3)
+    tracks = [np.sort(np.round(rng.uniform(0, 100, size), 0)) for size in (1, 2, 5, 40, 3)]
+    tracks.append(np.array([5.0, 5.0, 6.0, 30.0]))
+    time_s = np.concatenate(tracks)
+    start = np.cumsum([0] + [len(t) for t in tracks])
+    block = np.repeat(np.arange(len(tracks)), [len(t) for t in tracks])
+    code = rng.integers(0, len(tracks), 500)
+    query = np.round(rng.uniform(-10, 110, 500), 1)
+    on = rng.integers(0, len(time_s), 50)
+    query[:50] = time_s[on]  # on a sample of the query's own track
+    code[:50] = block[on]
+    lo, hi = start[code], start[code + 1]
+    j, w, ok = bracket_in_blocks(time_s, block + 1j * time_s, code, lo, hi, query, 12.0)
+    third, weights = quadratic_third_in_blocks(time_s, query[ok], j[ok], w[ok], lo[ok], hi[ok],
+                                               12.0)
+    k = 0
+    for i in range(len(query)):
+        track = tracks[code[i]]
+        with np.errstate(divide="ignore", invalid="ignore"):  # repeated times
+            jj, ww, good = bracket(track, query[i : i + 1], 12.0)
+        assert ok[i] == good[0]
+        if good[0]:
+            assert j[i] - lo[i] == jj[0] and w[i] == ww[0]
+            t3, w3 = quadratic_third(track, query[i : i + 1], jj, ww, 12.0)
+            assert (third[k] - lo[i] if third[k] >= 0 else -1) == t3[0]
+            np.testing.assert_array_equal(weights[k], w3[0])
+            k += 1
+    assert 0 < ok.sum() < len(query)

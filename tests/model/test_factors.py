@@ -359,3 +359,12 @@ def test_quadratic_pairwise_factor_jacobians_match_numerical() -> None:
     positions, coefficients = f.plot_noise()
     assert positions.shape == coefficients.shape == (len(f), 4)
     np.testing.assert_allclose(coefficients.sum(axis=1), 0.0, atol=1e-12)
+
+
+def test_kernel_thresholds_are_the_chi_quantiles() -> None:
+    """scipy.special's chi-square quantile gives scipy.stats' chi 95 % points."""
+    from scipy import stats
+
+    for dimension in [1, 2, 3, 4, 7, 9]:
+        assert default_threshold(dimension) == pytest.approx(
+            float(np.sqrt(stats.chi2.ppf(0.95, dimension))), rel=1e-12)

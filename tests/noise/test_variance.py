@@ -136,3 +136,16 @@ def test_bad_arguments() -> None:
         fit_line_irls([1.0, 1.0, 1.0], [1.0, 2.0, 3.0])
     with pytest.raises(ValueError, match="more than 2"):
         residual_sigma([1.0, 2.0])
+
+
+def test_mad_constants_are_the_gaussian_ones() -> None:
+    """sigma = 1.4826 MAD for Gaussian data, and the MAD sigma's standard error factor
+    sqrt(1 / (16 phi(q)^2 q^2)), q = Phi^-1(3/4): the literals are scipy's values."""
+    from scipy import stats
+
+    from graphcal.noise.result import MAD_SE_FACTOR
+    from graphcal.noise.variance import MAD_TO_SIGMA
+
+    q = stats.norm.ppf(0.75)
+    assert MAD_TO_SIGMA == 1.0 / q
+    assert MAD_SE_FACTOR == math.sqrt(0.25 / (2.0 * stats.norm.pdf(q)) ** 2 / q**2)

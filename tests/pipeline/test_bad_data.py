@@ -392,3 +392,34 @@ def test_all_defects_together(tmp_path: Path) -> None:
     assert cal.radar_ids == ["A", "B", "C"]
     _assert_within_3_sigma(cal)
     _assert_within_3_sigma(fl_ls(loaded))
+
+
+def test_duplicate_records_are_those_pandas_finds() -> None:
+    """The sorting duplicate search drops exactly DataFrame.duplicated's rows (the first
+    kept), with NaN equal to NaN, -0.0 to 0.0, missing identities equal, and records that
+    share the time but not the position kept."""
+    from graphcal.data.cleaning import drop_duplicate_adsb, drop_duplicate_plots
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        n = int(rng.integers(2, 40))
+        adsb = pd.DataFrame({
+            "time_s": rng.choice([0.0, 1.0, 2.0, np.nan], n),
+            "target_id": pd.Series(rng.choice(["a1", "b2", "", None], n), dtype="str"),
+            "lat_deg": rng.choice([0.0, -0.0, 1.5, np.nan], n),
+            "lon_deg": rng.choice([3.0, 4.0], n),
+            "alt_m": rng.choice([10.0, 11.0], n),
+        })
+        kept, report = drop_duplicate_adsb(adsb)
+        expected = adsb.duplicated(keep="first").to_numpy()
+        assert report.counts["adsb_duplicate"] == expected.sum()
+        pd.testing.assert_frame_equal(kept, adsb[~expected].reset_index(drop=True))
+        plots = pd.DataFrame({
+            "radar_id": pd.Series(rng.choice(["A", "B"], n), dtype="str"),
+            "time_s": rng.choice([5.0, 6.0], n), "range_m": rng.choice([1e4, 2e4], n),
+            "azimuth_deg": rng.choice([10.0, 20.0], n), "elevation_deg": np.nan,
+            "target_id": pd.Series(rng.choice(["a1", ""], n), dtype="str"),
+        })
+        kept, report = drop_duplicate_plots(plots)
+        expected = plots.duplicated(keep="first").to_numpy()
+        pd.testing.assert_frame_equal(kept, plots[~expected].reset_index(drop=True))
