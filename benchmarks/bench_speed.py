@@ -218,7 +218,7 @@ def agreement(graph: dict[str, Any], plain: dict[str, Any]) -> float:
 
 
 def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
-               work: Path) -> dict[str, Any]:
+               work: Path, window: str | None = None) -> dict[str, Any]:
     """Time graphcal (each root) and the scipy script on one dataset, alternately.
 
     Returns
@@ -229,7 +229,8 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
     """
     commands = {
         name: ([sys.executable, "-m", "graphcal", "calibrate", str(folder), "--out",
-                str(work / f"{name}.json")], environment_for(root))
+                str(work / f"{name}.json"), *(["--window", window] if window else [])],
+               environment_for(root))
         for name, root in roots.items()
     }
     commands["scipy"] = ([sys.executable, "-m", "benchmarks.scipy_adsb", str(folder), "--out",
@@ -330,6 +331,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="where the simulated datasets are kept between runs")
     parser.add_argument("--json", type=Path, default=RESULTS_PATH,
                         help="where to write the figures (default benchmarks/results/)")
+    parser.add_argument("--window", default=None,
+                        help="run graphcal with --window DURATION (e.g. 1h): biases over time, "
+                        "read window by window")
     parser.add_argument("--compare-root", type=Path, default=None,
                         help="also time `graphcal calibrate` from the package tree in this "
                              "folder (labelled 'compared'), alternating with this one")
@@ -350,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
                   flush=True)
             folder = make_dataset(n, traffic, scenario, args.seed, args.fmt, args.data_dir)
             repeats = args.repeats or (1 if n > LARGE_PLOTS else 3)
-            results.append(bench_size(label, folder, repeats, roots, Path(tmp)))
+            results.append(bench_size(label, folder, repeats, roots, Path(tmp), args.window))
     print_table(results, list(roots))
     document = {
         "benchmark": "bench_speed",
