@@ -346,6 +346,10 @@ def smooth_windows(
 ) -> WindowedCalibration:
     """Chain the windows' summaries and smooth them (module docstring).
 
+    The parts of a split window are merged back in the series (the duration-weighted
+    mean of the parts, with its covariance from their joint marginal), except in
+    the last window, whose last part is what applies from now on.
+
     Parameters
     ----------
     summaries : sequence of WindowSummary
@@ -370,9 +374,6 @@ def smooth_windows(
         window has since been split at that time (parts of one window share its
         ``index``): the chain is cut there and the event keeps kind ``"step"``.
 
-    The parts of a split window are merged back in the series (the duration-weighted
-    mean of the parts, with its covariance from their joint marginal), except in
-    the last window, whose last part is what applies from now on.
 
     Raises
     ------
