@@ -122,6 +122,25 @@ class AdsbFactor:
     def dimension(self) -> int:
         return len(self.measured) * self.rows
 
+    def _residual_at(self, offset: float, gain: float, az_bias: float, el_bias: float,
+                     tau: float, s: float, c: float) -> tuple[FloatArray, FloatArray]:
+        """Unwhitened residual ``(n, m)`` at these terms, and the reference polar
+        coordinates it was formed from (moved to ``tau`` when there is a rate)."""
+        m = self.rows
+        reference = self.reference
+        if self.rate is not None:
+            reference = reference + self.rate * (self.tau0 - tau)
+        r_true, az_true = reference[:, 0], reference[:, 1]
+        res = np.empty((len(r_true), m))
+        res[:, 0] = self.measured[:, 0] - ((1.0 + gain) * r_true + offset)
+        az_pred = az_true + az_bias
+        if s != 0.0 or c != 0.0:
+            az_pred = az_pred + s * np.sin(az_true) + c * np.cos(az_true)
+        res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - az_pred)
+        if m == 3:
+            res[:, 2] = self.measured[:, 2] - (reference[:, 2] + el_bias)
+        return res, reference
+
     def residual(
         self, bias: FloatArray, time_offset_s: float = 0.0,
         eccentricity: tuple[float, float] = (0.0, 0.0),
@@ -131,21 +150,10 @@ class AdsbFactor:
         With an azimuth eccentricity ``(s, c)`` the predicted azimuth gains
         ``s sin(az) + c cos(az)`` at the reference azimuth ``az``.
         """
-        offset, gain, az_bias, el_bias = bias
-        s, c = eccentricity
+        gain = bias[1]
         m = self.rows
-        reference = self.reference
-        if self.rate is not None:
-            reference = reference + self.rate * (self.tau0 - time_offset_s)
-        r_true, az_true, el_true = reference.T
-        res = np.empty((len(r_true), m))
-        res[:, 0] = self.measured[:, 0] - ((1.0 + gain) * r_true + offset)
-        az_pred = az_true + az_bias
-        if s != 0.0 or c != 0.0:
-            az_pred = az_pred + s * np.sin(az_true) + c * np.cos(az_true)
-        res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - az_pred)
-        if m == 3:
-            res[:, 2] = self.measured[:, 2] - (el_true + el_bias)
+        res, reference = self._residual_at(*bias, time_offset_s, *eccentricity)
+        r_true, az_true = reference[:, 0], reference[:, 1]
         jac = np.zeros((len(r_true), m, len(TERM_NAMES)))
         jac[:, :, :4] = -RadarMeasurementModel.bias_jacobian(r_true)[:, :m, :]
         jac[:, 1, 5] = -np.sin(az_true)
@@ -167,20 +175,10 @@ class AdsbFactor:
         """
         x = values[0]
         terms = self.terms.full_terms(x)
-        offset, gain, az_bias, el_bias, tau, s, c = terms
+        gain = terms[1]
         m = self.rows
-        reference = self.reference
-        if self.rate is not None:
-            reference = reference + self.rate * (self.tau0 - tau)
+        res, reference = self._residual_at(*terms)
         r_true, az_true = reference[:, 0], reference[:, 1]
-        res = np.empty((len(r_true), m))
-        res[:, 0] = self.measured[:, 0] - ((1.0 + gain) * r_true + offset)
-        az_pred = az_true + az_bias
-        if s != 0.0 or c != 0.0:
-            az_pred = az_pred + s * np.sin(az_true) + c * np.cos(az_true)
-        res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - az_pred)
-        if m == 3:
-            res[:, 2] = self.measured[:, 2] - (reference[:, 2] + el_bias)
         w = self.whitening
         e = np.einsum("nij,nj->ni", w, res)
         if not jacobians:
