@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -150,6 +151,19 @@ def require_columns(path: Path, columns: list[str], required: tuple[str, ...]) -
 # --------------------------------------------------------------------------- CSV
 
 
+@contextmanager
+def _csv_errors(path: Path) -> Iterator[None]:
+    """pandas' CSV errors as a DatasetError naming the file."""
+    try:
+        yield
+    except pd.errors.EmptyDataError:
+        raise DatasetError("the file is empty (no header line)", path=path) from None
+    except pd.errors.ParserError as exc:
+        raise csv_parser_error(path, exc) from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DatasetError(f"cannot read CSV: {exc}", path=path) from None
+
+
 def csv_header(path: Path) -> list[str]:
     """The column names of a CSV table file.
 
@@ -158,14 +172,8 @@ def csv_header(path: Path) -> list[str]:
     DatasetError
         If the file is empty (no header line) or cannot be read.
     """
-    try:
+    with _csv_errors(path):
         return [str(c) for c in pd.read_csv(path, nrows=0, encoding="utf-8-sig").columns]
-    except pd.errors.EmptyDataError:
-        raise DatasetError("the file is empty (no header line)", path=path) from None
-    except pd.errors.ParserError as exc:
-        raise csv_parser_error(path, exc) from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise DatasetError(f"cannot read CSV: {exc}", path=path) from None
 
 
 def _csv_options(header: list[str], usecols: list[str] | None = None) -> dict:
@@ -219,7 +227,7 @@ def _iter_csv(path: Path, chunk_rows: int | None,
     """A CSV file whole (``chunk_rows`` None) or in chunks."""
     header = csv_header(path)
     options = _csv_options(header, usecols)
-    try:
+    with _csv_errors(path):
         if chunk_rows is None:
             yield _csv_rows(path, pd.read_csv(path, **options), 1)
             return
@@ -228,12 +236,6 @@ def _iter_csv(path: Path, chunk_rows: int | None,
             for frame in reader:
                 yield _csv_rows(path, frame, first_row)
                 first_row += len(frame)
-    except pd.errors.EmptyDataError:
-        raise DatasetError("the file is empty (no header line)", path=path) from None
-    except pd.errors.ParserError as exc:
-        raise csv_parser_error(path, exc) from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise DatasetError(f"cannot read CSV: {exc}", path=path) from None
 
 
 # --------------------------------------------------------------------------- Parquet
