@@ -42,7 +42,9 @@ from graphcal.solvers.windows import (
     WindowEstimate,
     WindowOptions,
     WindowSummary,
+    embed_summary,
     summarise_window,
+    window_estimate,
 )
 
 FloatArray = np.ndarray
@@ -190,13 +192,13 @@ class Calibrator:
         """
         radars = list(dict.fromkeys(rid for rid, _ in summary.labels))
         where = {label: i for i, label in enumerate(summary.labels)}
-        keys, points, index = [], [], np.empty(len(summary.labels), dtype=int)
-        offset = 0
-        for rid in radars:
-            chain = self._chain(rid)
+        chains = {rid: self._chain(rid) for rid in radars}
+        radars, information, vector, points = embed_summary(
+            summary, {rid: chains[rid].names for rid in radars})
+        keys = []
+        for rid, point in zip(radars, points, strict=True):
+            chain = chains[rid]
             positions = [where.get((rid, name)) for name in chain.names]
-            point = np.array([summary.estimate[p] if p is not None else 0.0
-                              for p in positions])
             key = symbol("i", self._counter)
             self._counter += 1
             self._graph.add_variable(key, point)
@@ -208,22 +210,13 @@ class Calibrator:
                 block = np.diag(1.0 / (chain.rates * np.sqrt(max(dt, 1e-9))))
                 self._graph.add_linear([chain.keys[-1], key], [-block, block],
                                        np.zeros(len(chain.names)))
-            for col, pos in enumerate(positions):
-                if pos is not None:
-                    index[pos] = offset + col
-                    chain.estimated.add(chain.names[col])
-            offset += len(chain.names)
+            chain.estimated.update(n for n, p in zip(chain.names, positions, strict=True)
+                                   if p is not None)
             chain.keys.append(key)
             chain.windows.append(summary)
             keys.append(key)
-            points.append(point)
         if summary.labels:
-            information, vector = summary.data_information()
-            big = np.zeros((offset, offset))
-            big[np.ix_(index, index)] = information
-            big_vector = np.zeros(offset)
-            big_vector[index] = vector
-            self._graph.add_gaussian(keys, big, big_vector, points)
+            self._graph.add_gaussian(keys, information, vector, points)
         self._graph.update()
         self.summaries.append(summary)
 
@@ -257,15 +250,10 @@ class Calibrator:
     # ------------------------------------------------------------------ estimates out
     def _estimate(self, chain: _RadarChain, key: int, summary: WindowSummary
                   ) -> WindowEstimate:
-        value = self._graph.vector(key)
-        covariance = self._graph.covariance(key)
-        terms = RadarTerms(chain.radar_id, chain.names, {})
-        sd = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-        sigma = {CONTRACT_KEYS[n][0]: float(v) * CONTRACT_KEYS[n][1]
-                 for n, v in zip(chain.names, sd, strict=True) if n in chain.estimated}
-        return WindowEstimate(summary.t_start_s, summary.t_end_s,
-                              summary.n_plots.get(chain.radar_id, 0), terms.bias(value),
-                              sigma, covariance)
+        return window_estimate(summary, chain.radar_id,
+                               RadarTerms(chain.radar_id, chain.names, {}),
+                               self._graph.vector(key), self._graph.covariance(key),
+                               reported=chain.estimated)
 
     def current(self) -> dict[str, WindowEstimate]:
         """Each radar's latest window, smoothed with everything so far: the correction

@@ -448,7 +448,7 @@ def _chain_graph(summaries: Sequence[WindowSummary], chains: Mapping[str, _Chain
     fg = FactorGraph()
     keys: dict[str, list[int]] = {}
     counter = 0
-    embedding: dict[tuple[int, str], tuple[int, list[int | None]]] = {}
+    key_of: dict[tuple[int, str], int] = {}
     for rid, chain in chains.items():
         keys[rid] = []
         prior = prior_sigmas(sites[rid], RadarTerms(rid, chain.names, {}))
@@ -457,7 +457,7 @@ def _chain_graph(summaries: Sequence[WindowSummary], chains: Mapping[str, _Chain
             key = symbol("w", counter)
             counter += 1
             keys[rid].append(key)
-            embedding[(s, rid)] = (key, positions)
+            key_of[(s, rid)] = key
             start = np.array([summaries[s].estimate[p] if p is not None else 0.0
                               for p in positions])
             fg.add_variable(key, start)
@@ -471,35 +471,52 @@ def _chain_graph(summaries: Sequence[WindowSummary], chains: Mapping[str, _Chain
     for s, summary in enumerate(summaries):
         if not summary.labels:
             continue
-        information, vector = summary.data_information()
-        radars = list(dict.fromkeys(rid for rid, _ in summary.labels))
-        # Embed the summary's terms into each radar's chain vector (terms the window
-        # did not estimate get no information from it).
-        size = {rid: len(chains[rid].names) for rid in radars}
-        edges = np.concatenate([[0], np.cumsum([size[rid] for rid in radars])])
-        big = np.zeros((edges[-1], edges[-1]))
-        big_vector = np.zeros(edges[-1])
-        index = np.empty(len(summary.labels), dtype=int)
-        points = []
-        for r, rid in enumerate(radars):
-            _, positions = embedding[(s, rid)]
-            point = np.zeros(size[rid])
-            for col, pos in enumerate(positions):
-                if pos is not None:
-                    index[pos] = edges[r] + col
-                    point[col] = summary.estimate[pos]
-            points.append(point)
-        big[np.ix_(index, index)] = information
-        big_vector[index] = vector
-        fg.add_gaussian([embedding[(s, rid)][0] for rid in radars], big, big_vector, points)
+        radars, big, big_vector, points = embed_summary(
+            summary, {rid: chains[rid].names for rid in
+                      dict.fromkeys(rid for rid, _ in summary.labels)})
+        fg.add_gaussian([key_of[(s, rid)] for rid in radars], big, big_vector, points)
     return fg, keys
 
 
-def _window_estimate(summary: WindowSummary, rid: str, terms: RadarTerms, value: FloatArray,
-                     covariance: FloatArray) -> WindowEstimate:
+def embed_summary(summary: WindowSummary, names: Mapping[str, Sequence[str]]
+                  ) -> tuple[list[str], FloatArray, FloatArray, list[FloatArray]]:
+    """A summary laid out on its radars' chain vectors, ready for ``add_gaussian``.
+
+    ``names`` gives each of the summary's radars its chain terms (in order); terms
+    the window did not estimate get no information from it.  Returns the radars,
+    the information matrix and vector over their stacked vectors, and each radar's
+    linearisation point (the window's estimate, 0 where not estimated).
+    """
+    radars = list(names)
+    where = {label: i for i, label in enumerate(summary.labels)}
+    edges = np.concatenate([[0], np.cumsum([len(names[rid]) for rid in radars])])
+    index = np.empty(len(summary.labels), dtype=int)
+    points = []
+    for r, rid in enumerate(radars):
+        point = np.zeros(len(names[rid]))
+        for col, name in enumerate(names[rid]):
+            pos = where.get((rid, name))
+            if pos is not None:
+                index[pos] = edges[r] + col
+                point[col] = summary.estimate[pos]
+        points.append(point)
+    information, vector = summary.data_information()
+    big = np.zeros((edges[-1], edges[-1]))
+    big[np.ix_(index, index)] = information
+    big_vector = np.zeros(edges[-1])
+    big_vector[index] = vector
+    return radars, big, big_vector, points
+
+
+def window_estimate(summary: WindowSummary, rid: str, terms: RadarTerms, value: FloatArray,
+                    covariance: FloatArray, reported: Sequence[str] | None = None
+                    ) -> WindowEstimate:
+    """One radar's :class:`WindowEstimate` from its chain value and covariance (SI);
+    sigmas of the terms in ``reported`` (default: all)."""
     sd = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     sigma = {CONTRACT_KEYS[name][0]: float(v) * CONTRACT_KEYS[name][1]
-             for name, v in zip(terms.free, sd, strict=True)}
+             for name, v in zip(terms.free, sd, strict=True)
+             if reported is None or name in reported}
     return WindowEstimate(summary.t_start_s, summary.t_end_s, summary.n_plots.get(rid, 0),
                           terms.bias(value), sigma, covariance)
 
@@ -519,7 +536,7 @@ def _series(rid: str, chain: _Chain, keys: list[int], terms: RadarTerms,
         parts = [summaries[chain.entries[row][0]] for row in rows]
         if len(rows) == 1 or g == len(groups) - 1:
             row = rows[-1]
-            out.append(_window_estimate(parts[-1], rid, terms, result.vector(keys[row]),
+            out.append(window_estimate(parts[-1], rid, terms, result.vector(keys[row]),
                                         marginals[keys[row]]))
             continue
         durations = np.array([p.t_end_s - p.t_start_s for p in parts])
@@ -530,7 +547,7 @@ def _series(rid: str, chain: _Chain, keys: list[int], terms: RadarTerms,
         value = mix @ np.concatenate([result.vector(keys[row]) for row in rows])
         merged = replace(parts[0], t_end_s=parts[-1].t_end_s,
                          n_plots={rid: sum(p.n_plots.get(rid, 0) for p in parts)})
-        out.append(_window_estimate(merged, rid, terms, value, mix @ joint @ mix.T))
+        out.append(window_estimate(merged, rid, terms, value, mix @ joint @ mix.T))
     return out
 
 
@@ -620,4 +637,5 @@ def windowed_graph(
 
 __all__ = ["DEFAULT_RANDOM_WALK_PER_SQRT_S", "MIN_WINDOW_PLOTS", "RATE_FLOOR_FRACTION", "BiasEvent",
            "WindowEstimate", "WindowOptions", "WindowSummary", "WindowedCalibration",
-           "declared_cuts", "smooth_windows", "summarise_window", "windowed_graph"]
+           "declared_cuts", "embed_summary", "smooth_windows", "summarise_window",
+           "window_estimate", "windowed_graph"]
