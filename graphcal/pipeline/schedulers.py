@@ -74,6 +74,7 @@ def map_windows(
     args: tuple[Any, ...] = (),
     progress: Progress | None = None,
     total: int | None = None,
+    stage: str = "windows",
 ) -> Iterator[Any]:
     """``function(item, *args)`` for every item, in item order.
 
@@ -88,19 +89,22 @@ def map_windows(
     args : tuple
         Extra arguments, the same for every item.
     progress : callable, optional
-        ``progress("windows", done, total)`` after each result.
+        ``progress(stage, done, total)`` after each result.
     total : int, optional
         Number of items, for the progress.
+    stage : str
+        The progress's stage name.
     """
     scheduler = check_scheduler(scheduler)
     if scheduler == "synchronous":
         for done, item in enumerate(items, start=1):
             result = function(item, *args)
             if progress is not None:
-                progress("windows", done, total or done)
+                progress(stage, done, total or done)
             yield result
         return
-    yield from _map_on_dask(function, items, scheduler, args, progress, total)
+    report = None if progress is None else (lambda done, n: progress(stage, done, n))
+    yield from _map_on_dask(function, items, scheduler, args, report, total)
 
 
 def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: str,
@@ -123,7 +127,7 @@ def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: 
                     results[pending.pop(future)] = future.result()
                     done += 1
                     if progress is not None:
-                        progress("windows", done, total or done)
+                        progress(done, total or done)
             while next_out in results:
                 yield results.pop(next_out)
                 next_out += 1
@@ -131,7 +135,7 @@ def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: 
             results[number] = future.result()
             done += 1
             if progress is not None:
-                progress("windows", done, total or done)
+                progress(done, total or done)
         while next_out in results:
             yield results.pop(next_out)
             next_out += 1

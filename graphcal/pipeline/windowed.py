@@ -177,7 +177,9 @@ def calibrate_windows(
                  for part in split_window(windows[index], [t for t, _, _ in cuts[index]])]
         part_summaries = [s for s in map_windows(summarise_window, parts, scheduler=scheduler,
                                                  args=(options,), progress=progress,
-                                                 total=len(parts)) if s is not None]
+                                                 total=len(parts),
+                                                 stage="windows holding a step, in parts")
+                          if s is not None]
         summaries = sorted([s for s in summaries if s.index not in cuts] + part_summaries,
                            key=lambda s: (s.t_start_s, s.t_end_s))
         result = smooth_windows(summaries, source.sites, window_s,
