@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
+from scipy import special
 
 FloatArray = NDArray[np.float64]
 
@@ -144,6 +144,13 @@ def _ratio(without: FloatArray, with_step: FloatArray) -> float:
     return float(2.0 * (without[best] - with_step[best]))
 
 
+def _chi2_sf(statistic: float, dof: int) -> float:
+    """``P(chi2_dof > statistic)``; 1 for a statistic at or below zero (a ratio of
+    likelihoods that rounding made slightly negative).  ``scipy.special.chdtrc``, not
+    scipy.stats, whose import costs a second."""
+    return float(special.chdtrc(dof, max(float(statistic), 0.0)))
+
+
 def _best_step(segments_of, t: FloatArray, r: FloatArray, grids: list[FloatArray], m: int,
                n: int, cuts: list[int]) -> tuple[float, list[int], float] | None:
     """The most significant step candidate: ``(p-value, links to cut, statistic)``.
@@ -168,7 +175,7 @@ def _best_step(segments_of, t: FloatArray, r: FloatArray, grids: list[FloatArray
                 # which leaves its 1/2 log S; the rest restarts from that entry.
                 cut = others + seg.forward[i] + seg.half_log_s[i + 1] + seg.backward[i + 1]
                 statistic = _ratio(totals, cut)
-                candidate = (float(chi2.sf(statistic, 1)), [int(rows[i])], statistic)
+                candidate = (_chi2_sf(statistic, 1), [int(rows[i])], statistic)
                 if best is None or candidate[0] < best[0]:
                     best = candidate
                 if i == 0:
@@ -180,7 +187,7 @@ def _best_step(segments_of, t: FloatArray, r: FloatArray, grids: list[FloatArray
                 alone = (others + seg.forward[i - 1] + seg.half_log_s[i]
                          + 0.5 * np.log(next_s) + seg.backward[i + 1])
                 statistic = _ratio(totals, alone)
-                candidate = (float(chi2.sf(statistic, 2)), [int(a), int(k)], statistic)
+                candidate = (_chi2_sf(statistic, 2), [int(a), int(k)], statistic)
                 if candidate[0] < best[0]:
                     best = candidate
     return best

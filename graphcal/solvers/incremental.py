@@ -29,7 +29,7 @@ from dataclasses import replace
 
 import numpy as np
 import pandas as pd
-from scipy.stats import chi2
+from scipy import special
 
 from graphcal.data.bias import CONTRACT_KEYS
 from graphcal.data.dataset import Dataset, Site
@@ -42,7 +42,9 @@ from graphcal.solvers.windows import (
     WindowEstimate,
     WindowOptions,
     WindowSummary,
+    chain_scale,
     embed_summary,
+    random_walk_block,
     summarise_window,
     window_estimate,
 )
@@ -57,11 +59,12 @@ class _RadarChain:
     """One radar's variables in the incremental graph."""
 
     def __init__(self, radar_id: str, names: tuple[str, ...], prior: FloatArray,
-                 rates: FloatArray) -> None:
+                 rates: FloatArray, scale: FloatArray) -> None:
         self.radar_id = radar_id
         self.names = names
         self.prior = prior
         self.rates = rates
+        self.scale = scale  # the variables are bias / scale (windows.chain_scale)
         self.keys: list[int] = []
         self.windows: list[WindowSummary] = []
         self.estimated: set[str] = set()
@@ -173,7 +176,7 @@ class Calibrator:
         return added
 
     # ------------------------------------------------------------------ the chain
-    def _chain(self, radar_id: str) -> _RadarChain:
+    def _chain(self, radar_id: str, first: WindowSummary) -> _RadarChain:
         chain = self._chains.get(radar_id)
         if chain is None:
             site = self.sites[radar_id]
@@ -182,7 +185,8 @@ class Calibrator:
             names = tuple(n for n in TERM_NAMES if n in terms.free)
             prior = prior_sigmas(site, RadarTerms(radar_id, names, {}))
             rates = np.array([self._rates[n] for n in names])
-            chain = self._chains[radar_id] = _RadarChain(radar_id, names, prior, rates)
+            chain = self._chains[radar_id] = _RadarChain(
+                radar_id, names, prior, rates, chain_scale(first, radar_id, names, prior))
         return chain
 
     def add_summary(self, summary: WindowSummary) -> None:
@@ -192,9 +196,10 @@ class Calibrator:
         """
         radars = list(dict.fromkeys(rid for rid, _ in summary.labels))
         where = {label: i for i, label in enumerate(summary.labels)}
-        chains = {rid: self._chain(rid) for rid in radars}
+        chains = {rid: self._chain(rid, summary) for rid in radars}
         radars, information, vector, points = embed_summary(
-            summary, {rid: chains[rid].names for rid in radars})
+            summary, {rid: chains[rid].names for rid in radars},
+            {rid: chains[rid].scale for rid in radars})
         keys = []
         for rid, point in zip(radars, points, strict=True):
             chain = chains[rid]
@@ -204,10 +209,10 @@ class Calibrator:
             self._graph.add_variable(key, point)
             cut = self.detect_steps and chain.keys and self._step(chain, summary, positions)
             if not chain.keys or cut:
-                self._graph.add_prior(key, np.zeros(len(chain.names)), chain.prior)
+                self._graph.add_prior(key, np.zeros(len(chain.names)), chain.prior / chain.scale)
             else:
                 dt = summary.middle_s - chain.windows[-1].middle_s
-                block = np.diag(1.0 / (chain.rates * np.sqrt(max(dt, 1e-9))))
+                block = random_walk_block(chain.rates, dt, chain.scale)
                 self._graph.add_linear([chain.keys[-1], key], [-block, block],
                                        np.zeros(len(chain.names)))
             chain.estimated.update(n for n, p in zip(chain.names, positions, strict=True)
@@ -224,8 +229,8 @@ class Calibrator:
               positions: Sequence[int | None]) -> bool:
         """Whether the new window's own estimate jumps beyond the random walk."""
         previous = chain.keys[-1]
-        mean = self._graph.vector(previous)
-        covariance = self._graph.covariance(previous)
+        mean = chain.scale * self._graph.vector(previous)
+        covariance = self._graph.covariance(previous) * np.outer(chain.scale, chain.scale)
         dt = summary.middle_s - chain.windows[-1].middle_s
         predicted = np.diag(covariance) + chain.rates**2 * dt
         sizes, sigmas, worst = {}, {}, 1.0
@@ -235,7 +240,7 @@ class Calibrator:
                 continue
             innovation = summary.estimate[pos] - mean[col]
             s = predicted[col] + summary.covariance[pos, pos]
-            p = float(chi2.sf(innovation**2 / s, 1))
+            p = float(special.chdtrc(1, innovation**2 / s))
             worst = min(worst, p)
             if p < threshold:
                 key, factor = CONTRACT_KEYS[chain.names[col]]
@@ -244,7 +249,7 @@ class Calibrator:
         if not sizes:
             return False
         self.events.append(BiasEvent(chain.radar_id, summary.t_start_s, "step", list(sizes),
-                                     sizes, sigmas, float(chi2.isf(worst, 1))))
+                                     sizes, sigmas, float(special.chdtri(1, worst))))
         return True
 
     # ------------------------------------------------------------------ estimates out
@@ -252,7 +257,8 @@ class Calibrator:
                   ) -> WindowEstimate:
         return window_estimate(summary, chain.radar_id,
                                RadarTerms(chain.radar_id, chain.names, {}),
-                               self._graph.vector(key), self._graph.covariance(key),
+                               chain.scale * self._graph.vector(key),
+                               self._graph.covariance(key) * np.outer(chain.scale, chain.scale),
                                reported=chain.estimated)
 
     def current(self) -> dict[str, WindowEstimate]:

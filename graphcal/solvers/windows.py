@@ -81,6 +81,14 @@ MIN_WINDOW_PLOTS = 100
 #: Floor of an estimated rate, as a fraction of the default.
 RATE_FLOOR_FRACTION = 1e-2
 
+#: Largest whitening of a random-walk factor between neighbouring windows, in units of
+#: the chain's scale (:func:`chain_scale`, a window's sigma): a walk of a hundredth of
+#: a window's sigma per window holds a bias as constant as any slower one would (over
+#: 100 windows it allows 0.1 sigma), while stiffer links make the chain's information
+#: matrix too ill-conditioned for GTSAM's multifrontal Cholesky factorisation
+#: (``IndeterminateLinearSystemException`` on a two-window recording).
+MAX_RANDOM_WALK_STIFFNESS = 100.0
+
 
 # --------------------------------------------------------------------------- summaries
 @dataclass(frozen=True)
@@ -332,6 +340,55 @@ def declared_cuts(middles: FloatArray, starts: FloatArray, ends: FloatArray,
     return sorted(cuts)
 
 
+def chain_scale(summary: WindowSummary, radar_id: str, names: Sequence[str],
+                prior: FloatArray) -> FloatArray:
+    """Units of a radar's chain variables: its first window's sigmas, per term.
+
+    The chain is solved for ``bias / scale`` so that every variable is of order one:
+    in SI units a range gain (1e-5) and a range offset (10 m) differ by six orders
+    of magnitude, and a slow random walk on the gain then makes the information
+    matrix too ill-conditioned for GTSAM's Cholesky factorisation.  ``prior`` (the
+    weak prior's sigmas) stands in for a term the window did not estimate.
+    """
+    where = {label: i for i, label in enumerate(summary.labels)}
+    scale = np.array(prior, dtype=float)
+    for col, name in enumerate(names):
+        pos = where.get((radar_id, name))
+        if pos is not None and summary.covariance[pos, pos] > 0:
+            scale[col] = np.sqrt(summary.covariance[pos, pos])
+    return scale
+
+
+def random_walk_block(rates_per_sqrt_s: FloatArray, dt_s: float,
+                      scale: FloatArray) -> FloatArray:
+    """Whitened Jacobian block of a random-walk factor between two scaled chain variables:
+    ``diag(scale / (rate sqrt(dt)))`` (:func:`chain_scale`), at most
+    :data:`MAX_RANDOM_WALK_STIFFNESS`."""
+    stiffness = scale / (rates_per_sqrt_s * np.sqrt(max(dt_s, 1e-9)))
+    return np.diag(np.minimum(stiffness, MAX_RANDOM_WALK_STIFFNESS))
+
+
+@dataclass
+class _ChainSolution:
+    """The solved chain in SI units: GTSAM's values and marginals, scaled back."""
+
+    fg: FactorGraph
+    solved: Any  # the OptimizationResult of FactorGraph.solve_linear
+    scale: Mapping[int, FloatArray]
+
+    def vector(self, key: int) -> FloatArray:
+        return self.scale[key] * self.solved.vector(key)
+
+    def joint_covariance(self, keys: Sequence[int]) -> FloatArray:
+        d = np.concatenate([self.scale[k] for k in keys])
+        return self.fg.joint_covariance(self.solved.values, keys) * np.outer(d, d)
+
+    def marginal_covariances(self, keys: Sequence[int]) -> list[FloatArray]:
+        return [c * np.outer(self.scale[k], self.scale[k])
+                for k, c in zip(keys, self.fg.marginal_covariances(self.solved.values, keys),
+                                strict=True)]
+
+
 def smooth_windows(
     summaries: Sequence[WindowSummary],
     sites: Mapping[str, Site],
@@ -415,23 +472,22 @@ def smooth_windows(
         rates[rid] = dict(zip(chain.names, analysis.rates.tolist(), strict=True))
     timing["rates_and_steps_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    fg, keys = _chain_graph(summaries, chains, analyses, sites)
-    result = fg.solve_linear()
+    fg, keys, scale = _chain_graph(summaries, chains, analyses, sites)
+    result = _ChainSolution(fg, fg.solve_linear(), scale)
     timing["smoothing_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     every_key = [key for chain_keys in keys.values() for key in chain_keys]
-    marginals = dict(zip(every_key, fg.marginal_covariances(result.values, every_key),
-                         strict=True))
+    marginals = dict(zip(every_key, result.marginal_covariances(every_key), strict=True))
     terms = {rid: RadarTerms(rid, chain.names, {}) for rid, chain in chains.items()}
-    series = {rid: _series(rid, chains[rid], keys[rid], terms[rid], summaries, fg, result,
+    series = {rid: _series(rid, chains[rid], keys[rid], terms[rid], summaries, result,
                            marginals)
               for rid in chains}
     events = [event for rid in chains
               for event in _events(rid, chains[rid], keys[rid], analyses[rid], summaries,
-                                   fg, result, known.get(rid, ()))]
+                                   result, known.get(rid, ()))]
     last_keys = [keys[rid][-1] for rid in chains]
     last_labels = [(rid, name) for rid in chains for name in chains[rid].names]
-    last_covariance = fg.joint_covariance(result.values, last_keys)
+    last_covariance = result.joint_covariance(last_keys)
     last_estimate = np.concatenate([result.vector(k) for k in last_keys])
     timing["marginals_s"] = time.perf_counter() - t0
     return WindowedCalibration(
@@ -443,29 +499,35 @@ def smooth_windows(
 
 def _chain_graph(summaries: Sequence[WindowSummary], chains: Mapping[str, _Chain],
                  analyses: Mapping[str, ChainAnalysis], sites: Mapping[str, Site]
-                 ) -> tuple[FactorGraph, dict[str, list[int]]]:
-    """Variables, summaries, priors and random walks of every chain."""
+                 ) -> tuple[FactorGraph, dict[str, list[int]], dict[int, FloatArray]]:
+    """Variables, summaries, priors and random walks of every chain, in the units of
+    :func:`chain_scale` (returned per key)."""
     fg = FactorGraph()
     keys: dict[str, list[int]] = {}
     counter = 0
     key_of: dict[tuple[int, str], int] = {}
+    scales: dict[str, FloatArray] = {}
+    scale_of: dict[int, FloatArray] = {}
     for rid, chain in chains.items():
         keys[rid] = []
         prior = prior_sigmas(sites[rid], RadarTerms(rid, chain.names, {}))
+        scale = scales[rid] = chain_scale(summaries[chain.entries[0][0]], rid, chain.names,
+                                          prior)
         analysis = analyses[rid]
         for row, (s, positions) in enumerate(chain.entries):
             key = symbol("w", counter)
             counter += 1
             keys[rid].append(key)
             key_of[(s, rid)] = key
+            scale_of[key] = scale
             start = np.array([summaries[s].estimate[p] if p is not None else 0.0
                               for p in positions])
-            fg.add_variable(key, start)
+            fg.add_variable(key, start / scale)
             if row == 0 or (row - 1) in analysis.cuts:
-                fg.add_prior(key, np.zeros(len(chain.names)), prior)
+                fg.add_prior(key, np.zeros(len(chain.names)), prior / scale)
             else:
                 dt = summaries[s].middle_s - summaries[chain.entries[row - 1][0]].middle_s
-                block = np.diag(1.0 / (analysis.rates * np.sqrt(max(dt, 1e-9))))
+                block = random_walk_block(analysis.rates, dt, scale)
                 fg.add_linear([keys[rid][row - 1], key], [-block, block],
                               np.zeros(len(chain.names)))
     for s, summary in enumerate(summaries):
@@ -473,19 +535,22 @@ def _chain_graph(summaries: Sequence[WindowSummary], chains: Mapping[str, _Chain
             continue
         radars, big, big_vector, points = embed_summary(
             summary, {rid: chains[rid].names for rid in
-                      dict.fromkeys(rid for rid, _ in summary.labels)})
+                      dict.fromkeys(rid for rid, _ in summary.labels)}, scales)
         fg.add_gaussian([key_of[(s, rid)] for rid in radars], big, big_vector, points)
-    return fg, keys
+    return fg, keys, scale_of
 
 
-def embed_summary(summary: WindowSummary, names: Mapping[str, Sequence[str]]
+def embed_summary(summary: WindowSummary, names: Mapping[str, Sequence[str]],
+                  scales: Mapping[str, FloatArray] | None = None
                   ) -> tuple[list[str], FloatArray, FloatArray, list[FloatArray]]:
     """A summary laid out on its radars' chain vectors, ready for ``add_gaussian``.
 
     ``names`` gives each of the summary's radars its chain terms (in order); terms
     the window did not estimate get no information from it.  Returns the radars,
     the information matrix and vector over their stacked vectors, and each radar's
-    linearisation point (the window's estimate, 0 where not estimated).
+    linearisation point (the window's estimate, 0 where not estimated); with
+    ``scales`` (radar id -> :func:`chain_scale`), all of them for the scaled
+    variables ``bias / scale``.
     """
     radars = list(names)
     where = {label: i for i, label in enumerate(summary.labels)}
@@ -505,6 +570,11 @@ def embed_summary(summary: WindowSummary, names: Mapping[str, Sequence[str]]
     big[np.ix_(index, index)] = information
     big_vector = np.zeros(edges[-1])
     big_vector[index] = vector
+    if scales is not None:
+        d = np.concatenate([scales[rid] for rid in radars])
+        big *= np.outer(d, d)
+        big_vector *= d
+        points = [point / scales[rid] for rid, point in zip(radars, points, strict=True)]
     return radars, big, big_vector, points
 
 
@@ -522,7 +592,7 @@ def window_estimate(summary: WindowSummary, rid: str, terms: RadarTerms, value: 
 
 
 def _series(rid: str, chain: _Chain, keys: list[int], terms: RadarTerms,
-            summaries: Sequence[WindowSummary], fg: FactorGraph, result: Any,
+            summaries: Sequence[WindowSummary], result: _ChainSolution,
             marginals: Mapping[int, FloatArray]) -> list[WindowEstimate]:
     """The radar's windows; the parts of a split window merged (not in the last window)."""
     groups: list[list[int]] = []
@@ -542,7 +612,7 @@ def _series(rid: str, chain: _Chain, keys: list[int], terms: RadarTerms,
         durations = np.array([p.t_end_s - p.t_start_s for p in parts])
         weights = durations / durations.sum()
         m = len(chain.names)
-        joint = fg.joint_covariance(result.values, [keys[row] for row in rows])
+        joint = result.joint_covariance([keys[row] for row in rows])
         mix = np.kron(weights[None, :], np.eye(m))
         value = mix @ np.concatenate([result.vector(keys[row]) for row in rows])
         merged = replace(parts[0], t_end_s=parts[-1].t_end_s,
@@ -552,7 +622,7 @@ def _series(rid: str, chain: _Chain, keys: list[int], terms: RadarTerms,
 
 
 def _events(rid: str, chain: _Chain, keys: list[int], analysis: ChainAnalysis,
-            summaries: Sequence[WindowSummary], fg: FactorGraph, result: Any,
+            summaries: Sequence[WindowSummary], result: _ChainSolution,
             known: Sequence[tuple[float, str, float | None]]) -> list[BiasEvent]:
     """One event per cut (an isolated window, cut on both sides, is one step in it)."""
     events: list[BiasEvent] = []
@@ -570,7 +640,7 @@ def _events(rid: str, chain: _Chain, keys: list[int], analysis: ChainAnalysis,
         isolated = i + 1 < len(cuts) and cuts[i + 1] == link + 1
         before, after = link, link + (2 if isolated else 1)
         a, b = keys[before], keys[after]
-        joint = fg.joint_covariance(result.values, [a, b])
+        joint = result.joint_covariance([a, b])
         m = len(chain.names)
         change = result.vector(b) - result.vector(a)
         change_cov = joint[:m, :m] + joint[m:, m:] - joint[:m, m:] - joint[m:, :m]
@@ -601,7 +671,7 @@ def _events(rid: str, chain: _Chain, keys: list[int], analysis: ChainAnalysis,
 
 
 def _largest_move(summaries: Sequence[WindowSummary], chains: Mapping[str, _Chain],
-                  keys: Mapping[str, list[int]], result: Any) -> float:
+                  keys: Mapping[str, list[int]], result: _ChainSolution) -> float:
     largest = 0.0
     for rid, chain in chains.items():
         for (s, positions), key in zip(chain.entries, keys[rid], strict=True):

@@ -76,19 +76,25 @@ def test_plain_progress_reports_the_latest_stage_and_share(monkeypatch, capsys) 
     assert len(lines) <= 9  # at most one line per interval
 
 
-def test_a_default_calibration_imports_no_scipy_stats(folder: Path, tmp_path: Path) -> None:
-    """scipy.stats' import costs a fifth of a small calibration; the default path uses
-    scipy.special only (robust thresholds, chi-square tail)."""
+@pytest.mark.parametrize(("extra", "module"), [
+    ([], "graphcal.analysis.model_checks"),
+    (["--window", "5min"], "graphcal.solvers.drift"),
+])
+def test_a_default_calibration_imports_no_scipy_stats(folder: Path, tmp_path: Path,
+                                                      extra: list[str], module: str) -> None:
+    """scipy.stats' import costs a fifth of a small calibration (a second of a 1M-plot
+    windowed one); the default path uses scipy.special only (robust thresholds,
+    chi-square tails, the step tests)."""
     script = (
         "import json, sys\n"
         "from graphcal.cli.app import app\n"
         f"sys.argv = ['graphcal', 'calibrate', {str(folder)!r}, '--out', "
-        f"{str(tmp_path / 'r.json')!r}]\n"
+        f"{str(tmp_path / 'r.json')!r}, *{extra!r}]\n"
         "try:\n    app()\nexcept SystemExit:\n    pass\n"
         "print(json.dumps(sorted(sys.modules)))\n"
     )
     done = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True,
                           text=True, check=True, timeout=300)
     modules = set(json.loads(done.stdout.splitlines()[-1]))
-    assert "graphcal.analysis.model_checks" in modules  # the whole default run happened
+    assert module in modules  # the whole run happened
     assert not [m for m in modules if m == "scipy.stats" or m.startswith("scipy.stats.")]
