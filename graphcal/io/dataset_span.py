@@ -41,6 +41,9 @@ from graphcal.io.table_files import (
     require_columns,
 )
 
+#: A row may come this much [s] earlier than a row above it and still count as in order.
+DEFAULT_MAX_LATENESS_S = 60.0
+
 
 @dataclass(frozen=True)
 class FileTimes:
@@ -185,6 +188,10 @@ def scan_times(files: Iterable[Path], required: tuple[str, ...], *, max_lateness
                chunk_rows: int = DEFAULT_CHUNK_ROWS) -> TableSpan:
     """Read the ``time_s`` column of a table's files: span, count and time order.
 
+    A file's scan is remembered (:data:`SCAN_CACHE_FILES` files, keyed by path,
+    inode, size, change times and the options), so a table scanned again in one run (for
+    its span, for the first window, then for all of them) is read once.
+
     Parameters
     ----------
     files : iterable of Path
@@ -208,25 +215,55 @@ def scan_times(files: Iterable[Path], required: tuple[str, ...], *, max_lateness
     """
     spans = []
     for path in files:
-        n_rows, t_min, t_max, latest = 0, math.inf, -math.inf, -math.inf
-        late_row, late_by = None, math.nan
-        for raw in read_rows(path, required, chunk_rows=chunk_rows, usecols=["time_s"]):
-            t = _parse_times(raw.frame["time_s"])
-            n_rows += len(t)
-            if not np.isfinite(t).any():
-                continue
-            t_min = min(t_min, float(np.nanmin(t)))
-            t_max = max(t_max, float(np.nanmax(t)))
-            before = np.fmax.accumulate(np.concatenate([[latest], t]))[:-1]
-            with np.errstate(invalid="ignore"):
-                late = np.flatnonzero(before - t > max_lateness_s)
-            if late_row is None and late.size:
-                late_row, late_by = int(raw.rows[late[0]]), float(before[late[0]] - t[late[0]])
-            latest = float(np.fmax(before[-1], t[-1]))
-        if t_min > t_max:
-            t_min = t_max = math.nan
-        spans.append(FileTimes(path, n_rows, t_min, t_max, late_row, late_by))
+        try:
+            stat = Path(path).stat()
+        except OSError as exc:
+            raise DatasetError(f"cannot read: {exc.strerror}", path=path) from None
+        key = (str(path), stat.st_ino, stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns,
+               tuple(required), max_lateness_s, chunk_rows)
+        found = _SCANS.get(key)
+        if found is None:
+            found = _scan_file(Path(path), required, max_lateness_s, chunk_rows)
+            _SCANS[key] = found
+            while len(_SCANS) > SCAN_CACHE_FILES:
+                _SCANS.pop(next(iter(_SCANS)))
+        spans.append(found)
     return TableSpan(tuple(spans))
+
+
+#: Files whose scan :func:`scan_times` remembers.
+SCAN_CACHE_FILES = 256
+_SCANS: dict[tuple, FileTimes] = {}
+
+
+def _scan_file(path: Path, required: tuple[str, ...], max_lateness_s: float,
+               chunk_rows: int) -> FileTimes:
+    """One file's :class:`FileTimes`, from its ``time_s`` column read in chunks."""
+    chunks = ((raw.rows, _parse_times(raw.frame["time_s"]))
+              for raw in read_rows(path, required, chunk_rows=chunk_rows, usecols=["time_s"]))
+    return _times_of(path, chunks, max_lateness_s)
+
+
+def _times_of(path: Path, chunks: Iterable[tuple[NDArray[np.int64], NDArray[np.float64]]],
+              max_lateness_s: float) -> FileTimes:
+    """Count, span and first late row of ``(rows, times)`` blocks in file order."""
+    n_rows, t_min, t_max, latest = 0, math.inf, -math.inf, -math.inf
+    late_row, late_by = None, math.nan
+    for rows, t in chunks:
+        n_rows += len(t)
+        if not np.isfinite(t).any():
+            continue
+        t_min = min(t_min, float(np.nanmin(t)))
+        t_max = max(t_max, float(np.nanmax(t)))
+        before = np.fmax.accumulate(np.concatenate([[latest], t]))[:-1]
+        with np.errstate(invalid="ignore"):
+            late = np.flatnonzero(before - t > max_lateness_s)
+        if late_row is None and late.size:
+            late_row, late_by = int(rows[late[0]]), float(before[late[0]] - t[late[0]])
+        latest = float(np.fmax(before[-1], t[-1]))
+    if t_min > t_max:
+        t_min = t_max = math.nan
+    return FileTimes(path, n_rows, t_min, t_max, late_row, late_by)
 
 
 def parquet_times(path: Path, required: tuple[str, ...]) -> FileTimes | None:
@@ -263,7 +300,9 @@ def _table_span(files: list[Path], required: tuple[str, ...]) -> TableSpan:
     for path in files:
         found = parquet_times(path, required) if path.suffix == ".parquet" else None
         if found is None:
-            found = scan_times([path], required, max_lateness_s=math.inf).files[0]
+            # The window reader's tolerance: its scan of the same file is then reused.
+            found = scan_times([path], required,
+                               max_lateness_s=DEFAULT_MAX_LATENESS_S).files[0]
         spans.append(found)
     return TableSpan(tuple(spans))
 

@@ -79,7 +79,7 @@ import pandas as pd
 from graphcal.data.cleaning import clean_dataset
 from graphcal.data.dataset import ADSB_COLUMNS, PLOT_COLUMNS, SITES_FILE, Dataset, Site
 from graphcal.data.windows import DEFAULT_ADSB_MARGIN_S, Window, window_index
-from graphcal.io.dataset_span import first_time, scan_times
+from graphcal.io.dataset_span import DEFAULT_MAX_LATENESS_S, first_time, scan_times
 from graphcal.io.folder import (
     check_folder,
     dataset_tables,
@@ -99,8 +99,6 @@ from graphcal.io.table_stream import (
     empty_table,
 )
 
-#: A row may come this much [s] earlier than a row above it and still count as in order.
-DEFAULT_MAX_LATENESS_S = 60.0
 #: ADS-B read beyond the margin on each side for cleaning [s] (module docstring).
 CLEANING_CONTEXT_S = 60.0
 #: Accepted values of ``order``.
