@@ -38,6 +38,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.grouped import group_medians
 
 if TYPE_CHECKING:
     from graphcal.data.dataset import Dataset, Site
@@ -728,15 +729,12 @@ def _check_identities(
         r_ref, az_ref, _ = site.polar_from_ecef(ref[rows])
         d_range = range_m[rows] - r_ref
         d_az = frames.wrap_to_pi(azimuth[rows] - az_ref)
-        groups = pd.DataFrame({"t": target[rows], "dr": d_range, "da": d_az, "r": r_ref})
-        per = groups.groupby("t", sort=False).agg(
-            dr=("dr", "median"), da=("da", "median"), r=("r", "median"), n=("dr", "size"))
-        per = per[per["n"] >= min_plots]
-        if len(per) < min_aircraft:
+        codes, counts, (dr, da, r) = group_medians(target[rows], [d_range, d_az, r_ref])
+        enough = counts >= min_plots
+        codes, dr, da, r = codes[enough], dr[enough], da[enough], r[enough]
+        if len(codes) < min_aircraft:
             continue
-        r = per["r"].to_numpy()
-        range_resid = _robust_line(r, per["dr"].to_numpy())
-        da = per["da"].to_numpy()
+        range_resid = _robust_line(r, dr)
         az_resid = frames.wrap_to_pi(da - _circular_median(da))
         offset = np.hypot(range_resid, az_resid * r)
         centre = np.median(offset)
@@ -746,7 +744,7 @@ def _check_identities(
         if not flagged.any():
             continue
         agree = float(np.max(offset[~flagged]))
-        for code, off in zip(per.index[flagged], offset[flagged], strict=True):
+        for code, off in zip(codes[flagged], offset[flagged], strict=True):
             address = names[code]
             sel = rows[target[rows] == code]
             all_rows = np.flatnonzero(mine & (target == code))
