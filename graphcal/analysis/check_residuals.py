@@ -49,6 +49,7 @@ from graphcal.data.align import (
     PlotArrays,
     align_adsb,
     neighbour_plots,
+    overlapping_pairs,
     pair_plots,
     plot_arrays,
 )
@@ -241,47 +242,46 @@ def cross_radar_residuals(
                                       heights)
                 for rid in radar_ids}
     parts: dict[str, list[dict[str, Any]]] = {rid: [] for rid in radar_ids}
-    for i, ra in enumerate(radar_ids):
-        for rb in radar_ids[i + 1:]:
-            ba, bb = biases[ra], biases[rb]
-            pairs = pair_plots(dataset, ra, rb, shift_s=ba.time_offset_s - bb.time_offset_s)
-            if len(pairs) == 0:
-                continue
-            ga, gb = geometry[ra], geometry[rb]
-            # Rows of each radar's corrected plots, in pair_plots' orders.
-            rows_a = ga.rows.get_indexer(pairs.a_plots.index)
-            rows_b = gb.rows.get_indexer(pairs.b_plots.index)
-            i0, w, ib = rows_a[pairs.a_index0], pairs.weight, rows_b[pairs.b_index]
-            i1 = rows_a[pairs.a_index0 + 1]
-            ok = ga.usable[i0] & ga.usable[i1] & gb.usable[ib]
-            if not np.any(ok):
-                continue
-            # The partner's track interpolated quadratically where a third plot is usable
-            # (graphcal.data.align.PlotPairs), as the graph's pairwise factors do.
-            linear = np.stack([1.0 - w, w, np.zeros_like(w)], axis=1)
-            if pairs.a_index2 is not None and pairs.quadratic_weights is not None:
-                i2 = np.where(pairs.a_index2 >= 0,
-                              rows_a[np.maximum(pairs.a_index2, 0)], i0)
-                third = (pairs.a_index2 >= 0) & ga.usable[i2]
-                c = np.where(third[:, None], pairs.quadratic_weights, linear)
-            else:
-                i2, c = i0, linear
-            i0, i1, i2, c, ib = i0[ok], i1[ok], np.broadcast_to(i2, ok.shape)[ok], c[ok], ib[ok]
-            rows = (i0, i1, i2)
-            own_a = (_blend(ga.ecef_m, rows, c), _blend(ga.cov_m2, rows, c**2),
-                     _blend(ga.jacobian, rows, c), _blend(ga.near_ecef_m, rows, c))
-            own_b = (gb.ecef_m[ib], gb.cov_m2[ib], gb.jacobian[ib], gb.near_ecef_m[ib])
-            altitude_a = _blend(ga.altitude_m, rows, c)
-            reported_a = _blend(ga.reported_m, rows, c)
-            shared = {"time": gb.time_s[ib], "target": gb.target_id[ib]}
-            for rid, site, other_site, own, other, where, altitude, reported in (
-                (rb, gb.site, ga.site, own_b, own_a, gb.where(ib), gb.altitude_m[ib],
-                 gb.reported_m[ib]),
-                (ra, ga.site, gb.site, own_a, own_b, ga.where(i0), altitude_a, reported_a),
-            ):
-                part = _pair_differences(site, own, other, altitude, other_site)
-                part.update(where, **shared, partner=other_site.id, reported=reported)
-                parts[rid].append(part)
+    for ra, rb in overlapping_pairs(dataset, radar_ids):
+        ba, bb = biases[ra], biases[rb]
+        pairs = pair_plots(dataset, ra, rb, shift_s=ba.time_offset_s - bb.time_offset_s)
+        if len(pairs) == 0:
+            continue
+        ga, gb = geometry[ra], geometry[rb]
+        # Rows of each radar's corrected plots, in pair_plots' orders.
+        rows_a = ga.rows.get_indexer(pairs.a_plots.index)
+        rows_b = gb.rows.get_indexer(pairs.b_plots.index)
+        i0, w, ib = rows_a[pairs.a_index0], pairs.weight, rows_b[pairs.b_index]
+        i1 = rows_a[pairs.a_index0 + 1]
+        ok = ga.usable[i0] & ga.usable[i1] & gb.usable[ib]
+        if not np.any(ok):
+            continue
+        # The partner's track interpolated quadratically where a third plot is usable
+        # (graphcal.data.align.PlotPairs), as the graph's pairwise factors do.
+        linear = np.stack([1.0 - w, w, np.zeros_like(w)], axis=1)
+        if pairs.a_index2 is not None and pairs.quadratic_weights is not None:
+            i2 = np.where(pairs.a_index2 >= 0,
+                          rows_a[np.maximum(pairs.a_index2, 0)], i0)
+            third = (pairs.a_index2 >= 0) & ga.usable[i2]
+            c = np.where(third[:, None], pairs.quadratic_weights, linear)
+        else:
+            i2, c = i0, linear
+        i0, i1, i2, c, ib = i0[ok], i1[ok], np.broadcast_to(i2, ok.shape)[ok], c[ok], ib[ok]
+        rows = (i0, i1, i2)
+        own_a = (_blend(ga.ecef_m, rows, c), _blend(ga.cov_m2, rows, c**2),
+                 _blend(ga.jacobian, rows, c), _blend(ga.near_ecef_m, rows, c))
+        own_b = (gb.ecef_m[ib], gb.cov_m2[ib], gb.jacobian[ib], gb.near_ecef_m[ib])
+        altitude_a = _blend(ga.altitude_m, rows, c)
+        reported_a = _blend(ga.reported_m, rows, c)
+        shared = {"time": gb.time_s[ib], "target": gb.target_id[ib]}
+        for rid, site, other_site, own, other, where, altitude, reported in (
+            (rb, gb.site, ga.site, own_b, own_a, gb.where(ib), gb.altitude_m[ib],
+             gb.reported_m[ib]),
+            (ra, ga.site, gb.site, own_a, own_b, ga.where(i0), altitude_a, reported_a),
+        ):
+            part = _pair_differences(site, own, other, altitude, other_site)
+            part.update(where, **shared, partner=other_site.id, reported=reported)
+            parts[rid].append(part)
     out: dict[str, RadarResiduals] = {}
     for rid in radar_ids:
         if parts[rid]:

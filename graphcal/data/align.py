@@ -458,6 +458,38 @@ class PlotPairs:
         return len(self.b_index)
 
 
+def overlapping_pairs(dataset: Dataset, radar_ids: list[str] | None = None
+                      ) -> list[tuple[str, str]]:
+    """The radar pairs ``(a, b)``, ``a`` before ``b`` in ``radar_ids``, that saw a common
+    aircraft (a non-empty ``target_id`` in both radars' plots).
+
+    Only these can give :func:`pair_plots` anything: a network of many radars, most
+    of them far apart (or without plots), is paired in the time its overlaps take,
+    not in the square of its size.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The plots.
+    radar_ids : list of str, optional
+        The radars and their order (default ``dataset.radar_ids``).
+    """
+    order = list(dataset.radar_ids if radar_ids is None else radar_ids)
+    rank = {rid: i for i, rid in enumerate(order)}
+    plots = dataset.plots
+    target = plots["target_id"].astype(str).to_numpy()
+    radar = plots["radar_id"].astype(str).to_numpy()
+    keep = (target != "") & pd.Series(radar).isin(rank).to_numpy()
+    if not keep.any():
+        return []
+    seen = pd.DataFrame({"t": target[keep], "r": radar[keep]}).drop_duplicates()
+    found: set[tuple[int, int]] = set()
+    for radars in seen.groupby("t", sort=False)["r"]:
+        ranks = sorted(rank[rid] for rid in radars[1])
+        found.update((a, b) for i, a in enumerate(ranks) for b in ranks[i + 1:])
+    return [(order[a], order[b]) for a, b in sorted(found)]
+
+
 def pair_max_gap_s(site: Site) -> float:
     """Gap limit [s] for interpolating ``site``'s plots: 2.5 scans, or 15 s if unknown."""
     if site.scan_period_s:

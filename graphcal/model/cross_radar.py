@@ -34,7 +34,13 @@ from graphcal.core.refraction import (
     apparent_elevation_from_height_jacobian,
     target_from_refracted_jacobian,
 )
-from graphcal.data.align import PlotArrays, PlotPairs, neighbour_plots, pair_plots
+from graphcal.data.align import (
+    PlotArrays,
+    PlotPairs,
+    neighbour_plots,
+    overlapping_pairs,
+    pair_plots,
+)
 from graphcal.data.bias import RadarBias, true_azimuth
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.height import height_jacobian
@@ -583,30 +589,30 @@ def cross_observations(
     zs, hs, covs, times, pairs, rows, coefficients = [], [], [], [], [], [], []
     plot_cov: dict[int, FloatArray] = {}
     used: dict[str, set[int]] = {rid: set() for rid in radar_ids}
-    for ia, ra in enumerate(radar_ids):
-        for ib in range(ia + 1, len(radar_ids)):
-            rb = radar_ids[ib]
-            pairs_ab = pair_plots(dataset, ra, rb, max_gap_s)
-            if len(pairs_ab) == 0:
-                continue
-            z, h, cov, ok, conv_a, conv_b = _pair_rows(dataset, layout, pairs_ab,
-                                                        linearise == "neighbours")
-            if not np.any(ok):
-                continue
-            a_idx, b_idx = pairs_ab.a_plots.index, pairs_ab.b_plots.index
-            i0, jb, w = pairs_ab.a_index0[ok], pairs_ab.b_index[ok], pairs_ab.weight[ok]
-            rows.append(np.stack([b_idx[jb], a_idx[i0], a_idx[i0 + 1]], axis=1))
-            coefficients.append(np.stack([np.ones_like(w), -(1.0 - w), -w], axis=1))
-            plot_cov.update(zip(a_idx.tolist(), conv_a.cov_m2, strict=True))
-            plot_cov.update(zip(b_idx.tolist(), conv_b.cov_m2, strict=True))
-            zs.append(z[ok])
-            hs.append(h[ok])
-            covs.append(cov[ok])
-            times.append(pairs_ab.b_plots.time_s[pairs_ab.b_index[ok]])
-            pairs.append(np.tile([ia, ib], (int(ok.sum()), 1)))
-            used[ra].update(a_idx[pairs_ab.a_index0[ok]].tolist())
-            used[ra].update(a_idx[pairs_ab.a_index0[ok] + 1].tolist())
-            used[rb].update(pairs_ab.b_plots.index[pairs_ab.b_index[ok]].tolist())
+    index_of = {rid: i for i, rid in enumerate(radar_ids)}
+    for ra, rb in overlapping_pairs(dataset, radar_ids):
+        ia, ib = index_of[ra], index_of[rb]
+        pairs_ab = pair_plots(dataset, ra, rb, max_gap_s)
+        if len(pairs_ab) == 0:
+            continue
+        z, h, cov, ok, conv_a, conv_b = _pair_rows(dataset, layout, pairs_ab,
+                                                    linearise == "neighbours")
+        if not np.any(ok):
+            continue
+        a_idx, b_idx = pairs_ab.a_plots.index, pairs_ab.b_plots.index
+        i0, jb, w = pairs_ab.a_index0[ok], pairs_ab.b_index[ok], pairs_ab.weight[ok]
+        rows.append(np.stack([b_idx[jb], a_idx[i0], a_idx[i0 + 1]], axis=1))
+        coefficients.append(np.stack([np.ones_like(w), -(1.0 - w), -w], axis=1))
+        plot_cov.update(zip(a_idx.tolist(), conv_a.cov_m2, strict=True))
+        plot_cov.update(zip(b_idx.tolist(), conv_b.cov_m2, strict=True))
+        zs.append(z[ok])
+        hs.append(h[ok])
+        covs.append(cov[ok])
+        times.append(pairs_ab.b_plots.time_s[pairs_ab.b_index[ok]])
+        pairs.append(np.tile([ia, ib], (int(ok.sum()), 1)))
+        used[ra].update(a_idx[pairs_ab.a_index0[ok]].tolist())
+        used[ra].update(a_idx[pairs_ab.a_index0[ok] + 1].tolist())
+        used[rb].update(pairs_ab.b_plots.index[pairs_ab.b_index[ok]].tolist())
     if not zs:
         return CrossObservations(
             np.zeros((0, 3)), np.zeros((0, 3, p)), np.zeros((0, 3, 3)), np.zeros(0),

@@ -27,6 +27,7 @@ from graphcal.data.align import (
     AdsbAlignment,
     adsb_track_table,
     align_adsb,
+    overlapping_pairs,
     pair_plots,
     plot_arrays,
 )
@@ -139,7 +140,7 @@ def build_factors(
         return
     rest = without_plots(dataset, np.concatenate(matched) if matched else np.zeros(0, np.int64))
     _share_rays(rest, problem)
-    todo = [(a, b) for i, a in enumerate(radar_ids) for b in radar_ids[i + 1:]]
+    todo = overlapping_pairs(rest, radar_ids)
     for n, (ra, rb) in enumerate(todo):
         pairs = pair_plots(rest, ra, rb, pair_max_gap_s, shift_s=tau0[ra] - tau0[rb])
         if progress is not None:

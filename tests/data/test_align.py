@@ -6,7 +6,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from graphcal.data.align import align_adsb, bracket, pair_max_gap_s, pair_plots, quadratic_third
+from graphcal.data.align import (
+    align_adsb,
+    bracket,
+    overlapping_pairs,
+    pair_max_gap_s,
+    pair_plots,
+    quadratic_third,
+)
 from graphcal.data.bias import RadarBias
 from tests.synthetic import Track, make_dataset, site_at
 
@@ -169,3 +176,26 @@ def test_blocked_bracketing_equals_bracketing_each_track_alone() -> None:
             np.testing.assert_array_equal(weights[k], w3[0])
             k += 1
     assert 0 < ok.sum() < len(query)
+
+
+def test_only_radars_that_saw_a_common_aircraft_are_paired() -> None:
+    """Four radars: A and B share an aircraft, C and A another, D's aircraft is its own,
+    and a thousand more radars have no plot at all.  The pairs are (A, B) and (A, C),
+    each in the order of the radar list; unlabelled plots pair nothing."""
+    from dataclasses import replace
+
+    plots = pd.DataFrame({
+        "radar_id": ["A", "B", "A", "C", "D", "B", "C"],
+        "time_s": [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+        "range_m": 1e4, "azimuth_deg": 10.0, "elevation_deg": np.nan,
+        "target_id": ["x", "x", "y", "y", "z", "", ""],
+    })
+    rng = np.random.default_rng(0)
+    track = Track("4ca001", (1e4, 0.0, 9e3), (200.0, 0.0, 0.0), 0.0, 60.0)
+    base = make_dataset(rng, [(site_at("A", 0.0, 0.0), RadarBias(0.0, 0.0, 0.0))], [track])
+    sites = {rid: site_at(rid, 0.0, 0.0)
+             for rid in ["A", "B", "C", "D", *(f"R{i:04d}" for i in range(1000))]}
+    dataset = replace(base, plots=plots, sites=sites)
+    order = ["D", "C", "B", "A", *(f"R{i:04d}" for i in range(1000))]
+    assert overlapping_pairs(dataset, order) == [("C", "A"), ("B", "A")]
+    assert overlapping_pairs(replace(dataset, plots=plots.iloc[:0])) == []
