@@ -155,7 +155,11 @@ def _pairwise_sandwich_terms(
     001's observations share plots), with the robust weights ``w_k`` at the solution.
     """
     information = np.zeros((p, p))
-    ht_q, plot_rows, coefficients = [], [], []
+    # Per radar, the pairs its plots enter: (the pair's columns, w J^T W, plot rows,
+    # coefficients).  A plot belongs to one radar, so M is the sum over radars of the
+    # middles of their own plots, each over the columns of that radar's pairs only:
+    # memory and time grow with the pairs, not with the pairs times the whole network.
+    by_radar: dict[str, list[tuple[list[int], FloatArray, NDArray[np.int64], FloatArray]]] = {}
     plot_cov: dict[int, FloatArray] = {}
     for f in problem.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
@@ -166,18 +170,32 @@ def _pairwise_sandwich_terms(
             cols = cols + columns[HEIGHT]
         jac = np.concatenate(jacobians, axis=2)  # (n, 3, k): this pair's own columns
         information[np.ix_(cols, cols)] += np.einsum("nip,niq,n->pq", jac, jac, w)
-        share = np.zeros((len(f), p, 3))
-        share[:, cols, :] = w[:, None, None] * np.swapaxes(jac, 1, 2) @ f.whitening
-        positions, coefficient = f.plot_noise()
-        labels = np.concatenate([f.a_plots.index, f.b_plots.index])
-        ht_q.append(share)
-        plot_rows.append(labels[positions])
-        coefficients.append(coefficient)
-        plot_cov.update(zip(labels.tolist(), np.concatenate([f.a_cov_m2, f.b_cov_m2]),
-                            strict=True))
-    middle = gradient_noise_middle(
-        np.concatenate(ht_q), np.concatenate(plot_rows), np.concatenate(coefficients), plot_cov
-    )
+        share = w[:, None, None] * np.swapaxes(jac, 1, 2) @ f.whitening  # (n, k, 3)
+        positions, coefficient = f.plot_noise()  # column 0: b's plot; the others: a's
+        labels = np.concatenate([f.a_plots.index, f.b_plots.index])[positions]
+        width = labels.shape[1]
+        # b's plot alone, padded to the width with itself at coefficient 0.
+        b_rows = np.repeat(labels[:, :1], width, axis=1)
+        b_coefficients = np.zeros_like(coefficient)
+        b_coefficients[:, 0] = coefficient[:, 0]
+        a_rows = np.column_stack([labels[:, 1:2], labels[:, 1:]])
+        a_coefficients = np.column_stack([np.zeros(len(labels)), coefficient[:, 1:]])
+        by_radar.setdefault(rb, []).append((cols, share, b_rows, b_coefficients))
+        by_radar.setdefault(ra, []).append((cols, share, a_rows, a_coefficients))
+        plot_cov.update(zip(np.concatenate([f.a_plots.index, f.b_plots.index]).tolist(),
+                            np.concatenate([f.a_cov_m2, f.b_cov_m2]), strict=True))
+    middle = np.zeros((p, p))
+    for entries in by_radar.values():
+        local = sorted(set().union(*(cols for cols, _, _, _ in entries)))
+        where = {c: i for i, c in enumerate(local)}
+        ht_q = []
+        for cols, share, _, _ in entries:
+            block = np.zeros((len(share), len(local), 3))
+            block[:, [where[c] for c in cols], :] = share
+            ht_q.append(block)
+        middle[np.ix_(local, local)] += gradient_noise_middle(
+            np.concatenate(ht_q), np.concatenate([rows for _, _, rows, _ in entries]),
+            np.concatenate([c for _, _, _, c in entries]), plot_cov)
     return information, middle
 
 
