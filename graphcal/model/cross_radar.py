@@ -661,14 +661,25 @@ def gradient_noise_middle(
     plot_cov : dict
         ECEF noise covariance [m^2] of each plot row label.
     """
-    p = ht_q.shape[1]
+    m, p = ht_q.shape[:2]
     labels, position = np.unique(plot_rows, return_inverse=True)
     position = position.reshape(plot_rows.shape)
-    g = np.zeros((len(labels), p, 3))
+    flat = ht_q.reshape(m, 3 * p)
+    g = np.zeros((len(labels), 3 * p))
     for j in range(plot_rows.shape[1]):
-        np.add.at(g, position[:, j], coefficients[:, j, None, None] * ht_q)
+        # Sum each plot's terms by one sort and np.add.reduceat (np.add.at is slow).
+        used = np.flatnonzero(coefficients[:, j] != 0.0)
+        if used.size == 0:
+            continue
+        used = used[np.argsort(position[used, j], kind="stable")]
+        where = position[used, j]
+        starts = np.flatnonzero(np.r_[True, where[1:] != where[:-1]])
+        g[where[starts]] += np.add.reduceat(coefficients[used, j, None] * flat[used], starts,
+                                            axis=0)
+    g = g.reshape(len(labels), p, 3)
     cov = np.stack([plot_cov[int(label)] for label in labels])
-    return np.einsum("npi,nij,nqj->pq", g, cov, g)
+    gc = np.matmul(g, cov)  # (n, p, 3)
+    return np.swapaxes(gc, 0, 1).reshape(p, -1) @ np.swapaxes(g, 0, 1).reshape(p, -1).T
 
 
 def _pair_rows(
