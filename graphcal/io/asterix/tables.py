@@ -518,6 +518,56 @@ def radar_inventory(decoded: Decoded, user_sites: UserSites | None = None
     return [out[i] for i in order.tolist()]
 
 
+def sites_template(inventory: Sequence[RadarInventory], recordings: Sequence[str] = ()) -> str:
+    """A ``sites.toml`` with one ``[[radar]]`` table per radar of a recording, to fill in.
+
+    Each table has ``id``, ``sac``, ``sic``, a comment with the radar's plot counts
+    (and whether its plots carry a 3-D height, I048/110) and the position keys
+    ``lat_deg``, ``lon_deg``, ``alt_m``: the CAT034 I034/120 position when the
+    recording has one, else ``nan``, which the reader refuses until it is replaced.
+    The sigma keys are left out: graphcal then estimates them (a table without any
+    sigma is a 3-D radar when all its plots carry an elevation).
+
+    Parameters
+    ----------
+    inventory : sequence of RadarInventory
+        From :func:`radar_inventory`.
+    recordings : sequence of str
+        Named in the header comment.
+    """
+    lines = [
+        "# Radar sites of " + (", ".join(recordings) or "an ASTERIX recording")
+        + f": {len(inventory)} radar{'s' if len(inventory) != 1 else ''} (SAC/SIC of CAT048).",
+        "# Replace every nan by the antenna position: lat_deg, lon_deg [deg, WGS-84] and",
+        "# alt_m [m above the ellipsoid]; ids may be renamed. Then:",
+        "#   graphcal import-asterix RECORDING... --sites THIS_FILE --out DIR",
+        "",
+    ]
+    for radar in inventory:
+        kind = ("3-D: every plot carries a height (I048/110)" if radar.is_3d else
+                f"2-D ({radar.height_reports} plots with a height, I048/110)"
+                if radar.height_reports else "2-D")
+        lines += [
+            "[[radar]]",
+            f'id = "{radar.radar_id}"',
+            f"sac = {radar.sac}",
+            f"sic = {radar.sic}",
+            f"# {radar.plots} CAT048 reports, {radar.polar_reports} with a polar position; {kind}",
+        ]
+        message = radar.cat034
+        if message is not None and message.lat_deg is not None and message.lon_deg is not None:
+            lines += [
+                "# position from CAT034 I034/120 (check it)",
+                f"lat_deg = {message.lat_deg!r}",
+                f"lon_deg = {message.lon_deg!r}",
+                f"alt_m = {float(message.height_m or 0.0)!r}",
+            ]
+        else:
+            lines += ["lat_deg = nan", "lon_deg = nan", "alt_m = nan"]
+        lines.append("")
+    return "\n".join(lines)
+
+
 def _position_help(missing: Sequence[RadarInventory]) -> str:
     names = ", ".join(f"SAC {r.sac} / SIC {r.sic} ({r.radar_id}, {r.plots} plots)"
                       for r in missing)
