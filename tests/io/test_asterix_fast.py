@@ -29,7 +29,7 @@ from tests.io.test_asterix_read import (
     adsb_record,
     block,
     plot_record,
-    samples,  # noqa: F401 - the fixture
+    samples,  # noqa: F401, F811 - the fixture
     site_record,
 )
 from tests.paths import SCENARIOS
@@ -103,7 +103,7 @@ def test_same_reports_and_counts_as_libasterix_on_valid_mutated_and_random_bytes
                 _same(bytes(flipped))
 
 
-def test_real_samples_decode_identically(samples: Path) -> None:
+def test_real_samples_decode_identically(samples: Path) -> None:  # noqa: F811
     for name in ("cat048.raw", "cat034.raw"):
         _same((samples / name).read_bytes())
 
