@@ -19,7 +19,9 @@ each, the speed-up, and checks that both decoders give the same reports.
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -32,6 +34,8 @@ from graphcal.simulation.scenario import load_scenario
 from graphcal.simulation.simulate import simulate
 from tests.paths import SCENARIOS
 
+#: Where the figures are written.
+RESULTS = Path(__file__).resolve().parent / "results" / "bench_asterix.json"
 #: Records encoded per category (libasterix encodes about 2,000 a second); then repeated.
 SOURCE_RECORDS = 5000
 
@@ -67,12 +71,14 @@ def main() -> None:
                         "(0: skip it)")
     args = parser.parse_args()
     cat048, cat021, n048, n021 = recordings()
+    figures: dict[str, dict[str, float]] = {}
     for name, data, n_source in (("CAT048", cat048, n048), ("CAT021", cat021, n021)):
         big, n = repeat(data, n_source, args.records)
         start = time.perf_counter()
         decoded = decode_bytes(big)
         fast_s = time.perf_counter() - start
         assert len(decoded.order) >= n, (len(decoded.order), n)
+        figures[name] = {"records": n, "records_per_s": n / fast_s}
         line = (f"{name}: {n:,} records ({len(big) / 1e6:.1f} MB): column decoder "
                 f"{fast_s:.2f} s, {n / fast_s:,.0f} records/s")
         if args.reference_records:
@@ -81,6 +87,7 @@ def main() -> None:
             reports, _ = reference.decode_payload(small)
             reference_s = time.perf_counter() - start
             assert decode_bytes(small).sequence == reports, "the decoders differ"
+            figures[name]["reference_records_per_s"] = n_small / reference_s
             line += (f"; libasterix reference {n_small / reference_s:,.0f} records/s "
                      f"({n_small:,} records); x{(n / fast_s) / (n_small / reference_s):.0f}")
         if name == "CAT048":
@@ -89,6 +96,9 @@ def main() -> None:
             line += (f"; tables {time.perf_counter() - start:.2f} s "
                      f"({len(tables.dataset.plots):,} plots)")
         print(line, flush=True)
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(figures, indent=2) + "\n")
+    print(f"wrote {RESULTS}")
 
 
 if __name__ == "__main__":

@@ -72,7 +72,7 @@ def import_asterix_command(
         Path | None,
         typer.Option(
             "--write-sites-template", metavar="FILE",
-            help="Write a sites.toml with one [[radar]] table per SAC/SIC of the recording "
+            help="Write a sites.toml with one radar table per SAC/SIC of the recording "
             "(id, sac, sic, plot counts, position keys to fill in) and stop: no dataset "
             "is written.",
         ),
