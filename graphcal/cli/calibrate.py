@@ -9,6 +9,7 @@ import typer
 
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
+    cat063_codes,
     console,
     err_console,
     errors_to_exit,
@@ -182,9 +183,14 @@ def calibrate_command(
         typer.Option(
             "--cat063", metavar="FILE",
             help="Also export the biases in ASTERIX CAT063 terms: .json, .csv, or a binary "
-            "CAT063 block (.ast/.bin). Radars are identified by SAC/SIC (ids like "
-            "SAC025_SIC201, or sac/sic keys in sites.toml).",
+            "CAT063 block (.ast/.bin). Radars are identified by SAC/SIC: --sac-sic, sac/sic "
+            "keys in sites.toml, or ids like SAC025_SIC201 (checked before the estimation).",
         ),
+    ] = None,
+    sac_sic: Annotated[
+        list[str] | None,
+        typer.Option("--sac-sic", metavar="RADAR=SAC/SIC",
+                     help="--cat063: a radar's SAC/SIC (e.g. NORD=25/201); repeatable."),
     ] = None,
 ) -> None:
     """Estimate every radar's biases from a dataset folder."""
@@ -212,6 +218,8 @@ def calibrate_command(
                 dataset = load_dataset(dataset_dir, clean=clean)
             sites = dataset.sites
         load_s = time.perf_counter() - start
+        codes = cat063_codes(cat063, sac_sic, sites, sites if dataset is None
+                             else dataset.plots["radar_id"].astype(str).unique())
         if dataset is not None and dataset.cleaning is not None:
             for line in dataset.cleaning.summary():
                 err_console.print(f"cleaning: {line}", highlight=False)
@@ -249,8 +257,7 @@ def calibrate_command(
             from graphcal.io.asterix.cat063 import radar_kinds_from_sites, write_cat063
 
             try:
-                write_cat063(cat063, cal, _radar_codes(sites),
-                             radar_kinds_from_sites(sites))
+                write_cat063(cat063, cal, codes, radar_kinds_from_sites(sites))
             except ValueError as exc:
                 fail(f"--cat063 {cat063}: {exc}", EXIT_BAD_INPUT)
             err_console.print(f"wrote {cat063}", highlight=False)
@@ -343,14 +350,6 @@ def _print_selection(summary: dict) -> None:
     )
     for note in summary.get("notes", []):
         err_console.print(f"selection: {note}", highlight=False)
-
-
-def _radar_codes(sites) -> dict[str, tuple[int, int]]:
-    """SAC/SIC per radar from its ``sac``/``sic`` site keys, when given."""
-    return {
-        rid: (int(site.sac), int(site.sic)) for rid, site in sites.items()
-        if getattr(site, "sac", None) is not None and getattr(site, "sic", None) is not None
-    }
 
 
 def _parse_drift_options(items: list[str]) -> dict[str, float]:

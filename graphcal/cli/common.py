@@ -12,9 +12,10 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
-from typing import NoReturn
+from pathlib import Path
+from typing import Any, NoReturn
 
 import typer
 from rich.console import Console
@@ -101,6 +102,59 @@ def progress_bar(description: str) -> Iterator[Callable[..., None]]:
         yield callback
 
 
+def parse_sac_sic(items: Iterable[str]) -> dict[str, tuple[int, int]]:
+    """``--sac-sic RADAR=SAC/SIC`` options -> ``{radar: (SAC, SIC)}``; exit 2 on a bad one."""
+    codes: dict[str, tuple[int, int]] = {}
+    for item in items:
+        rid, sep, text = item.rpartition("=")
+        sac, slash, sic = text.partition("/")
+        try:
+            if not sep or not rid.strip() or not slash:
+                raise ValueError
+            code = (int(sac), int(sic))
+        except ValueError:
+            fail(f"--sac-sic {item!r}: expected RADAR=SAC/SIC, e.g. NORD=25/201", EXIT_BAD_INPUT)
+        if not all(0 <= v <= 255 for v in code):
+            fail(f"--sac-sic {item!r}: SAC and SIC must be within 0..255", EXIT_BAD_INPUT)
+        if rid.strip() in codes:
+            fail(f"--sac-sic {item!r}: radar {rid.strip()} given twice", EXIT_BAD_INPUT)
+        codes[rid.strip()] = code
+    return codes
+
+
+def cat063_codes(cat063: Path | None, sac_sic: Iterable[str] | None,
+                 sites: Mapping[str, Any], radar_ids: Iterable[str]
+                 ) -> dict[str, tuple[int, int]]:
+    """``--cat063 FILE`` and ``--sac-sic``: the SAC/SIC of every radar, checked before any
+    estimation.
+
+    Codes come from ``--sac-sic RADAR=SAC/SIC`` (repeatable), else from the ``sac``/``sic``
+    keys of the radar's ``sites.toml`` table, else from an id like ``SAC025_SIC201``.  Exits
+    with status 2 naming every radar without a code, a bad option or a file name whose
+    suffix is not a CAT063 format.  Returns ``{}`` without ``--cat063``.
+    """
+    given = parse_sac_sic(sac_sic or [])
+    if cat063 is None:
+        if given:
+            fail("--sac-sic applies to --cat063 FILE", EXIT_BAD_INPUT)
+        return {}
+    from graphcal.io.asterix.cat063 import CAT063_SUFFIXES, radar_codes_for
+    from graphcal.io.asterix.encode import AsterixEncodeError
+
+    if cat063.suffix.lower() not in CAT063_SUFFIXES:
+        fail(f"--cat063 {cat063}: the file must end in {', '.join(CAT063_SUFFIXES)}",
+             EXIT_BAD_INPUT)
+    site_codes = {rid: (int(site.sac), int(site.sic)) for rid, site in sites.items()
+                  if getattr(site, "sac", None) is not None
+                  and getattr(site, "sic", None) is not None}
+    try:
+        codes = radar_codes_for(radar_ids, site_codes, given)
+    except AsterixEncodeError as exc:
+        fail(f"--cat063 {cat063}: {exc}", EXIT_BAD_INPUT)
+    # Radars without plots keep the codes their tables give (not required).
+    return {**{rid: code for rid, code in site_codes.items() if rid not in codes}, **codes}
+
+
 def _progress_interval() -> float:
     """:data:`PLAIN_PROGRESS_INTERVAL_S`, or ``GRAPHCAL_PROGRESS_S`` when set to a number."""
     try:
@@ -153,8 +207,10 @@ __all__ = [
     "PLAIN_PROGRESS_INTERVAL_S",
     "PLAIN_WIDTH",
     "console",
+    "cat063_codes",
     "err_console",
     "errors_to_exit",
     "fail",
+    "parse_sac_sic",
     "progress_bar",
 ]

@@ -17,12 +17,41 @@ def _format_span(span: tuple[float, float] | None) -> str:
     return f"{first:.1f} s .. {last:.1f} s ({last - first:.1f} s)"
 
 
+def _check_template_target(path: Path, overwrite: bool) -> None:
+    """Refuse, before any decoding, a template path that cannot be written."""
+    if path.is_dir():
+        fail(f"--write-sites-template {path}: is a folder", EXIT_BAD_INPUT)
+    if path.exists() and not overwrite:
+        fail(f"--write-sites-template {path}: exists (give --overwrite to replace it)",
+             EXIT_BAD_INPUT)
+    if not path.parent.resolve().is_dir():
+        fail(f"--write-sites-template {path}: the folder {path.parent} does not exist",
+             EXIT_BAD_INPUT)
+
+
+def _write_template(path: Path, decoded, user_sites, files: list[Path]) -> None:
+    """``--write-sites-template``: the sites of every SAC/SIC, written atomically."""
+    from graphcal.core.atomic import atomic_write_text
+    from graphcal.io.asterix.decode import AsterixError
+    from graphcal.io.asterix.tables import radar_inventory, sites_template
+
+    if not decoded.count(48):
+        raise AsterixError("no CAT048 target reports (plots) in the recording")
+    inventory = radar_inventory(decoded, user_sites)
+    atomic_write_text(path, sites_template(inventory, [p.name for p in files]))
+    to_fill = sum(1 for r in inventory if r.cat034 is None)
+    console.print(
+        f"wrote {path}: {len(inventory)} radars ({to_fill} without a CAT034 position to fill "
+        "in); no dataset written. Fill in the positions, then run import-asterix again with "
+        f"--sites {path}", highlight=False, soft_wrap=True)
+
+
 def import_asterix_command(
     files: Annotated[
         list[Path],
         typer.Argument(metavar="FILE...", help="ASTERIX recordings: raw blocks, pcap or pcapng."),
     ],
-    out: Annotated[Path, typer.Option("--out", help="Dataset folder to write.")],
+    out: Annotated[Path | None, typer.Option("--out", help="Dataset folder to write.")] = None,
     sites: Annotated[
         Path | None,
         typer.Option(help="sites.toml with radar positions; its radar tables may carry sac/sic "
@@ -36,7 +65,18 @@ def import_asterix_command(
         str, typer.Option("--adsb-format", help="Format of --adsb: asterix or opensky.")
     ] = "asterix",
     fmt: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
-    overwrite: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace an existing output folder (or sites template).")
+    ] = False,
+    sites_template: Annotated[
+        Path | None,
+        typer.Option(
+            "--write-sites-template", metavar="FILE",
+            help="Write a sites.toml with one radar table per SAC/SIC of the recording "
+            "(id, sac, sic, plot counts, position keys to fill in) and stop: no dataset "
+            "is written.",
+        ),
+    ] = None,
 ) -> None:
     """Decode ASTERIX CAT048/CAT021/CAT034 recordings into a dataset folder."""
     from rich.table import Table
@@ -58,6 +98,11 @@ def import_asterix_command(
         fail(f"--adsb-format must be asterix or opensky, not '{adsb_format}'", EXIT_BAD_INPUT)
     if not files:
         fail("give at least one recording FILE", EXIT_BAD_INPUT)
+    if out is None and sites_template is None:
+        fail("give --out DIR (the dataset to write) or --write-sites-template FILE",
+             EXIT_BAD_INPUT)
+    if sites_template is not None:
+        _check_template_target(sites_template, overwrite)
     for path in [*files, *([adsb] if adsb is not None else [])]:
         if not path.is_file():
             fail(f"{path}: no such file", EXIT_BAD_INPUT)
@@ -76,6 +121,10 @@ def import_asterix_command(
                     extra = decode_files([adsb], progress=callback)
                 decoded.extend(extra)
         source = files[0] if len(files) == 1 else None
+        if sites_template is not None:
+            _write_template(sites_template, decoded, user_sites, files)
+            return
+        assert out is not None
         tables = build_tables(decoded, user_sites=user_sites, adsb=adsb_table,
                               epoch_unix_s=epoch, source=source)
         dataset = tables.dataset

@@ -87,7 +87,9 @@ def test_counts_times_lsb_reproduce_the_values_with_the_contract_sign(source: st
         for name, (item, subfield, value, sigma) in fields.items():
             entry = records[rid]["fields"][name]
             assert (entry["item"], entry["subfield"]) == (item, subfield)
-            assert entry["value"] == pytest.approx(value, rel=1e-12)
+            # quantised: the value is the count's, within half an LSB of the contract's
+            assert entry["value"] == entry["count"] * entry["lsb"]
+            assert abs(entry["value"] - value) <= 0.5 * entry["lsb"] + 1e-15
             assert entry["sigma"] == pytest.approx(sigma, rel=1e-9)
             # same sign as the contract value (measured minus true)
             assert math.copysign(1.0, entry["count"]) == math.copysign(1.0, value)
@@ -190,8 +192,43 @@ def test_json_and_csv_files_are_written_atomically_and_read_back(tmp_path: Path)
     assert (row["item"], row["subfield"], row["unit"], int(row["sac"])) == \
         ("I063/090", "PRB", "NM", 7)
     assert row["count"] == records[1]["fields"]["range_bias"]["count"]
-    assert row["value"] == pytest.approx(250.0 / 1852.0)
+    lsb = 1.0 / 128.0
+    assert row["value"] == round(250.0 / 1852.0 / lsb) * lsb  # quantised to the LSB
     missing = table[(table.radar_id == "SAC025_SIC201") & (table.field == "elevation_bias")]
     assert missing["value"].isna().all() and missing["count"].isna().all()
     # nothing but the two files (no temporary leftovers)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cat063.csv", "cat063.json"]
+
+
+def test_values_are_whole_lsbs_and_the_binary_gives_them_back_exactly() -> None:
+    """value / lsb is an integer (the count) and libasterix decodes the binary item to
+    exactly the JSON value."""
+    calibration = Calibration.from_dict(RESULT)
+    records = by_radar(cat063_records(calibration, CODES, KINDS))
+    for record in decode(encode_cat063(calibration, CODES, KINDS)):
+        i050 = record.get_item("050").variation
+        code = (i050.get_item("SAC").as_uint(), i050.get_item("SIC").as_uint())
+        rid = {(25, 201): "SAC025_SIC201", (7, 42): "DOLE"}[code]
+        for entry in records[rid]["fields"].values():
+            if entry["value"] is None:
+                continue
+            ratio = entry["value"] / entry["lsb"]
+            assert abs(ratio - round(ratio)) < 1e-9 and round(ratio) == entry["count"]
+            got = record.get_item(entry["item"].removeprefix("I063/")).variation
+            if entry["subfield"] is not None:
+                got = got.get_item(entry["subfield"]).variation
+            assert got.content.as_quantity() == entry["value"]
+
+
+def test_radar_codes_for_names_every_radar_without_a_code() -> None:
+    from graphcal.io.asterix.cat063 import radar_codes_for
+
+    with pytest.raises(AsterixEncodeError, match=r"2 radars .*: DOLE, NORD; .*--sac-sic"):
+        radar_codes_for(["SAC025_SIC201", "DOLE", "NORD"])
+    codes = radar_codes_for(["SAC025_SIC201", "DOLE", "NORD"], {"DOLE": (7, 42)},
+                            {"NORD": (7, 43), "DOLE": (7, 44)})
+    assert codes == {"SAC025_SIC201": (25, 201), "DOLE": (7, 44), "NORD": (7, 43)}
+    with pytest.raises(AsterixEncodeError, match="not in the dataset: SUD"):
+        radar_codes_for(["DOLE"], given={"SUD": (1, 2)})
+    with pytest.raises(AsterixEncodeError, match="same SAC/SIC"):
+        radar_codes_for(["DOLE", "NORD"], {"DOLE": (7, 42), "NORD": (7, 42)})

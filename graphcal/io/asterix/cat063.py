@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -216,10 +216,10 @@ def _field_entry(spec: Cat063Field, value: float | None, sigma: float | None) ->
         "contract_sigma": sigma,
     }
     if value is not None:
-        standard = value * spec.scale
-        count = round(standard / spec.lsb)
+        count = round(value * spec.scale / spec.lsb)
         low, high = spec.count_range
-        entry.update(value=standard, count=count, in_range=bool(low <= count <= high))
+        # The value the item carries: exactly count x LSB (what a receiver decodes).
+        entry.update(value=count * spec.lsb, count=count, in_range=bool(low <= count <= high))
     return entry
 
 
@@ -249,10 +249,12 @@ def cat063_records(
         dict by field name (``time_stamping_bias``, ``range_gain``,
         ``range_bias``, ``azimuth_bias``, ``elevation_bias``) of: ``item``,
         ``subfield``, ``unit``, ``lsb``, ``value`` (standard units, sign as
-        in the module docstring), ``count`` (``round(value / lsb)``, not
-        wrapped), ``sigma`` (1-sigma in the same unit), ``in_range`` (whether
-        ``count`` fits the item), and the contract's ``contract_key``,
-        ``contract_value``, ``contract_sigma``.  A quantity the calibration
+        in the module docstring, quantised: exactly ``count * lsb``, the value
+        the binary item carries), ``count`` (the contract value in the standard's
+        unit divided by ``lsb``, rounded; not wrapped), ``sigma`` (1-sigma in
+        the same unit, not quantised), ``in_range`` (whether ``count`` fits
+        the item), and the contract's ``contract_key``, ``contract_value``,
+        ``contract_sigma``.  A quantity the calibration
         does not give has ``value``, ``count``, ``sigma`` and ``in_range``
         ``None``.
 
@@ -427,6 +429,52 @@ def encode_cat063(
 
 #: ``write_cat063`` file suffixes: JSON, CSV, or a binary CAT063 data block.
 CAT063_SUFFIXES: tuple[str, ...] = (".json", ".csv", ".ast", ".bin")
+
+
+def radar_codes_for(
+    radar_ids: Iterable[str],
+    site_codes: Mapping[str, Sequence[int]] | None = None,
+    given: Mapping[str, Sequence[int]] | None = None,
+) -> dict[str, tuple[int, int]]:
+    """SAC/SIC of every radar for a CAT063 export, or an error naming all that lack one.
+
+    Parameters
+    ----------
+    radar_ids : iterable of str
+        Radars to export.
+    site_codes : mapping, optional
+        ``radar_id -> (SAC, SIC)`` from ``sites.toml`` (``sac``/``sic`` keys).
+    given : mapping, optional
+        ``radar_id -> (SAC, SIC)`` given explicitly (``--sac-sic``); wins over
+        ``site_codes``.  Radars in neither must be named like ``SAC025_SIC201``.
+
+    Returns
+    -------
+    dict
+        ``radar_id -> (SAC, SIC)``.
+
+    Raises
+    ------
+    AsterixEncodeError
+        Radars without a code (all named), a code outside 0..255, two radars with
+        the same code, or ``given`` naming an unknown radar.
+    """
+    from graphcal.io.asterix.encode import radar_sac_sic
+
+    radar_ids = list(radar_ids)
+    given = dict(given or {})
+    unknown = sorted(set(given) - set(radar_ids))
+    if unknown:
+        raise AsterixEncodeError(f"SAC/SIC given for radars not in the dataset: "
+                                 f"{', '.join(unknown)} (radars: {', '.join(radar_ids)})")
+    codes = {**dict(site_codes or {}), **given}
+    missing = [rid for rid in radar_ids if rid not in codes and radar_sac_sic(rid) is None]
+    if missing:
+        raise AsterixEncodeError(
+            f"{len(missing)} radar{'s' if len(missing) > 1 else ''} without a SAC/SIC for the "
+            f"CAT063 export: {', '.join(missing)}; give sac and sic in their sites.toml "
+            f"tables or --sac-sic RADAR=SAC/SIC (e.g. --sac-sic {missing[0]}=25/201)")
+    return resolve_radar_codes(radar_ids, {rid: codes[rid] for rid in radar_ids if rid in codes})
 
 
 def radar_kinds_from_sites(sites: Mapping[str, Any]) -> dict[str, RadarKind]:

@@ -6,8 +6,7 @@ datagrams that carry them.  Each data block is ``CAT`` (1 byte), ``LEN``
 (2 bytes, big-endian, the length of the whole block in bytes) and the records.
 A UDP payload may hold several data blocks.
 
-Categories decoded (with the pure-Python decoder ``libasterix``, import name
-``asterix``):
+Categories decoded (item definitions from ``libasterix``, import name ``asterix``):
 
 - CAT048 (monoradar target reports), edition 1.32,
 - CAT021 (ADS-B target reports), edition 2.6 (a block that does not parse with
@@ -18,6 +17,15 @@ Every other category is counted and skipped.  Only the items graphcal needs are
 kept (:class:`Cat048Report`, :class:`Cat021Report`, :class:`Cat034Message`), in
 the units of the ASTERIX specification; :mod:`graphcal.io.asterix.tables` turns
 them into contract tables.
+
+How it decodes: each record's FSPEC is walked with the byte size of every item
+of the edition's UAP, compiled once from ``libasterix``'s specifications
+(:mod:`graphcal.io.asterix.layout`); the walk only notes where the items graphcal
+reads start.  The fields are then extracted with numpy over all records at once
+(``signed(raw bits) * LSB``, as ``libasterix`` computes them) into columns
+(:class:`Decoded`).  The values are those of the item-by-item ``libasterix``
+decoder (:mod:`graphcal.io.asterix.reference`, which the tests compare with),
+at about 30-50 times its speed.
 
 Robustness: a block is rejected as a whole when its header is inconsistent with
 the bytes that follow, when its records do not parse, or when the decoder
@@ -40,10 +48,18 @@ from pathlib import Path
 from typing import Any
 
 import dpkt
+import numpy as np
 from asterix import generated as gen
-from asterix.base import Bits
 
 from graphcal.core.errors import GraphcalInputError
+from graphcal.io.asterix.layout import (
+    EXPLICIT,
+    ExtendedLayout,
+    FieldLayout,
+    RepetitiveLayout,
+    locate,
+    record_layout,
+)
 
 
 class AsterixError(GraphcalInputError):
@@ -118,6 +134,9 @@ class Cat048Report:
         Aircraft identification (I048/240), blanks removed.
     capture_s : float or None
         Capture time of the packet that carried it [unix s]; ``None`` for raw files.
+    height_ft : float or None
+        Height measured by a 3-D radar (I048/110) [ft], resolution 25 ft; ``None``
+        when absent (a 2-D radar sends none).
     """
 
     sac: int
@@ -129,6 +148,7 @@ class Cat048Report:
     flight_level: float | None
     callsign: str | None
     capture_s: float | None
+    height_ft: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -261,32 +281,108 @@ class DecodeStats:
         self.skipped_categories.update(other.skipped_categories)
 
 
+#: Column kinds of each category: float (NaN for ``None``), int (-1 for ``None``), str.
+_FLOAT, _INT, _STR = "float", "int", "str"
+#: The columns of each category, in the order of its report's fields.
+COLUMNS: dict[int, dict[str, str]] = {
+    48: {"sac": _INT, "sic": _INT, "time_of_day_s": _FLOAT, "rho_nm": _FLOAT,
+         "theta_deg": _FLOAT, "address": _INT, "flight_level": _FLOAT, "callsign": _STR,
+         "capture_s": _FLOAT, "height_ft": _FLOAT},
+    21: {"sac": _INT, "sic": _INT, "time_position_s": _FLOAT, "time_reception_s": _FLOAT,
+         "time_report_s": _FLOAT, "address": _INT, "lat_deg": _FLOAT, "lon_deg": _FLOAT,
+         "geo_height_ft": _FLOAT, "nacp": _INT, "nucp": _INT, "mops_version": _INT,
+         "capture_s": _FLOAT, "flight_level": _FLOAT},
+    34: {"sac": _INT, "sic": _INT, "message_type": _INT, "time_of_day_s": _FLOAT,
+         "lat_deg": _FLOAT, "lon_deg": _FLOAT, "height_m": _FLOAT, "capture_s": _FLOAT},
+}
+_REPORT_TYPES: dict[int, type] = {48: Cat048Report, 21: Cat021Report, 34: Cat034Message}
+
+
+def empty_columns(category: int) -> dict[str, np.ndarray]:
+    """Zero-length columns of a category (see :data:`COLUMNS`)."""
+    dtypes = {_FLOAT: float, _INT: np.int64, _STR: object}
+    return {name: np.zeros(0, dtype=dtypes[kind]) for name, kind in COLUMNS[category].items()}
+
+
+def _materialise(category: int, columns: dict[str, np.ndarray]) -> list[Any]:
+    """Report objects of columns (NaN and -1 back to ``None``)."""
+    lists = []
+    for name, kind in COLUMNS[category].items():
+        values = columns[name].tolist()
+        if kind == _FLOAT:
+            values = [None if v != v else v for v in values]
+        elif kind == _INT:
+            values = [None if v < 0 else v for v in values]
+        lists.append(values)
+    report = _REPORT_TYPES[category]
+    return [report(*fields) for fields in zip(*lists, strict=True)]
+
+
 @dataclass
 class Decoded:
-    """Decoded reports, in input order, and the decode counts."""
+    """Decoded reports, in input order, and the decode counts.
 
-    cat048: list[Cat048Report] = field(default_factory=list)
-    cat021: list[Cat021Report] = field(default_factory=list)
-    cat034: list[Cat034Message] = field(default_factory=list)
-    #: Every report in input order (the time base is built from this sequence).
-    sequence: list[Report] = field(default_factory=list)
+    The reports are held as columns, one numpy array per report field
+    (:data:`COLUMNS`; ``NaN`` or ``-1`` where the report's field is ``None``);
+    :attr:`cat048`, :attr:`cat021`, :attr:`cat034` and :attr:`sequence` give
+    them as report objects (built on first use).
+
+    Attributes
+    ----------
+    columns : dict
+        Category (48, 21, 34) -> field name -> array, in input order.
+    order : numpy.ndarray
+        Category of every report, in input order (int16).
+    stats : DecodeStats
+        The decode counts.
+    """
+
+    columns: dict[int, dict[str, np.ndarray]] = field(
+        default_factory=lambda: {c: empty_columns(c) for c in COLUMNS})
+    order: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int16))
     stats: DecodeStats = field(default_factory=DecodeStats)
+    _objects: dict[int, list[Any]] = field(default_factory=dict, repr=False, compare=False)
 
-    def add(self, report: Report) -> None:
-        """Append one report to its category list and to :attr:`sequence`."""
-        if isinstance(report, Cat048Report):
-            self.cat048.append(report)
-        elif isinstance(report, Cat021Report):
-            self.cat021.append(report)
-        else:
-            self.cat034.append(report)
-        self.sequence.append(report)
+    def count(self, category: int) -> int:
+        """Reports of ``category`` decoded."""
+        return len(self.columns[category]["sac"])
+
+    def _reports(self, category: int) -> list[Any]:
+        if category not in self._objects:
+            self._objects[category] = _materialise(category, self.columns[category])
+        return self._objects[category]
+
+    @property
+    def cat048(self) -> list[Cat048Report]:
+        """CAT048 reports in input order."""
+        return self._reports(48)
+
+    @property
+    def cat021(self) -> list[Cat021Report]:
+        """CAT021 reports in input order."""
+        return self._reports(21)
+
+    @property
+    def cat034(self) -> list[Cat034Message]:
+        """CAT034 messages in input order."""
+        return self._reports(34)
+
+    @property
+    def sequence(self) -> list[Report]:
+        """Every report in input order (the time base is built from this sequence)."""
+        iterators = {c: iter(self._reports(c)) for c in COLUMNS}
+        return [next(iterators[c]) for c in self.order.tolist()]
 
     def extend(self, other: Decoded) -> None:
         """Append the reports and counts of ``other``."""
-        for report in other.sequence:
-            self.add(report)
+        for category in COLUMNS:
+            mine, theirs = self.columns[category], other.columns[category]
+            self.columns[category] = {name: np.concatenate([mine[name], theirs[name]])
+                                      for name in mine}
+        self.order = np.concatenate([self.order, other.order])
+        self._objects.clear()
         self.stats.merge(other.stats)
+
 
 
 # --------------------------------------------------------------------------- block splitting
@@ -359,147 +455,405 @@ def split_blocks(
         pos = resync
 
 
-# --------------------------------------------------------------------------- item access
+# --------------------------------------------------------------------------- record walking
+
+#: Walk results: a record that does not parse; a flag past the end of the UAP
+#: (``libasterix`` raises there, so the block counts as a decoder exception).
+_BAD_RECORD, _DECODER_FAILURE = -1, -2
+
+#: Fields read, by category: column -> (item, subfield) of the edition.
+_FIELDS_048 = {
+    "sac": ("010", "SAC"), "sic": ("010", "SIC"), "tod": ("140", None),
+    "rho": ("040", "RHO"), "theta": ("040", "THETA"), "v": ("090", "V"), "g": ("090", "G"),
+    "fl": ("090", "FL"), "address": ("220", None), "callsign": ("240", None),
+    "height": ("110", "3DH"),
+}
+_FIELDS_021_V2 = {
+    "sac": ("010", "SAC"), "sic": ("010", "SIC"), "t071": ("071", None),
+    "t073": ("073", None), "t077": ("077", None), "address": ("080", None),
+    "lat131": ("131", "LAT"), "lon131": ("131", "LON"), "lat130": ("130", "LAT"),
+    "lon130": ("130", "LON"), "geo": ("140", None), "fl": ("145", None),
+    "nucp": ("090", "NUCPNIC"), "nacp": ("090", "NACP"), "vn": ("210", "VN"),
+}
+_FIELDS_021_V0 = {
+    "sac": ("010", "SAC"), "sic": ("010", "SIC"), "t030": ("030", None),
+    "address": ("080", None), "lat130": ("130", "LAT"), "lon130": ("130", "LON"),
+    "geo": ("140", None), "fl": ("145", None),
+}
+_FIELDS_034 = {
+    "sac": ("010", "SAC"), "sic": ("010", "SIC"), "type": ("000", None),
+    "tod": ("030", None), "hgt": ("120", "HGT"), "lat": ("120", "LAT"), "lon": ("120", "LON"),
+}
+_FIELDS_BY_SPEC: dict[Any, dict[str, tuple[str, str | None]]] = {
+    gen.Cat_048_1_32: _FIELDS_048, gen.Cat_021_2_6: _FIELDS_021_V2,
+    gen.Cat_021_0_26: _FIELDS_021_V0, gen.Cat_034_1_29: _FIELDS_034,
+}
 
 
-def _sub(item: Any, name: str) -> Any:
-    """Subitem ``name`` of a group/extended item's variation, or ``None``."""
-    sub = item.variation.get_item(name)
-    return None if sub is None else sub.variation.content
+@dataclass(frozen=True)
+class _Compiled:
+    """A record layout prepared for :func:`_walk_records`."""
+
+    spec: Any
+    #: ``tables[k][b]``: FSPEC positions flagged by byte value ``b`` at FSPEC byte ``k``.
+    tables: tuple[tuple[tuple[int, ...], ...], ...]
+    #: Layout at each position (an int: fixed size [bytes]).
+    items: tuple[Any, ...]
+    #: Offset slot of each position (-1: not read).
+    slots: tuple[int, ...]
+    #: Item name of each slot.
+    slot_items: tuple[str, ...]
+    #: Field layouts by column name.
+    fields: dict[str, FieldLayout]
+    #: Part sizes of the extended items read, by item name.
+    parts: dict[str, tuple[int, ...]]
 
 
-def _quantity(record: Any, name: str, unit: str) -> float | None:
-    """Physical value of an element item in ``unit``, or ``None`` when absent."""
-    item = record.get_item(name)
-    if item is None:
-        return None
-    value = float(item.variation.content.as_quantity(unit))
-    return value if math.isfinite(value) else None
+def _compile(spec: Any) -> _Compiled:
+    record = record_layout(spec)
+    fields = {name: locate(spec, item, sub)
+              for name, (item, sub) in _FIELDS_BY_SPEC[spec].items()}
+    slot_items = tuple(dict.fromkeys(f.item for f in fields.values()))
+    slots = tuple(slot_items.index(name) if name in slot_items else -1
+                  for name in record.names)
+    n_items = len(record.items)
+    tables = tuple(
+        tuple(tuple(7 * k + j for j in range(7) if value & (0x80 >> j) and 7 * k + j < n_items)
+              + ((n_items,) if any(value & (0x80 >> j) and 7 * k + j >= n_items
+                                   for j in range(7)) else ())
+              for value in range(256))
+        for k in range(record.max_fspec))
+    parts = {item: record.items[record.position(item)].sizes for item in slot_items
+             if isinstance(record.items[record.position(item)], ExtendedLayout)}
+    return _Compiled(spec, tables, record.items, slots, slot_items, fields, parts)
 
 
-def _uint(record: Any, name: str) -> int | None:
-    """Raw unsigned value of an element item, or ``None`` when absent."""
-    item = record.get_item(name)
-    return None if item is None else int(item.variation.content.as_uint())
+_COMPILED: dict[Any, _Compiled] = {}
 
 
-def _source(record: Any) -> tuple[int, int] | None:
-    """``(SAC, SIC)`` of I010, or ``None`` when absent."""
-    item = record.get_item("010")
-    if item is None:
-        return None
-    return int(_sub(item, "SAC").as_uint()), int(_sub(item, "SIC").as_uint())
+def _compiled(spec: Any) -> _Compiled:
+    if spec not in _COMPILED:
+        _COMPILED[spec] = _compile(spec)
+    return _COMPILED[spec]
 
 
-def _text(record: Any, name: str) -> str | None:
-    """A string item with blanks removed; ``None`` when absent or empty."""
-    item = record.get_item(name)
-    if item is None:
-        return None
-    text = item.variation.content.as_string().strip()
-    return text or None
+def _skip(layout: Any, data: bytes, pos: int, end: int) -> int:
+    """Position after a variable-size item starting at ``pos``; < 0 when it does not parse."""
+    kind = layout.__class__
+    if kind is ExtendedLayout:
+        sizes, fx = layout.sizes, layout.fx
+        last = len(sizes) - 1
+        for k, size in enumerate(sizes):
+            pos += size
+            if pos > end:
+                return _BAD_RECORD
+            if not fx[k] or not data[pos - 1] & 1:
+                return pos
+            if k == last:  # the last FX must be 0
+                return _BAD_RECORD
+        return pos
+    if kind is RepetitiveLayout:
+        element = layout.element
+        if layout.rep_bytes == 0:
+            while True:
+                pos += element
+                if pos > end:
+                    return _BAD_RECORD
+                if not data[pos - 1] & 1:
+                    return pos
+        count_end = pos + layout.rep_bytes
+        if count_end > end:
+            return _BAD_RECORD
+        pos = count_end + int.from_bytes(data[pos:count_end], "big") * element
+        return pos if pos <= end else _BAD_RECORD
+    if layout == EXPLICIT:
+        if pos >= end or data[pos] == 0:
+            return _BAD_RECORD
+        pos += data[pos]
+        return pos if pos <= end else _BAD_RECORD
+    # CompoundLayout: its own FSPEC (strict), then the flagged sub-items.
+    items = layout.items
+    flagged = []
+    k = 0
+    while True:
+        if pos >= end or k >= layout.max_fspec:
+            return _BAD_RECORD
+        value = data[pos]
+        pos += 1
+        flagged.extend(7 * k + j for j in range(7) if value & (0x80 >> j))
+        k += 1
+        if not value & 1:
+            break
+    for p in flagged:
+        sub = items[p] if p < len(items) else None
+        if sub is None:
+            return _BAD_RECORD
+        pos = pos + sub if sub.__class__ is int else _skip(sub, data, pos, end)
+        if pos < 0 or pos > end:
+            return _BAD_RECORD
+    return pos
 
 
-def _cat048(record: Any, capture_s: float | None) -> Cat048Report | None:
-    source = _source(record)
-    if source is None:
-        return None
-    rho = theta = None
-    i040 = record.get_item("040")
-    if i040 is not None:
-        rho = float(_sub(i040, "RHO").as_quantity("NM"))
-        theta = float(_sub(i040, "THETA").as_quantity("°"))
-    flight_level = None
-    i090 = record.get_item("090")
-    if i090 is not None and _sub(i090, "V").as_uint() == 0 and _sub(i090, "G").as_uint() == 0:
-        flight_level = float(_sub(i090, "FL").as_quantity("FL"))
-    return Cat048Report(
-        sac=source[0], sic=source[1],
-        time_of_day_s=_quantity(record, "140", "s"),
-        rho_nm=rho, theta_deg=theta,
-        address=_uint(record, "220"),
-        flight_level=flight_level,
-        callsign=_text(record, "240"),
-        capture_s=capture_s,
-    )
+def _walk_records(data: bytes, pos: int, end: int, compiled: _Compiled, base: int
+                  ) -> list[int] | int:
+    """Walk the records of a block body ``data[pos:end]``.
+
+    Returns
+    -------
+    list of int or int
+        For each record, the offset (plus ``base``) of each item read, -1 when
+        absent (``len(compiled.slot_items)`` values per record); or
+        :data:`_BAD_RECORD` / :data:`_DECODER_FAILURE`.
+    """
+    tables, items, slots = compiled.tables, compiled.items, compiled.slots
+    max_fspec = len(tables)
+    n_items = len(items)
+    template = [-1] * len(compiled.slot_items)
+    out: list[int] = []
+    while pos < end:
+        row = template[:]
+        value = data[pos]
+        pos += 1
+        flagged = tables[0][value]
+        k = 1
+        while value & 1:
+            if pos >= end or k >= max_fspec:
+                return _BAD_RECORD
+            value = data[pos]
+            pos += 1
+            flagged += tables[k][value]
+            k += 1
+        for p in flagged:
+            if p >= n_items:
+                return _DECODER_FAILURE
+            slot = slots[p]
+            if slot >= 0:
+                row[slot] = pos + base
+            layout = items[p]
+            if layout.__class__ is int:
+                pos += layout
+            elif layout is None:  # a spare position flagged
+                return _BAD_RECORD
+            else:
+                pos = _skip(layout, data, pos, end)
+                if pos < 0:
+                    return _BAD_RECORD
+        if pos > end:
+            return _BAD_RECORD
+        out += row
+    return out
 
 
-def _cat021_quality(record: Any) -> tuple[int | None, int | None]:
-    """``(NACp, NUCp/NIC)`` from I021/090 of edition 2 (``None`` where absent)."""
-    item = record.get_item("090")
-    if item is None or not hasattr(item.variation, "get_item"):
-        return None, None
-    variation = item.variation
-    nucp = variation.get_item("NUCPNIC")
-    nacp = variation.get_item("NACP")
-    return (
-        None if nacp is None else int(nacp.variation.content.as_uint()),
-        None if nucp is None else int(nucp.variation.content.as_uint()),
-    )
+# --------------------------------------------------------------------------- field extraction
 
 
-def _cat021(record: Any, edition: tuple[int, int], capture_s: float | None
-            ) -> Cat021Report | None:
-    source = _source(record)
-    if source is None:
-        return None
-    lat = lon = None
-    position = record.get_item("131") if edition[0] >= 2 else None
-    if position is None:
-        position = record.get_item("130")
-    if position is not None:
-        lat = float(_sub(position, "LAT").as_quantity("°"))
-        lon = float(_sub(position, "LON").as_quantity("°"))
-    if edition[0] >= 2:
-        t_position = _quantity(record, "071", "s")
-        t_reception = _quantity(record, "073", "s")
-        t_report = _quantity(record, "077", "s")
-        nacp, nucp = _cat021_quality(record)
-        i210 = record.get_item("210")
-        version = None if i210 is None else int(_sub(i210, "VN").as_uint())
+#: ICAO 6-bit character set (I048/240) as bytes; 0 where the code is not a character.
+_ICAO_CHARS = np.zeros(64, dtype=np.uint8)
+_ICAO_CHARS[1:27] = np.frombuffer(b"ABCDEFGHIJKLMNOPQRSTUVWXYZ", dtype=np.uint8)
+_ICAO_CHARS[0x20] = ord(" ")
+_ICAO_CHARS[0x30:0x3A] = np.frombuffer(b"0123456789", dtype=np.uint8)
+
+
+class _Fields:
+    """Raw field values of many records of one edition, from their item offsets."""
+
+    def __init__(self, buffer: np.ndarray, compiled: _Compiled, offsets: np.ndarray) -> None:
+        self.buffer = buffer
+        self.compiled = compiled
+        self.offsets = offsets.reshape(-1, len(compiled.slot_items))
+        self._present: dict[tuple[str, int], np.ndarray] = {}
+
+    def _byte(self, index: np.ndarray) -> np.ndarray:
+        return self.buffer[np.clip(index, 0, len(self.buffer) - 1)].astype(np.int64)
+
+    def present(self, name: str) -> np.ndarray:
+        """Records that carry column ``name``'s field (its item, and its part)."""
+        layout = self.compiled.fields[name]
+        key = (layout.item, layout.part)
+        if key not in self._present:
+            offset = self.offsets[:, self.compiled.slot_items.index(layout.item)]
+            mask = offset >= 0
+            sizes = self.compiled.parts.get(layout.item, ())
+            end = offset.copy()
+            for part in range(layout.part):
+                end = end + sizes[part]
+                mask &= (self._byte(end - 1) & 1).astype(bool)
+            self._present[key] = mask
+        return self._present[key]
+
+    def raw(self, name: str) -> np.ndarray:
+        """Column ``name``'s field as integers (two's complement applied); 0 where absent."""
+        layout = self.compiled.fields[name]
+        offset = self.offsets[:, self.compiled.slot_items.index(layout.item)]
+        first = np.where(offset >= 0, offset, 0) + layout.bit_offset // 8
+        lead = layout.bit_offset % 8
+        n_bytes = (lead + layout.bit_size + 7) // 8
+        value = np.zeros(len(offset), dtype=np.uint64)
+        for k in range(n_bytes):
+            value = (value << np.uint64(8)) | self._byte(first + k).astype(np.uint64)
+        value >>= np.uint64(8 * n_bytes - lead - layout.bit_size)
+        value &= np.uint64((1 << layout.bit_size) - 1)
+        signed = value.astype(np.int64)
+        if layout.signed:
+            half = 1 << (layout.bit_size - 1)
+            signed = np.where(signed >= half, signed - 2 * half, signed)
+        return np.where(self.present(name), signed, 0)
+
+    def quantity(self, name: str) -> np.ndarray:
+        """Column ``name``'s field as ``signed raw * LSB`` [the item's unit]; NaN where absent."""
+        layout = self.compiled.fields[name]
+        assert layout.lsb is not None
+        return np.where(self.present(name), self.raw(name).astype(float) * layout.lsb, np.nan)
+
+    def uint(self, name: str) -> np.ndarray:
+        """Column ``name``'s field as an integer; -1 where absent."""
+        return np.where(self.present(name), self.raw(name), -1)
+
+    def icao_text(self, name: str) -> np.ndarray:
+        """An ICAO 6-bit string field, blanks removed; ``None`` where absent or empty."""
+        present = self.present(name)
+        raw = self.raw(name).astype(np.uint64)
+        n_chars = self.compiled.fields[name].bit_size // 6
+        codes = np.stack([(raw >> np.uint64(6 * (n_chars - 1 - j))) & np.uint64(63)
+                          for j in range(n_chars)], axis=1).astype(np.intp)
+        text = _ICAO_CHARS[codes].tobytes()
+        out = np.empty(len(raw), dtype=object)
+        for i, has in enumerate(present.tolist()):
+            if has:
+                value = text[i * n_chars:(i + 1) * n_chars].replace(b"\0", b"").strip()
+                out[i] = value.decode("ascii") or None
+            else:
+                out[i] = None
+        return out
+
+
+def _columns_048(f: _Fields, capture: np.ndarray) -> dict[str, np.ndarray]:
+    valid_level = f.present("fl") & (f.raw("v") == 0) & (f.raw("g") == 0)
+    return {
+        "sac": f.raw("sac"), "sic": f.raw("sic"), "time_of_day_s": f.quantity("tod"),
+        "rho_nm": f.quantity("rho"), "theta_deg": f.quantity("theta"),
+        "address": f.uint("address"),
+        "flight_level": np.where(valid_level, f.quantity("fl"), np.nan),
+        "callsign": f.icao_text("callsign"), "capture_s": capture,
+        "height_ft": f.quantity("height"),
+    }
+
+
+def _columns_021(f: _Fields, capture: np.ndarray) -> dict[str, np.ndarray]:
+    n = len(capture)
+    none_f, none_i = np.full(n, np.nan), np.full(n, -1, dtype=np.int64)
+    if "t071" in f.compiled.fields:  # edition 2
+        high = f.present("lat131")
+        lat = np.where(high, f.quantity("lat131"), f.quantity("lat130"))
+        lon = np.where(high, f.quantity("lon131"), f.quantity("lon130"))
+        times = f.quantity("t071"), f.quantity("t073"), f.quantity("t077")
+        quality = f.uint("nacp"), f.uint("nucp"), f.uint("vn")
     else:
-        t_position, t_reception, t_report = _quantity(record, "030", "s"), None, None
-        nacp = nucp = version = None
-    return Cat021Report(
-        sac=source[0], sic=source[1],
-        time_position_s=t_position, time_reception_s=t_reception, time_report_s=t_report,
-        address=_uint(record, "080"),
-        lat_deg=lat, lon_deg=lon,
-        geo_height_ft=_quantity(record, "140", "ft"),
-        nacp=nacp, nucp=nucp, mops_version=version,
-        capture_s=capture_s,
-        flight_level=_quantity(record, "145", "FL"),
-    )
+        lat, lon = f.quantity("lat130"), f.quantity("lon130")
+        times = f.quantity("t030"), none_f, none_f.copy()
+        quality = none_i, none_i.copy(), none_i.copy()
+    return {
+        "sac": f.raw("sac"), "sic": f.raw("sic"), "time_position_s": times[0],
+        "time_reception_s": times[1], "time_report_s": times[2],
+        "address": f.uint("address"), "lat_deg": lat, "lon_deg": lon,
+        "geo_height_ft": f.quantity("geo"), "nacp": quality[0], "nucp": quality[1],
+        "mops_version": quality[2], "capture_s": capture, "flight_level": f.quantity("fl"),
+    }
 
 
-def _cat034(record: Any, capture_s: float | None) -> Cat034Message | None:
-    source = _source(record)
-    if source is None:
-        return None
-    lat = lon = height = None
-    i120 = record.get_item("120")
-    if i120 is not None:
-        height = float(_sub(i120, "HGT").as_quantity("m"))
-        lat = float(_sub(i120, "LAT").as_quantity("°"))
-        lon = float(_sub(i120, "LON").as_quantity("°"))
-    return Cat034Message(
-        sac=source[0], sic=source[1],
-        message_type=_uint(record, "000"),
-        time_of_day_s=_quantity(record, "030", "s"),
-        lat_deg=lat, lon_deg=lon, height_m=height,
-        capture_s=capture_s,
-    )
+def _columns_034(f: _Fields, capture: np.ndarray) -> dict[str, np.ndarray]:
+    return {
+        "sac": f.raw("sac"), "sic": f.raw("sic"), "message_type": f.uint("type"),
+        "time_of_day_s": f.quantity("tod"), "lat_deg": f.quantity("lat"),
+        "lon_deg": f.quantity("lon"), "height_m": f.quantity("hgt"), "capture_s": capture,
+    }
 
 
-def _parse_records(category: int, body: bytes) -> tuple[Any, list[Any]] | None:
-    """Parse the records of a block body with the first specification that accepts
-    all of it; ``None`` when none does."""
-    bits = Bits.from_bytes(body)
-    for spec in SPECS[category]:
-        records = spec.cv_uap.parse(bits)
-        if not isinstance(records, ValueError) and records:
-            return spec, records
-    return None
+_COLUMN_BUILDERS = {48: _columns_048, 21: _columns_021, 34: _columns_034}
+
+
+class _Collector:
+    """Item offsets of the records of accepted blocks, turned into columns at the end."""
+
+    def __init__(self, stats: DecodeStats) -> None:
+        self.stats = stats
+        self.chunks: list[bytes] = []
+        self.base = 0
+        self.n_reports = 0
+        self.order: list[int] = []
+        # per specification: offsets (flat), report numbers, capture times
+        self.offsets: dict[Any, list[int]] = {}
+        self.numbers: dict[Any, list[int]] = {}
+        self.captures: dict[Any, list[float]] = {}
+
+    def add_chunk(self, data: bytes) -> int:
+        """Keep ``data`` (a payload or file); returns the base offset of its bytes."""
+        base = self.base
+        self.chunks.append(data)
+        self.base += len(data)
+        return base
+
+    def block(self, category: int, data: bytes, begin: int, stop: int,
+              capture_s: float | None, base: int) -> int:
+        """Walk the block ``data[begin:stop]`` (header included); returns its record count."""
+        if category not in SPECS:
+            self.stats.skipped_categories[category] += 1
+            return 0
+        walked: list[int] | int = _BAD_RECORD
+        compiled = None
+        for spec in SPECS[category]:
+            compiled = _compiled(spec)
+            walked = _walk_records(data, begin + HEADER_BYTES, stop, compiled, base)
+            if walked == _DECODER_FAILURE:
+                self.stats.rejected[REJECT_DECODER] += 1
+                return 0
+            if isinstance(walked, list) and walked:
+                break
+        if not isinstance(walked, list) or not walked:
+            self.stats.rejected[REJECT_RECORDS] += 1
+            return 0
+        assert compiled is not None
+        width = len(compiled.slot_items)
+        if -1 in walked[compiled.slot_items.index("010")::width]:
+            self.stats.rejected[REJECT_NO_SOURCE] += 1
+            return 0
+        n = len(walked) // width
+        spec = compiled.spec
+        self.offsets.setdefault(spec, []).extend(walked)
+        self.numbers.setdefault(spec, []).extend(range(self.n_reports, self.n_reports + n))
+        self.captures.setdefault(spec, []).extend(
+            [math.nan if capture_s is None else capture_s] * n)
+        self.order.extend([category] * n)
+        self.n_reports += n
+        self.stats.blocks_decoded += 1
+        self.stats.records[category] += n
+        return n
+
+    def finish(self) -> Decoded:
+        """The columns of every record kept, in input order."""
+        out = Decoded(stats=self.stats)
+        out.order = np.asarray(self.order, dtype=np.int16)
+        if not self.n_reports:
+            return out
+        buffer = np.frombuffer(b"".join(self.chunks), dtype=np.uint8)
+        for category, specs in SPECS.items():
+            parts, numbers = [], []
+            for spec in specs:
+                if spec not in self.offsets:
+                    continue
+                fields = _Fields(buffer, _compiled(spec),
+                                 np.asarray(self.offsets[spec], dtype=np.int64))
+                capture = np.asarray(self.captures[spec], dtype=float)
+                parts.append(_COLUMN_BUILDERS[category](fields, capture))
+                numbers.append(np.asarray(self.numbers[spec], dtype=np.int64))
+            if not parts:
+                continue
+            rank = np.argsort(np.concatenate(numbers), kind="stable")
+            out.columns[category] = {
+                name: np.concatenate([p[name] for p in parts]).astype(
+                    empty_columns(category)[name].dtype)[rank]
+                for name in COLUMNS[category]}
+        return out
 
 
 def decode_block(category: int, block: bytes, capture_s: float | None,
@@ -523,33 +877,17 @@ def decode_block(category: int, block: bytes, capture_s: float | None,
         Empty for a skipped category or a rejected block.  All reports of a
         block are kept or none: a block with one bad record is rejected.
     """
-    if category not in SPECS:
-        stats.skipped_categories[category] += 1
-        return []
-    try:
-        parsed = _parse_records(category, block[HEADER_BYTES:])
-        if parsed is None:
-            stats.rejected[REJECT_RECORDS] += 1
-            return []
-        spec, records = parsed
-        reports: list[Report] = []
-        for record in records:
-            if category == 48:
-                report: Report | None = _cat048(record, capture_s)
-            elif category == 21:
-                report = _cat021(record, spec.cv_edition, capture_s)
-            else:
-                report = _cat034(record, capture_s)
-            if report is None:
-                stats.rejected[REJECT_NO_SOURCE] += 1
-                return []
-            reports.append(report)
-    except Exception:  # noqa: BLE001 - any decoder failure rejects the block, never the run
-        stats.rejected[REJECT_DECODER] += 1
-        return []
-    stats.blocks_decoded += 1
-    stats.records[category] += len(reports)
-    return reports
+    collector = _Collector(stats)
+    base = collector.add_chunk(block)
+    collector.block(category, block, 0, len(block), capture_s, base)
+    return collector.finish().sequence
+
+
+def _decode_into(collector: _Collector, data: bytes, capture_s: float | None) -> None:
+    """Split ``data`` into blocks and walk them into ``collector``."""
+    base = collector.add_chunk(data)
+    for category, begin, stop in split_blocks(data, collector.stats):
+        collector.block(category, data, begin, stop, capture_s, base)
 
 
 def decode_payload(data: bytes, capture_s: float | None = None,
@@ -570,11 +908,14 @@ def decode_payload(data: bytes, capture_s: float | None = None,
     Decoded
         ``into`` or a new result.
     """
-    out = Decoded() if into is None else into
-    for category, begin, stop in split_blocks(data, out.stats):
-        for report in decode_block(category, data[begin:stop], capture_s, out.stats):
-            out.add(report)
-    return out
+    collector = _Collector(DecodeStats())
+    _decode_into(collector, data, capture_s)
+    decoded = collector.finish()
+    if into is None:
+        return decoded
+    into.extend(decoded)
+    return into
+
 
 
 # --------------------------------------------------------------------------- captures
@@ -667,25 +1008,26 @@ def decode_bytes(data: bytes, *, progress: Callable[[int, int], None] | None = N
     AsterixError
         If a capture's global header cannot be read.
     """
-    out = Decoded()
-    out.stats.files = 1
+    stats = DecodeStats(files=1)
+    collector = _Collector(stats)
     total = len(data)
     kind = detect_format(data[:12])
     if kind == "raw":
         step = max(1 << 16, total // 500)
         next_report = step
-        for category, begin, stop in split_blocks(data, out.stats):
-            for report in decode_block(category, data[begin:stop], None, out.stats):
-                out.add(report)
+        base = collector.add_chunk(data)
+        for category, begin, stop in split_blocks(data, stats):
+            collector.block(category, data, begin, stop, None, base)
             if progress is not None and stop >= next_report:
                 progress(stop, total)
                 next_report = stop + step
     else:
         stream = io.BytesIO(data)
-        for n, (timestamp, payload) in enumerate(_packets(stream, kind, out.stats)):
-            decode_payload(payload, timestamp, into=out)
+        for n, (timestamp, payload) in enumerate(_packets(stream, kind, stats)):
+            _decode_into(collector, payload, timestamp)
             if progress is not None and n % 200 == 0:
                 progress(stream.tell(), total)
+    out = collector.finish()
     if progress is not None:
         progress(total, total)
     return out

@@ -17,6 +17,7 @@ plot time           I048/140 Time of Day       1/128 s
 plot range          I048/040 RHO               1/256 NM (1 NM = 1852 m), 0 .. 256 NM
 plot azimuth        I048/040 THETA             360/2^16 deg
 plot altitude       I048/090 Flight Level      1/4 FL (FL = altitude_m / 0.3048 / 100)
+plot height (3-D)   I048/110 3-D Height        25 ft (3-D radars, from the elevation)
 aircraft address    I048/220, I021/080         exact (24 bits)
 callsign            I048/240                   exact (up to 8 characters A-Z 0-9 space)
 ADS-B time          I021/071 Time of Appl.     1/128 s
@@ -31,8 +32,12 @@ North-marker time   I034/030 Time of Day       1/128 s
 
 Times are carried as time of day: ``(time_s - day_start_s) mod 86400``, with
 ``day_start_s`` the value of ``time_s`` at the midnight that starts the day.
-A plot's elevation is not carried: CAT048 has no elevation angle (I048/110 is a
-height), so an import gives 2-D plots.
+CAT048 has no elevation angle: a 3-D radar's plot carries the height its
+elevation gives (I048/110, "height measured by a 3-D radar"), on the sphere of
+the local Gaussian radius ``R`` (:func:`graphcal.core.frames.elevation_from_height`
+is its inverse, which the import uses):
+``h = sqrt((R + alt_m)^2 + r^2 + 2 r (R + alt_m) sin(el)) - R``.  Its 25 ft LSB
+(7.62 m) gives the elevation back within ``3.81 m / r`` (0.04 mrad at 100 km).
 
 Radars are identified by SAC/SIC (I048/010, I034/010).  They come from
 ``radar_codes`` or, when it is absent, from ids of the form ``SAC025_SIC201``
@@ -93,6 +98,8 @@ FL_LSB = 0.25
 ADSB_LATLON_LSB_DEG = 180.0 / 2**30
 #: LSB of I021/140 geometric height [ft].
 ADSB_HEIGHT_LSB_FT = 6.25
+#: LSB of I048/110 3-D height [ft].
+HEIGHT_3D_LSB_FT = 25.0
 #: LSB of I034/120 latitude and longitude [deg].
 SITE_LATLON_LSB_DEG = 180.0 / 2**23
 #: LSB of I034/120 height [m].
@@ -314,11 +321,45 @@ class _Rows:
         self.skipped.append(_row_problem(table, pos, detail, self.path))
 
 
+def height_from_elevation(range_m: np.ndarray, elevation_rad: np.ndarray, lat_rad: float,
+                          alt_m: float) -> np.ndarray:
+    """Height [m] of a target at slant range and elevation, on the local earth sphere.
+
+    The inverse of :func:`graphcal.core.frames.elevation_from_height`:
+    ``h = sqrt((R + alt_m)^2 + r^2 + 2 r (R + alt_m) sin(el)) - R``, ``R`` the
+    Gaussian radius of curvature at the radar's latitude.
+    """
+    from graphcal.core.frames import gaussian_radius_m
+
+    radius = float(gaussian_radius_m(lat_rad))
+    rr = radius + alt_m
+    r = np.asarray(range_m, dtype=float)
+    return np.sqrt(rr**2 + r**2 + 2.0 * r * rr * np.sin(elevation_rad)) - radius
+
+
+def _plot_heights(plots: pd.DataFrame, sites: Mapping[str, Any]) -> np.ndarray:
+    """I048/110 height [ft] of every plot of a 3-D radar with an elevation; NaN elsewhere."""
+    heights = np.full(len(plots), np.nan)
+    if "elevation_deg" not in plots or not len(plots):
+        return heights
+    radar = plots["radar_id"].astype(str).to_numpy()
+    elevation = np.radians(plots["elevation_deg"].to_numpy(dtype=float))
+    range_m = plots["range_m"].to_numpy(dtype=float)
+    for rid, site in sites.items():
+        if not site.is_3d:
+            continue
+        rows = (radar == rid) & np.isfinite(elevation)
+        heights[rows] = height_from_elevation(range_m[rows], elevation[rows], site.lat_rad,
+                                              site.alt_m) / METRES_PER_FT
+    return heights
+
+
 def _plot_records(
     plots: pd.DataFrame, codes: Mapping[str, tuple[int, int]], three_d: set[str],
-    day_start_s: float, rows: _Rows,
+    day_start_s: float, rows: _Rows, heights: np.ndarray | None = None,
 ) -> Iterator[AsterixRecord]:
     """CAT048 records, one per plot (see the module docstring for items and LSBs)."""
+    heights = np.full(len(plots), np.nan) if heights is None else heights
     radar = plots["radar_id"].astype(str).to_numpy()
     time_s = plots["time_s"].to_numpy(dtype=float)
     range_m = plots["range_m"].to_numpy(dtype=float)
@@ -356,6 +397,9 @@ def _plot_records(
                                 ("FL", _count(fl, FL_LSB, 14, True, "altitude_m as flight level")))
             if address is not None:
                 items["220"] = address
+            if np.isfinite(heights[pos]):
+                items["110"] = (0, ("3DH", _count(heights[pos], HEIGHT_3D_LSB_FT, 14, True,
+                                                  "3-D height from elevation_deg")))
             if callsigns is not None:
                 callsign = _callsign(callsigns[pos])
                 if callsign is not None:
@@ -485,7 +529,8 @@ def encode_records(
     rows = _Rows(on_range_error, dataset.path)
     three_d = {rid for rid, site in dataset.sites.items() if site.is_3d}
     records = list(_site_records(dataset, codes, day_start_s))
-    records += _plot_records(dataset.plots, codes, three_d, day_start_s, rows)
+    records += _plot_records(dataset.plots, codes, three_d, day_start_s, rows,
+                             _plot_heights(dataset.plots, dataset.sites))
     if dataset.adsb is not None and len(dataset.adsb):
         records += _adsb_records(dataset.adsb, (sac, sic), day_start_s, rows)
     order = {34: 0, 48: 1, 21: 2}
@@ -572,7 +617,7 @@ def encode_dataset(
     """Encode a dataset as concatenated ASTERIX data blocks.
 
     Plots become CAT048 records (I010, I140, I020, I040, I090 when the altitude
-    is known, I220 when ``target_id`` is an ICAO address, I240 when a
+    is known, I110 for a 3-D radar's plot, I220 when ``target_id`` is an ICAO address, I240 when a
     ``callsign`` column has a value), ADS-B reports CAT021 records (I010, I040,
     I161, I071, I131, I080, I140, I145 when ``baro_alt_m`` has a value, I090
     with NACp when known) and each radar one CAT034 North marker (I010, I000,

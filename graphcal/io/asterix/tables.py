@@ -62,7 +62,6 @@ from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -71,7 +70,6 @@ from graphcal.core.errors import DatasetError
 from graphcal.data.dataset import Dataset, Site
 from graphcal.io.asterix.decode import (
     AsterixError,
-    Cat021Report,
     Cat034Message,
     Cat048Report,
     Decoded,
@@ -163,27 +161,65 @@ def unwrap_times(
         One entry per report (``None`` when it has no time of day).
     time_base : TimeBase
     """
-    captures = [r.capture_s for r in sequence if r.capture_s is not None]
-    if epoch_unix_s is None and captures:
-        epoch_unix_s = midnight_utc(min(captures))
-    times: list[float | None] = []
-    reference: float | None = None
-    wrapped = 0
-    for report in sequence:
-        tod = _report_time_of_day(report)
-        if tod is None:
-            times.append(None)
-            continue
-        if report.capture_s is not None and epoch_unix_s is not None:
-            anchor: float | None = report.capture_s - epoch_unix_s
-        else:
-            anchor = reference
-        day = 0 if anchor is None else round((anchor - tod) / DAY_S)
-        value = tod + DAY_S * day
-        wrapped += day != 0
-        times.append(value)
-        reference = value
-    return times, TimeBase(epoch_unix_s, wrapped)
+    tod = np.array([np.nan if (t := _report_time_of_day(r)) is None else t for r in sequence],
+                   dtype=float)
+    capture = np.array([np.nan if r.capture_s is None else r.capture_s for r in sequence],
+                       dtype=float)
+    times, time_base = unwrap_time_array(tod, capture, epoch_unix_s)
+    return [None if math.isnan(t) else float(t) for t in times.tolist()], time_base
+
+
+def unwrap_time_array(tod_s: np.ndarray, capture_s: np.ndarray,
+                      epoch_unix_s: float | None = None) -> tuple[np.ndarray, TimeBase]:
+    """:func:`unwrap_times` on arrays: times of day and capture times of reports in input order.
+
+    Parameters
+    ----------
+    tod_s : numpy.ndarray
+        Time of day of each report [s]; NaN for none.
+    capture_s : numpy.ndarray
+        Capture time of each report [unix s]; NaN for none.
+    epoch_unix_s : float, optional
+        As for :func:`unwrap_times`.
+
+    Returns
+    -------
+    times : numpy.ndarray
+        Seconds since 00:00 UTC of day 0 (NaN where ``tod_s`` is NaN).
+    time_base : TimeBase
+
+    Notes
+    -----
+    A report with a capture time is put on the day closest to it; one without
+    on the day closest to the previous report's time, i.e. its day is the
+    previous report's day plus ``round((tod_prev - tod) / 86400)``: a cumulative
+    sum, restarted at each report placed by its capture time.
+    """
+    tod_s = np.asarray(tod_s, dtype=float)
+    capture_s = np.asarray(capture_s, dtype=float)
+    has_capture = np.isfinite(capture_s)
+    if epoch_unix_s is None and has_capture.any():
+        epoch_unix_s = midnight_utc(float(capture_s[has_capture].min()))
+    times = np.full(len(tod_s), np.nan)
+    valid = np.flatnonzero(np.isfinite(tod_s))
+    if not len(valid):
+        return times, TimeBase(epoch_unix_s, 0)
+    tod = tod_s[valid]
+    anchored = has_capture[valid] & (epoch_unix_s is not None)
+    step = np.zeros(len(valid))
+    step[1:] = np.round((tod[:-1] - tod[1:]) / DAY_S)
+    absolute = np.zeros(len(valid))
+    if epoch_unix_s is not None:
+        absolute[anchored] = np.round(
+            (capture_s[valid][anchored] - epoch_unix_s - tod[anchored]) / DAY_S)
+    step[anchored] = 0.0
+    group = np.cumsum(anchored)  # reports after the k-th anchored report
+    running = np.cumsum(step)
+    start = np.concatenate([[0.0], running[anchored]])  # running sum at each anchor
+    base = np.concatenate([[0.0], absolute[anchored]])
+    day = base[group] + running - start[group]
+    times[valid] = tod + DAY_S * day
+    return times, TimeBase(epoch_unix_s, int(np.count_nonzero(day)))
 
 
 # --------------------------------------------------------------------------- sites
@@ -314,90 +350,297 @@ def _radar_ids(sources: Iterable[tuple[int, int]], user: UserSites | None
     return out
 
 
-def _hex_address(address: int | None) -> str:
-    return "" if address is None else f"{address:06x}"
+def _hex_addresses(address: np.ndarray) -> list[str]:
+    """Six lower-case hex digits per address; "" where absent (-1)."""
+    return ["" if a < 0 else f"{a:06x}" for a in address.tolist()]
 
 
-def _nacp(report: Cat021Report) -> int | None:
-    if report.nacp is not None:
-        return report.nacp
-    if report.mops_version == 0 and report.nucp is not None:
-        return NUCP_TO_NACP.get(report.nucp)
-    return None
+def _nacp(columns: Mapping[str, np.ndarray]) -> np.ndarray:
+    """NACp, else a DO-260 NUCp mapped (:data:`NUCP_TO_NACP`), else -1."""
+    nacp = columns["nacp"].astype(np.int64)
+    mapped = np.full(16, -1, dtype=np.int64)
+    for nucp, value in NUCP_TO_NACP.items():
+        mapped[nucp] = value
+    nucp = columns["nucp"].astype(np.int64)
+    from_nucp = np.where((columns["mops_version"] == 0) & (nucp >= 0),
+                         mapped[np.clip(nucp, 0, 15)], -1)
+    return np.where(nacp >= 0, nacp, from_nucp)
 
 
-def plots_frame(reports: Sequence[Cat048Report], times: Sequence[float | None],
-                radar_ids: Mapping[tuple[int, int], str], skipped: Counter[str]
-                ) -> pd.DataFrame:
-    """The plots table of CAT048 reports (module docstring for the columns).
+def _skip_first(reasons: Sequence[tuple[str, np.ndarray]], skipped: Counter[str]
+                ) -> np.ndarray:
+    """Rows kept: those where no ``(reason, bad)`` mask holds; each dropped row is counted
+    under the first reason that holds for it."""
+    n = len(reasons[0][1]) if reasons else 0
+    keep = np.ones(n, dtype=bool)
+    for reason, bad in reasons:
+        hit = keep & bad
+        if hit.any():
+            skipped[reason] += int(hit.sum())
+        keep &= ~bad
+    return keep
 
-    ``times`` are the unwrapped times [s] of ``reports``; ``skipped`` counts
-    reports without I040 or without a time.
+
+def plots_frame(columns: Mapping[str, np.ndarray], times: np.ndarray,
+                radar_ids: Mapping[tuple[int, int], str], skipped: Counter[str],
+                elevation_deg: np.ndarray | None = None,
+                three_d: Iterable[tuple[int, int]] = ()) -> pd.DataFrame:
+    """The plots table of CAT048 columns (module docstring for the columns).
+
+    Parameters
+    ----------
+    columns : mapping
+        CAT048 columns (:attr:`Decoded.columns` ``[48]``).
+    times : numpy.ndarray
+        Unwrapped times [s] of those reports (NaN: none).
+    radar_ids : mapping
+        Radar id of each SAC/SIC.
+    skipped : Counter
+        Counts reports without I040, without a time, or (a 3-D radar) without I110.
+    elevation_deg : numpy.ndarray, optional
+        Elevation of each report [deg] (NaN: none), for 3-D radars.
+    three_d : iterable of (SAC, SIC)
+        3-D radars: their reports without an elevation are skipped.
     """
-    rows: dict[str, list[Any]] = {name: [] for name in PLOT_COLUMNS}
-    for report, time_s in zip(reports, times, strict=True):
-        if report.rho_nm is None or report.theta_deg is None:
-            skipped["CAT048 without I040 (polar position)"] += 1
-            continue
-        if time_s is None:
-            skipped["CAT048 without I140 (time of day)"] += 1
-            continue
-        rows["radar_id"].append(radar_ids[(report.sac, report.sic)])
-        rows["time_s"].append(time_s)
-        rows["range_m"].append(report.rho_nm * NM_M)
-        rows["azimuth_deg"].append(report.theta_deg % 360.0)
-        rows["elevation_deg"].append(math.nan)
-        rows["target_id"].append(_hex_address(report.address))
-        level = report.flight_level
-        rows["altitude_m"].append(math.nan if level is None else level * 100.0 * FOOT_M)
-        rows["callsign"].append(report.callsign or "")
-    frame = pd.DataFrame(rows, columns=list(PLOT_COLUMNS))
-    for column in ("time_s", "range_m", "azimuth_deg", "elevation_deg", "altitude_m"):
-        frame[column] = frame[column].astype(float)
+    sac, sic = columns["sac"], columns["sic"]
+    n = len(sac)
+    elevation = np.full(n, np.nan) if elevation_deg is None else elevation_deg
+    codes = sac * 256 + sic
+    wanted = np.array([s * 256 + c for s, c in three_d], dtype=np.int64)
+    is_3d = np.isin(codes, wanted)
+    keep = _skip_first([
+        ("CAT048 without I040 (polar position)",
+         ~np.isfinite(columns["rho_nm"]) | ~np.isfinite(columns["theta_deg"])),
+        ("CAT048 without I140 (time of day)", ~np.isfinite(times)),
+        ("CAT048 of a 3-D radar without I110 (height)", is_3d & ~np.isfinite(elevation)),
+    ], skipped)
+    code_ids = {s * 256 + c: rid for (s, c), rid in radar_ids.items()}
+    level = columns["flight_level"][keep]
+    callsign = columns["callsign"][keep]
+    frame = pd.DataFrame({
+        "radar_id": [code_ids[k] for k in codes[keep].tolist()],
+        "time_s": times[keep].astype(float),
+        "range_m": columns["rho_nm"][keep] * NM_M,
+        "azimuth_deg": columns["theta_deg"][keep] % 360.0,
+        "elevation_deg": np.where(is_3d[keep], elevation[keep], np.nan),
+        "target_id": _hex_addresses(columns["address"][keep]),
+        "altitude_m": level * 100.0 * FOOT_M,
+        "callsign": ["" if c is None else c for c in callsign.tolist()],
+    }, columns=list(PLOT_COLUMNS))
     return frame
 
 
-def adsb_frame(reports: Sequence[Cat021Report], times: Sequence[float | None],
+def adsb_frame(columns: Mapping[str, np.ndarray], times: np.ndarray,
                skipped: Counter[str]) -> pd.DataFrame:
-    """The ADS-B table of CAT021 reports (module docstring for the columns)."""
-    rows: dict[str, list[Any]] = {name: [] for name in ADSB_COLUMNS}
-    for report, time_s in zip(reports, times, strict=True):
-        if report.lat_deg is None or report.lon_deg is None:
-            skipped["CAT021 without position"] += 1
-            continue
-        if not (-90.0 <= report.lat_deg <= 90.0 and -180.0 <= report.lon_deg <= 180.0):
-            skipped["CAT021 position out of range"] += 1
-            continue
-        if report.address is None:
-            skipped["CAT021 without target address"] += 1
-            continue
-        if report.geo_height_ft is None:
-            skipped["CAT021 without geometric height (I140)"] += 1
-            continue
-        if time_s is None:
-            skipped["CAT021 without time of position"] += 1
-            continue
-        rows["time_s"].append(time_s)
-        rows["target_id"].append(_hex_address(report.address))
-        rows["lat_deg"].append(report.lat_deg)
-        rows["lon_deg"].append(report.lon_deg)
-        rows["alt_m"].append(report.geo_height_ft * FOOT_M)
-        rows["nacp"].append(_nacp(report))
-        level = report.flight_level
-        rows["baro_alt_m"].append(math.nan if level is None else level * 100.0 * FOOT_M)
-    frame = pd.DataFrame(rows, columns=list(ADSB_COLUMNS))
-    for column in ("time_s", "lat_deg", "lon_deg", "alt_m", "baro_alt_m"):
-        frame[column] = frame[column].astype(float)
-    frame["nacp"] = pd.array(frame["nacp"].tolist(), dtype="Int64")
+    """The ADS-B table of CAT021 columns (module docstring for the columns)."""
+    lat, lon = columns["lat_deg"], columns["lon_deg"]
+    with np.errstate(invalid="ignore"):
+        keep = _skip_first([
+            ("CAT021 without position", ~np.isfinite(lat) | ~np.isfinite(lon)),
+            ("CAT021 position out of range", ~((np.abs(lat) <= 90.0) & (np.abs(lon) <= 180.0))),
+            ("CAT021 without target address", columns["address"] < 0),
+            ("CAT021 without geometric height (I140)", ~np.isfinite(columns["geo_height_ft"])),
+            ("CAT021 without time of position", ~np.isfinite(times)),
+        ], skipped)
+    nacp = _nacp(columns)[keep]
+    frame = pd.DataFrame({
+        "time_s": times[keep].astype(float),
+        "target_id": _hex_addresses(columns["address"][keep]),
+        "lat_deg": lat[keep],
+        "lon_deg": lon[keep],
+        "alt_m": columns["geo_height_ft"][keep] * FOOT_M,
+        "nacp": pd.array(np.where(nacp >= 0, nacp, 0), dtype="Int64"),
+        "baro_alt_m": columns["flight_level"][keep] * 100.0 * FOOT_M,
+    }, columns=list(ADSB_COLUMNS))
+    frame.loc[nacp < 0, "nacp"] = pd.NA
     return frame
 
 
-def _position_help(sac: int, sic: int, radar_id: str) -> str:
+@dataclass(frozen=True)
+class RadarInventory:
+    """What a recording holds of one radar (one SAC/SIC with CAT048 reports).
+
+    Attributes
+    ----------
+    sac, sic : int
+        Data source identifier.
+    radar_id : str
+        Its id (from the user sites, else :func:`default_radar_id`).
+    plots : int
+        CAT048 reports.
+    polar_reports : int
+        Of them, reports with a polar position (I048/040).
+    height_reports : int
+        Of those, reports that also carry I048/110 (height measured by a 3-D radar).
+    cat034 : Cat034Message or None
+        The first CAT034 message with a position (I034/120), if any.
+    """
+
+    sac: int
+    sic: int
+    radar_id: str
+    plots: int
+    polar_reports: int
+    height_reports: int
+    cat034: Cat034Message | None
+
+    @property
+    def is_3d(self) -> bool:
+        """True when every report with a polar position carries a 3-D height (I048/110),
+        as a dataset's radar is 3-D when every plot has an elevation."""
+        return 0 < self.height_reports == self.polar_reports
+
+
+def radar_inventory(decoded: Decoded, user_sites: UserSites | None = None
+                    ) -> list[RadarInventory]:
+    """One entry per SAC/SIC with CAT048 reports, in order of first appearance."""
+    columns = decoded.columns[48]
+    codes = columns["sac"] * 256 + columns["sic"]
+    unique, first, counts = np.unique(codes, return_index=True, return_counts=True)
+    index = np.searchsorted(unique, codes)
+    polar = np.isfinite(columns["rho_nm"]) & np.isfinite(columns["theta_deg"])
+    polars = np.bincount(index, weights=polar, minlength=len(unique))
+    heights = np.bincount(index, weights=polar & np.isfinite(columns["height_ft"]),
+                          minlength=len(unique))
+    positions: dict[tuple[int, int], Cat034Message] = {}
+    c034 = decoded.columns[34]
+    has = np.isfinite(c034["lat_deg"]) & np.isfinite(c034["lon_deg"])
+    for index in np.flatnonzero(has).tolist():
+        source = (int(c034["sac"][index]), int(c034["sic"][index]))
+        if source not in positions:
+            positions[source] = decoded.cat034[index]
+    sources = [divmod(int(code), 256) for code in unique]
+    radar_ids = _radar_ids(sources, user_sites)
+    out = [RadarInventory(s, c, radar_ids[(s, c)], int(n), int(p), int(h), positions.get((s, c)))
+           for (s, c), n, p, h in zip(sources, counts.tolist(), polars.tolist(),
+                                      heights.tolist(), strict=True)]
+    order = np.argsort(first, kind="stable")
+    return [out[i] for i in order.tolist()]
+
+
+def sites_template(inventory: Sequence[RadarInventory], recordings: Sequence[str] = ()) -> str:
+    """A ``sites.toml`` with one ``[[radar]]`` table per radar of a recording, to fill in.
+
+    Each table has ``id``, ``sac``, ``sic``, a comment with the radar's plot counts
+    (and whether its plots carry a 3-D height, I048/110) and the position keys
+    ``lat_deg``, ``lon_deg``, ``alt_m``: the CAT034 I034/120 position when the
+    recording has one, else ``nan``, which the reader refuses until it is replaced.
+    The sigma keys are left out: graphcal then estimates them (a table without any
+    sigma is a 3-D radar when all its plots carry an elevation).
+
+    Parameters
+    ----------
+    inventory : sequence of RadarInventory
+        From :func:`radar_inventory`.
+    recordings : sequence of str
+        Named in the header comment.
+    """
+    lines = [
+        "# Radar sites of " + (", ".join(recordings) or "an ASTERIX recording")
+        + f": {len(inventory)} radar{'s' if len(inventory) != 1 else ''} (SAC/SIC of CAT048).",
+        "# Replace every nan by the antenna position: lat_deg, lon_deg [deg, WGS-84] and",
+        "# alt_m [m above the ellipsoid]; ids may be renamed. Then:",
+        "#   graphcal import-asterix RECORDING... --sites THIS_FILE --out DIR",
+        "",
+    ]
+    for radar in inventory:
+        kind = ("3-D: every plot carries a height (I048/110)" if radar.is_3d else
+                f"2-D ({radar.height_reports} plots with a height, I048/110)"
+                if radar.height_reports else "2-D")
+        lines += [
+            "[[radar]]",
+            f'id = "{radar.radar_id}"',
+            f"sac = {radar.sac}",
+            f"sic = {radar.sic}",
+            f"# {radar.plots} CAT048 reports, {radar.polar_reports} with a polar position; {kind}",
+        ]
+        message = radar.cat034
+        if message is not None and message.lat_deg is not None and message.lon_deg is not None:
+            lines += [
+                "# position from CAT034 I034/120 (check it)",
+                f"lat_deg = {message.lat_deg!r}",
+                f"lon_deg = {message.lon_deg!r}",
+                f"alt_m = {float(message.height_m or 0.0)!r}",
+            ]
+        else:
+            lines += ["lat_deg = nan", "lon_deg = nan", "alt_m = nan"]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _position_help(missing: Sequence[RadarInventory]) -> str:
+    names = ", ".join(f"SAC {r.sac} / SIC {r.sic} ({r.radar_id}, {r.plots} plots)"
+                      for r in missing)
     return (
-        f"radar SAC {sac} / SIC {sic} ({radar_id}) has plots but no known position (the "
-        "recording has no CAT034 I120 for it); pass --sites with a sites.toml whose radar "
-        f"table has id = \"{radar_id}\", sac = {sac}, sic = {sic}, lat_deg, lon_deg, alt_m"
+        f"{len(missing)} radar{'s' if len(missing) > 1 else ''} with plots but no known "
+        f"position (no CAT034 I120): {names}; pass --sites with a sites.toml holding a "
+        "[[radar]] table for each (id, sac, sic, lat_deg, lon_deg, alt_m): "
+        "--write-sites-template FILE writes one to fill in"
     )
+
+
+def check_dimensions(inventory: Sequence[RadarInventory], sites: Mapping[str, Site],
+                     source: str | Path | None = None) -> None:
+    """Refuse a radar that ``sites`` declares 3-D while its reports carry no height
+    (I048/110), or the reverse.
+
+    Raises
+    ------
+    AsterixError
+        Naming the first such radar.
+    """
+    for radar in inventory:
+        site = sites.get(radar.radar_id)
+        if site is None:
+            continue
+        if site.is_3d and not radar.is_3d:
+            raise AsterixError(
+                f"radar {radar.radar_id} (SAC {radar.sac} / SIC {radar.sic}) is 3-D in the "
+                f"sites.toml (sigma_elevation_mrad) but {radar.height_reports} of its "
+                f"{radar.polar_reports} CAT048 plots carry a 3-D height (I048/110), not all: "
+                "a 2-D radar; remove sigma_elevation_mrad from its table", path=source)
+        undetermined = (site.missing_sigmas == ("sigma_range_m", "sigma_azimuth_mrad")
+                        and not site.model)  # no sigma at all: the plots decide
+        if radar.is_3d and not site.is_3d and not undetermined:
+            raise AsterixError(
+                f"radar {radar.radar_id} (SAC {radar.sac} / SIC {radar.sic}) is 2-D in the "
+                "sites.toml (no sigma_elevation_mrad) but all its "
+                f"{radar.polar_reports} CAT048 plots carry a 3-D height (I048/110): a 3-D "
+                "radar; give its sigma_elevation_mrad", path=source)
+
+
+def _elevations(columns: Mapping[str, np.ndarray], sites: Mapping[tuple[int, int], Site]
+                ) -> np.ndarray:
+    """Elevation [deg] of each CAT048 report with a 3-D height, from the height, the slant
+    range and its radar's position (:func:`graphcal.core.frames.elevation_from_height`)."""
+    from graphcal.core.frames import elevation_from_height
+
+    elevation = np.full(len(columns["sac"]), np.nan)
+    codes = columns["sac"] * 256 + columns["sic"]
+    height_m = columns["height_ft"] * FOOT_M
+    range_m = columns["rho_nm"] * NM_M
+    for (sac, sic), site in sites.items():
+        rows = (codes == sac * 256 + sic) & np.isfinite(height_m) & np.isfinite(range_m)
+        if rows.any():
+            elevation[rows] = np.degrees(elevation_from_height(
+                range_m[rows], height_m[rows], site.lat_rad, site.alt_m))
+    return elevation
+
+
+def _time_of_day(decoded: Decoded) -> tuple[np.ndarray, np.ndarray]:
+    """Time of day [s] and capture time [unix s] of every report in input order."""
+    n = len(decoded.order)
+    tod, capture = np.full(n, np.nan), np.full(n, np.nan)
+    for category, columns in decoded.columns.items():
+        rows = decoded.order == category
+        if category == 21:
+            t = columns["time_position_s"]
+            t = np.where(np.isfinite(t), t, columns["time_reception_s"])
+        else:
+            t = columns["time_of_day_s"]
+        tod[rows] = t
+        capture[rows] = columns["capture_s"]
+    return tod, capture
 
 
 def build_tables(
@@ -432,49 +675,66 @@ def build_tables(
     Raises
     ------
     AsterixError
-        If there is no usable CAT048 plot, or a radar with plots has no
-        known position.
+        If there is no usable CAT048 plot, if radars with plots have no known
+        position (all of them named in one message), or if the user sites say a
+        radar is 3-D while its reports carry no height (I048/110), or the reverse
+        (:func:`check_dimensions`).
     """
-    times, time_base = unwrap_times(decoded.sequence, epoch_unix_s)
-    time_of = {id(report): t for report, t in zip(decoded.sequence, times, strict=True)}
-    stats = TableStats()
-    if not decoded.cat048:
+    if not decoded.count(48):
         raise AsterixError("no CAT048 target reports (plots) in the recording", path=source)
-    sources = list(dict.fromkeys((r.sac, r.sic) for r in decoded.cat048))
-    radar_ids = _radar_ids(sources, user_sites)
-    plots = plots_frame(decoded.cat048, [time_of[id(r)] for r in decoded.cat048], radar_ids,
-                        stats.skipped)
+    inventory = radar_inventory(decoded, user_sites)
+    user = {} if user_sites is None else user_sites.sites
+    columns = decoded.columns[48]
+    usable = (np.isfinite(columns["rho_nm"]) & np.isfinite(columns["theta_deg"])
+              & np.isfinite(columns["time_of_day_s"]))
+    usable_codes = set((columns["sac"] * 256 + columns["sic"])[usable].tolist())
+    missing = [r for r in inventory if r.radar_id not in user and r.cat034 is None
+               and r.sac * 256 + r.sic in usable_codes]
+    if missing:
+        raise AsterixError(_position_help(missing), path=source)
+    check_dimensions(inventory, user, source)
+
+    stats = TableStats()
+    sites: dict[str, Site] = {}
+    by_source: dict[tuple[int, int], Site] = {}
+    for radar in inventory:
+        if radar.radar_id in sites or radar.sac * 256 + radar.sic not in usable_codes:
+            continue
+        if radar.radar_id in user:
+            site = user[radar.radar_id]
+            stats.site_origin[radar.radar_id] = "sites.toml"
+        else:
+            assert radar.cat034 is not None
+            site = _cat034_site(radar.radar_id, radar.cat034)
+            if radar.is_3d:
+                site = replace(site, sigma_elevation_rad=math.nan)
+            stats.site_origin[radar.radar_id] = "CAT034"
+        # The radar keeps its SAC/SIC (sites.toml sac/sic keys) for the CAT063 export.
+        sites[radar.radar_id] = replace(site, sac=radar.sac, sic=radar.sic)
+        by_source[(radar.sac, radar.sic)] = sites[radar.radar_id]
+        stats.sources[radar.radar_id] = (radar.sac, radar.sic)
+
+    tod, capture = _time_of_day(decoded)
+    times, time_base = unwrap_time_array(tod, capture, epoch_unix_s)
+    radar_ids = {(r.sac, r.sic): r.radar_id for r in inventory}
+    three_d = [(r.sac, r.sic) for r in inventory if r.is_3d]
+    plots = plots_frame(columns, times[decoded.order == 48], radar_ids, stats.skipped,
+                        _elevations(columns, by_source) if three_d else None, three_d)
     if plots.empty:
         raise AsterixError(
             "no usable CAT048 plot (every report lacks I040 polar position or I140 time)",
             path=source)
-
-    cat034_positions: dict[tuple[int, int], Cat034Message] = {}
-    for message in decoded.cat034:
-        if message.lat_deg is not None and message.lon_deg is not None:
-            cat034_positions.setdefault((message.sac, message.sic), message)
-    sites: dict[str, Site] = {}
     counts = plots["radar_id"].value_counts()
-    for sac_sic in sources:
-        radar_id = radar_ids[sac_sic]
-        if radar_id not in counts.index or radar_id in sites:
-            continue
-        if user_sites is not None and radar_id in user_sites.sites:
-            sites[radar_id] = user_sites.sites[radar_id]
-            stats.site_origin[radar_id] = "sites.toml"
-        elif sac_sic in cat034_positions:
-            sites[radar_id] = _cat034_site(radar_id, cat034_positions[sac_sic])
-            stats.site_origin[radar_id] = "CAT034"
+    for radar_id in list(sites):
+        if radar_id not in counts.index:
+            del sites[radar_id]
+            stats.sources.pop(radar_id)
+            stats.site_origin.pop(radar_id)
         else:
-            raise AsterixError(_position_help(*sac_sic, radar_id), path=source)
-        # The radar keeps its SAC/SIC (sites.toml sac/sic keys) for the CAT063 export.
-        sites[radar_id] = replace(sites[radar_id], sac=int(sac_sic[0]), sic=int(sac_sic[1]))
-        stats.sources[radar_id] = sac_sic
-        stats.plots_by_radar[radar_id] = int(counts[radar_id])
+            stats.plots_by_radar[radar_id] = int(counts[radar_id])
 
-    if adsb is None and decoded.cat021:
-        adsb = adsb_frame(decoded.cat021, [time_of[id(r)] for r in decoded.cat021],
-                          stats.skipped)
+    if adsb is None and decoded.count(21):
+        adsb = adsb_frame(decoded.columns[21], times[decoded.order == 21], stats.skipped)
     if adsb is not None and adsb.empty:
         adsb = None
     if adsb is not None:
@@ -487,8 +747,9 @@ def build_tables(
 
 def recording_epoch(decoded: Decoded) -> float | None:
     """Midnight UTC [unix s] before the earliest capture time, ``None`` without captures."""
-    captures = [r.capture_s for r in decoded.sequence if r.capture_s is not None]
-    return midnight_utc(min(captures)) if captures else None
+    captures = np.concatenate([c["capture_s"] for c in decoded.columns.values()])
+    captures = captures[np.isfinite(captures)]
+    return midnight_utc(float(captures.min())) if len(captures) else None
 
 
 def sorted_by_time(frame: pd.DataFrame, keys: Sequence[str]) -> pd.DataFrame:
