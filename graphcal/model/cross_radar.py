@@ -23,6 +23,7 @@ they were exact); 2-D plots without an altitude are left out.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -518,6 +519,39 @@ def _refracted_plot_geometry(
     return _Geometry(ecef, ecef_jac, cov, usable, np.where(usable[:, None], d_ecef_d_h, 0.0))
 
 
+@dataclass(frozen=True)
+class PlotCovariances:
+    """ECEF noise covariance [m^2] of plots, by plot-table row label.
+
+    Attributes
+    ----------
+    labels : ndarray (n,) of int
+        Row labels, sorted and unique.
+    cov_m2 : ndarray (n, 3, 3)
+        Each label's covariance.
+    """
+
+    labels: NDArray[np.int64]
+    cov_m2: FloatArray
+
+    @classmethod
+    def collect(cls, labels: Sequence[NDArray[np.int64]], cov_m2: Sequence[FloatArray]
+                ) -> PlotCovariances:
+        """From parts (a label appearing in several parts has the same covariance in each)."""
+        if not labels:
+            return cls(np.zeros(0, np.int64), np.zeros((0, 3, 3)))
+        every, first = np.unique(np.concatenate(labels), return_index=True)
+        return cls(every, np.concatenate(cov_m2)[first])
+
+    def of(self, labels: NDArray[np.int64]) -> FloatArray:
+        """The covariances of ``labels`` (each must be known)."""
+        at = np.searchsorted(self.labels, labels)
+        if np.any(at >= len(self.labels)) or np.any(self.labels[np.minimum(
+                at, len(self.labels) - 1)] != labels):
+            raise KeyError("a plot label without a covariance")
+        return self.cov_m2[at]
+
+
 @dataclass
 class CrossObservations:
     """Stacked paper-001 observations ``z_k = H_k X + noise`` for all radar pairs.
@@ -542,7 +576,7 @@ class CrossObservations:
     plot_coefficients : ndarray (m, 3)
         ``z_k``'s noise is ``sum_j plot_coefficients[k, j] * e[plot_rows[k, j]]``
         with ``e`` a plot's ECEF noise: ``(1, -(1 - w), -w)``.
-    plot_cov : dict
+    plot_cov : PlotCovariances
         ECEF noise covariance [m^2] of each plot row used.
     """
 
@@ -554,7 +588,7 @@ class CrossObservations:
     n_plots: dict[str, int]
     plot_rows: NDArray[np.int64]
     plot_coefficients: FloatArray
-    plot_cov: dict[int, FloatArray]
+    plot_cov: PlotCovariances
 
     def subset(self, keep: NDArray[np.bool_]) -> CrossObservations:
         """The observations selected by ``keep``."""
@@ -587,7 +621,8 @@ def cross_observations(
     radar_ids = list(dataset.radar_ids)
     p = len(layout)
     zs, hs, covs, times, pairs, rows, coefficients = [], [], [], [], [], [], []
-    plot_cov: dict[int, FloatArray] = {}
+    cov_labels: list[NDArray[np.int64]] = []
+    cov_parts: list[FloatArray] = []
     used: dict[str, set[int]] = {rid: set() for rid in radar_ids}
     index_of = {rid: i for i, rid in enumerate(radar_ids)}
     for ra, rb in overlapping_pairs(dataset, radar_ids):
@@ -603,8 +638,8 @@ def cross_observations(
         i0, jb, w = pairs_ab.a_index0[ok], pairs_ab.b_index[ok], pairs_ab.weight[ok]
         rows.append(np.stack([b_idx[jb], a_idx[i0], a_idx[i0 + 1]], axis=1))
         coefficients.append(np.stack([np.ones_like(w), -(1.0 - w), -w], axis=1))
-        plot_cov.update(zip(a_idx.tolist(), conv_a.cov_m2, strict=True))
-        plot_cov.update(zip(b_idx.tolist(), conv_b.cov_m2, strict=True))
+        cov_labels.extend([np.asarray(a_idx), np.asarray(b_idx)])
+        cov_parts.extend([conv_a.cov_m2, conv_b.cov_m2])
         zs.append(z[ok])
         hs.append(h[ok])
         covs.append(cov[ok])
@@ -617,12 +652,13 @@ def cross_observations(
         return CrossObservations(
             np.zeros((0, 3)), np.zeros((0, 3, p)), np.zeros((0, 3, 3)), np.zeros(0),
             np.zeros((0, 2), np.int64), {rid: 0 for rid in radar_ids},
-            np.zeros((0, 3), np.int64), np.zeros((0, 3)), {},
+            np.zeros((0, 3), np.int64), np.zeros((0, 3)), PlotCovariances.collect([], []),
         )
     return CrossObservations(
         np.concatenate(zs), np.concatenate(hs), np.concatenate(covs), np.concatenate(times),
         np.concatenate(pairs), {rid: len(v) for rid, v in used.items()},
-        np.concatenate(rows), np.concatenate(coefficients), plot_cov,
+        np.concatenate(rows), np.concatenate(coefficients),
+        PlotCovariances.collect(cov_labels, cov_parts),
     )
 
 
@@ -646,7 +682,7 @@ def gradient_noise_middle(
     ht_q: FloatArray,
     plot_rows: NDArray[np.int64],
     coefficients: FloatArray,
-    plot_cov: dict[int, FloatArray],
+    plot_cov: PlotCovariances,
 ) -> FloatArray:
     """``sum_plots G_p Sigma_p G_p^T`` with ``G_p = sum_k c_kp (H_k^T Q_k)``.
 
@@ -658,7 +694,7 @@ def gradient_noise_middle(
         Plot-table row labels of the plots behind each observation.
     coefficients : ndarray (m, j)
         Observation ``k``'s noise is ``sum_j coefficients[k, j] e[plot_rows[k, j]]``.
-    plot_cov : dict
+    plot_cov : PlotCovariances
         ECEF noise covariance [m^2] of each plot row label.
     """
     m, p = ht_q.shape[:2]
@@ -677,7 +713,7 @@ def gradient_noise_middle(
         g[where[starts]] += np.add.reduceat(coefficients[used, j, None] * flat[used], starts,
                                             axis=0)
     g = g.reshape(len(labels), p, 3)
-    cov = np.stack([plot_cov[int(label)] for label in labels])
+    cov = plot_cov.of(labels)
     gc = np.matmul(g, cov)  # (n, p, 3)
     return np.swapaxes(gc, 0, 1).reshape(p, -1) @ np.swapaxes(g, 0, 1).reshape(p, -1).T
 

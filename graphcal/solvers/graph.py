@@ -62,7 +62,7 @@ from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.data.height import HEIGHT_MODEL_KEYS, HeightModelEstimate
 from graphcal.data.memo import shared
-from graphcal.model.cross_radar import gradient_noise_middle
+from graphcal.model.cross_radar import PlotCovariances, gradient_noise_middle
 from graphcal.model.factors import AdsbFactor, PairwiseFactor
 from graphcal.model.height import HEIGHT_PRIOR_SIGMA
 from graphcal.model.information import describe_weak_directions, observability
@@ -160,7 +160,8 @@ def _pairwise_sandwich_terms(
     # middles of their own plots, each over the columns of that radar's pairs only:
     # memory and time grow with the pairs, not with the pairs times the whole network.
     by_radar: dict[str, list[tuple[list[int], FloatArray, NDArray[np.int64], FloatArray]]] = {}
-    plot_cov: dict[int, FloatArray] = {}
+    cov_labels: list[NDArray[np.int64]] = []
+    cov_parts: list[FloatArray] = []
     for f in problem.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
         e, jacobians = f.whitened(_pair_values(f, values))
@@ -182,8 +183,9 @@ def _pairwise_sandwich_terms(
         a_coefficients = np.column_stack([np.zeros(len(labels)), coefficient[:, 1:]])
         by_radar.setdefault(rb, []).append((cols, share, b_rows, b_coefficients))
         by_radar.setdefault(ra, []).append((cols, share, a_rows, a_coefficients))
-        plot_cov.update(zip(np.concatenate([f.a_plots.index, f.b_plots.index]).tolist(),
-                            np.concatenate([f.a_cov_m2, f.b_cov_m2]), strict=True))
+        cov_labels.extend([np.asarray(f.a_plots.index), np.asarray(f.b_plots.index)])
+        cov_parts.extend([f.a_cov_m2, f.b_cov_m2])
+    plot_cov = PlotCovariances.collect(cov_labels, cov_parts)
     middle = np.zeros((p, p))
     for entries in by_radar.values():
         local = sorted(set().union(*(cols for cols, _, _, _ in entries)))

@@ -81,3 +81,17 @@ def test_no_atmosphere_no_excess(dataset) -> None:
     plots = plot_arrays(dataset, "NORD")
     assert ray_excess(site, plots) is None
     assert ray_excess_near(None, site, plots, np.zeros(4)) is None
+
+
+def test_plot_covariances_look_up_labels_in_any_order() -> None:
+    """Parts with a label in common: one entry per label; lookups in any order; an unknown
+    label is an error, not a neighbour's covariance."""
+    from graphcal.model.cross_radar import PlotCovariances
+
+    eye = np.eye(3)
+    table = PlotCovariances.collect([np.array([7, 3]), np.array([3, 11])],
+                                    [np.stack([7 * eye, 3 * eye]), np.stack([3 * eye, 11 * eye])])
+    assert table.labels.tolist() == [3, 7, 11]
+    assert table.of(np.array([11, 3, 7, 3]))[:, 0, 0].tolist() == [11.0, 3.0, 7.0, 3.0]
+    with pytest.raises(KeyError):
+        table.of(np.array([5]))
