@@ -4,6 +4,7 @@ Run from the repository root::
 
     .venv/bin/python -m benchmarks.bench_network_day [--hours 24] [--window 3600]
         [--function benchmarks.bench_memory:read_windows] [--keep DIR] [--seed 1]
+        [--folder DIR]
 
 Stage 1 simulates ``benchmarks/scenarios/network_20radars_24h.toml`` chunk by chunk
 (one hour at a time, :func:`graphcal.simulation.stream.simulate_to_folder`) into a
@@ -14,7 +15,8 @@ flight time inside the span, which is what the simulation's cost follows; the
 figures say so.  Stage 2 runs the measured function (``--function MODULE:NAME``,
 ``NAME(folder, window_s) -> dict``, as in :mod:`benchmarks.bench_memory`; default: read
 every window) on the folder, again in a fresh process, for its time, throughput and
-peak memory.  ``--no-read`` skips stage 2.
+peak memory.  ``--no-read`` skips stage 2; ``--folder DIR`` skips stage 1 and measures
+stage 2 on a folder simulated before (``--keep DIR``).
 
 Outputs: a table on stdout and ``benchmarks/results/bench_network_day.json``.
 """
@@ -81,6 +83,17 @@ def simulate_in_subprocess(folder: Path, hours: float, seed: int) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def count_rows(folder: Path, table: str) -> int:
+    """Rows of a dataset folder's table (Parquet footers, else CSV lines less headers)."""
+    import pyarrow.parquet as pq
+
+    files = sorted(folder.glob(f"{table}.parquet")) + sorted((folder / table).glob("*.parquet"))
+    if files:
+        return sum(pq.ParquetFile(f).metadata.num_rows for f in files)
+    files = sorted(folder.glob(f"{table}.csv")) + sorted((folder / table).glob("*.csv"))
+    return sum(sum(1 for _ in open(f, "rb")) - 1 for f in files)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hours", type=float, default=24.0,
@@ -90,6 +103,9 @@ def main() -> int:
     parser.add_argument("--no-read", action="store_true", help="only simulate")
     parser.add_argument("--keep", type=Path, help="simulate into this folder and keep it")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--folder", type=Path,
+                        help="measure stage 2 on this dataset folder, simulated before "
+                             "(e.g. with --keep), instead of simulating again")
     parser.add_argument("--simulate-into", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.simulate_into is not None:
@@ -99,15 +115,22 @@ def main() -> int:
                       "machine": platform.platform(), "python": platform.python_version()}
     with tempfile.TemporaryDirectory(prefix="bench-day-") as scratch:
         folder = args.keep if args.keep is not None else Path(scratch) / "day"
-        sim = simulate_in_subprocess(folder, args.hours, args.seed)
         scale = 1.0
-        if args.hours < 24.0:
-            scale = flight_hours(24.0, args.seed) / flight_hours(args.hours, args.seed)
+        if args.folder is not None:
+            folder = args.folder
+            sim = {"folder": str(folder), "plots": count_rows(folder, "plots"),
+                   "adsb": count_rows(folder, "adsb")}
+            print(f"reused {folder}: {sim['plots']:,} plots, {sim['adsb']:,} ADS-B")
+        else:
+            sim = simulate_in_subprocess(folder, args.hours, args.seed)
+            if args.hours < 24.0:
+                scale = flight_hours(24.0, args.seed) / flight_hours(args.hours, args.seed)
+            print(f"simulated {args.hours:g} h: {sim['plots']:,} plots, {sim['adsb']:,} ADS-B "
+                  f"in {sim['seconds']:.1f} s ({sim['plots'] / sim['seconds']:,.0f} plots/s), "
+                  f"peak {sim['peak_rss_mb']:.0f} MB, {sim['bytes_on_disk'] / 1e6:.0f} MB of "
+                  "Parquet")
         sim["scale_to_day"] = scale
         document["simulate"] = sim
-        print(f"simulated {args.hours:g} h: {sim['plots']:,} plots, {sim['adsb']:,} ADS-B in "
-              f"{sim['seconds']:.1f} s ({sim['plots'] / sim['seconds']:,.0f} plots/s), peak "
-              f"{sim['peak_rss_mb']:.0f} MB, {sim['bytes_on_disk'] / 1e6:.0f} MB of Parquet")
         if scale != 1.0:
             print(f"extrapolated to 24 h by flight time (x{scale:.2f}): about "
                   f"{sim['plots'] * scale / 1e6:.1f} M plots, {sim['adsb'] * scale / 1e6:.1f} M "

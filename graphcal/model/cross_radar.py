@@ -718,6 +718,51 @@ def gradient_noise_middle(
     return np.swapaxes(gc, 0, 1).reshape(p, -1) @ np.swapaxes(g, 0, 1).reshape(p, -1).T
 
 
+def gradient_noise_middle_of_blocks(
+    blocks: Sequence[tuple[Sequence[int], FloatArray, NDArray[np.int64], FloatArray]],
+    plot_cov: PlotCovariances,
+    p: int,
+) -> FloatArray:
+    """:func:`gradient_noise_middle` of observation blocks each on a few of ``p`` columns.
+
+    ``blocks`` holds ``(columns, ht_q, plot_rows, coefficients)``: ``ht_q`` ``(m, k,
+    3)`` over the block's own ``k`` columns (of the ``p``), ``plot_rows`` and
+    ``coefficients`` ``(m, j)`` as in :func:`gradient_noise_middle`.  Each plot's
+    terms are summed block by block over the block's columns only, the blocks' sums
+    stacked side by side (``n_plots x sum k x 3``), and ``M`` assembled from one
+    product of that stack: the work grows with the blocks' own columns, not with
+    ``p`` times the observations (a network of 20 radars has ``p`` of about 100 and
+    pairs of 12 columns).
+    """
+    middle = np.zeros((p, p))
+    blocks = [b for b in blocks if len(b[1])]
+    if not blocks:
+        return middle
+    labels = np.unique(np.concatenate([rows[coef != 0.0] for _, _, rows, coef in blocks]))
+    widths = [len(cols) for cols, _, _, _ in blocks]
+    offsets = np.concatenate([[0], np.cumsum(widths)])
+    stack = np.zeros((len(labels), int(offsets[-1]), 3))
+    for (_, ht_q, rows, coef), start, k in zip(blocks, offsets, widths, strict=False):
+        flat = ht_q.reshape(len(ht_q), 3 * k)
+        for j in range(rows.shape[1]):
+            used = np.flatnonzero(coef[:, j] != 0.0)
+            if used.size == 0:
+                continue
+            where = np.searchsorted(labels, rows[used, j])
+            order = np.argsort(where, kind="stable")
+            used, where = used[order], where[order]
+            starts = np.flatnonzero(np.r_[True, where[1:] != where[:-1]])
+            sums = np.add.reduceat(coef[used, j, None] * flat[used], starts, axis=0)
+            stack[where[starts], start:start + k, :] += sums.reshape(-1, k, 3)
+    weighted = np.matmul(stack, plot_cov.of(labels))  # (n, K, 3)
+    total = int(offsets[-1])
+    stacked = (np.swapaxes(weighted, 0, 1).reshape(total, -1)
+               @ np.swapaxes(stack, 0, 1).reshape(total, -1).T)
+    columns = np.concatenate([np.asarray(cols, dtype=np.int64) for cols, _, _, _ in blocks])
+    np.add.at(middle, (columns[:, None], columns[None, :]), stacked)
+    return middle
+
+
 def _pair_rows(
     dataset: Dataset,
     layout: ParameterLayout,

@@ -62,7 +62,7 @@ from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.data.height import HEIGHT_MODEL_KEYS, HeightModelEstimate
 from graphcal.data.memo import shared
-from graphcal.model.cross_radar import PlotCovariances, gradient_noise_middle
+from graphcal.model.cross_radar import PlotCovariances, gradient_noise_middle_of_blocks
 from graphcal.model.factors import AdsbFactor, PairwiseFactor
 from graphcal.model.height import HEIGHT_PRIOR_SIGMA
 from graphcal.model.information import describe_weak_directions, observability
@@ -149,7 +149,7 @@ def _pairwise_sandwich_terms(
 ) -> tuple[FloatArray, FloatArray]:
     """``A_pair = sum w J^T J`` and the shared-noise ``M_pair`` over the pairwise factors.
 
-    ``M_pair`` is :func:`~graphcal.model.cross_radar.gradient_noise_middle` of
+    ``M_pair`` is :func:`~graphcal.model.cross_radar.gradient_noise_middle_of_blocks` of
     ``w_k J_k^T W_k = w_k H_k^T Q_k`` (``J = W H`` whitened, ``Q = W^T W``): every
     plot's share of the gradient noise across all the pairs it enters (paper
     001's observations share plots), with the robust weights ``w_k`` at the solution.
@@ -174,30 +174,14 @@ def _pairwise_sandwich_terms(
         share = w[:, None, None] * np.swapaxes(jac, 1, 2) @ f.whitening  # (n, k, 3)
         positions, coefficient = f.plot_noise()  # column 0: b's plot; the others: a's
         labels = np.concatenate([f.a_plots.index, f.b_plots.index])[positions]
-        width = labels.shape[1]
-        # b's plot alone, padded to the width with itself at coefficient 0.
-        b_rows = np.repeat(labels[:, :1], width, axis=1)
-        b_coefficients = np.zeros_like(coefficient)
-        b_coefficients[:, 0] = coefficient[:, 0]
-        a_rows = np.column_stack([labels[:, 1:2], labels[:, 1:]])
-        a_coefficients = np.column_stack([np.zeros(len(labels)), coefficient[:, 1:]])
-        by_radar.setdefault(rb, []).append((cols, share, b_rows, b_coefficients))
-        by_radar.setdefault(ra, []).append((cols, share, a_rows, a_coefficients))
+        by_radar.setdefault(rb, []).append((cols, share, labels[:, :1], coefficient[:, :1]))
+        by_radar.setdefault(ra, []).append((cols, share, labels[:, 1:], coefficient[:, 1:]))
         cov_labels.extend([np.asarray(f.a_plots.index), np.asarray(f.b_plots.index)])
         cov_parts.extend([f.a_cov_m2, f.b_cov_m2])
     plot_cov = PlotCovariances.collect(cov_labels, cov_parts)
     middle = np.zeros((p, p))
     for entries in by_radar.values():
-        local = sorted(set().union(*(cols for cols, _, _, _ in entries)))
-        where = {c: i for i, c in enumerate(local)}
-        ht_q = []
-        for cols, share, _, _ in entries:
-            block = np.zeros((len(share), len(local), 3))
-            block[:, [where[c] for c in cols], :] = share
-            ht_q.append(block)
-        middle[np.ix_(local, local)] += gradient_noise_middle(
-            np.concatenate(ht_q), np.concatenate([rows for _, _, rows, _ in entries]),
-            np.concatenate([c for _, _, _, c in entries]), plot_cov)
+        middle += gradient_noise_middle_of_blocks(entries, plot_cov, p)
     return information, middle
 
 

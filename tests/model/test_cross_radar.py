@@ -95,3 +95,35 @@ def test_plot_covariances_look_up_labels_in_any_order() -> None:
     assert table.of(np.array([11, 3, 7, 3]))[:, 0, 0].tolist() == [11.0, 3.0, 7.0, 3.0]
     with pytest.raises(KeyError):
         table.of(np.array([5]))
+
+
+def test_the_middle_of_column_blocks_equals_the_dense_middle() -> None:
+    """Three blocks on overlapping column subsets of 9, sharing plots, with zero
+    coefficients here and there: the block-wise middle equals gradient_noise_middle of
+    the same observations written out over all 9 columns."""
+    from graphcal.model.cross_radar import (
+        PlotCovariances,
+        gradient_noise_middle,
+        gradient_noise_middle_of_blocks,
+    )
+
+    rng = np.random.default_rng(8)
+    p, plots = 9, np.arange(100, 160)
+    a = rng.normal(size=(len(plots), 3, 3))
+    table = PlotCovariances.collect([plots], [a @ np.swapaxes(a, 1, 2)])
+    blocks, dense_q, dense_rows, dense_c = [], [], [], []
+    for cols, width in (([0, 1, 2, 6], 1), ([0, 1, 3, 4], 3), ([3, 4, 5, 6, 7, 8], 2)):
+        m = 40
+        ht_q = rng.normal(size=(m, len(cols), 3))
+        rows = rng.choice(plots, size=(m, width))
+        coef = rng.normal(size=(m, width)) * (rng.random((m, width)) > 0.2)
+        blocks.append((cols, ht_q, rows, coef))
+        full = np.zeros((m, p, 3))
+        full[:, cols, :] = ht_q
+        dense_q.append(full)
+        dense_rows.append(np.pad(rows, ((0, 0), (0, 3 - width)), mode="edge"))
+        dense_c.append(np.pad(coef, ((0, 0), (0, 3 - width))))
+    expected = gradient_noise_middle(np.concatenate(dense_q), np.concatenate(dense_rows),
+                                     np.concatenate(dense_c), table)
+    actual = gradient_noise_middle_of_blocks(blocks, table, p)
+    np.testing.assert_allclose(actual, expected, rtol=1e-12, atol=1e-9 * np.abs(expected).max())
