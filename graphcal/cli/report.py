@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shlex
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -37,8 +39,14 @@ def report_command(
         if unknown and len(unknown) == len(cal.radar_ids):
             fail(f"{result}: none of its radars ({', '.join(unknown)}) is in {dataset_dir}",
                  EXIT_BAD_INPUT)
-        write_report_for(cal, dataset, out, truth_path=truth)
+        write_report_for(cal, dataset, out, truth_path=truth, command=command_line())
     err_console.print(f"wrote {out}", highlight=False)
 
 
-__all__ = ["report_command"]
+def command_line() -> str:
+    """This process's command line as ``graphcal ARGS`` (quoted for a shell), for the
+    report's header."""
+    return shlex.join(["graphcal", *sys.argv[1:]])
+
+
+__all__ = ["command_line", "report_command"]
