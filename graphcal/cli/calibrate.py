@@ -260,7 +260,7 @@ def calibrate_command(
                 "adsb": adsb, "fix": fix or [], "drift": drift or [], "break": breaks or [],
                 "steps": steps, "clean": clean})
         if report is not None:
-            from graphcal.cli.report import command_line
+            from graphcal.cli.common import command_line
             from graphcal.reporting.html import write_report_for
 
             if report.suffix != ".html":

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
-import shlex
-import sys
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from graphcal.cli.common import EXIT_BAD_INPUT, err_console, errors_to_exit, fail
+from graphcal.cli.common import (
+    EXIT_BAD_INPUT,
+    command_line,
+    err_console,
+    errors_to_exit,
+    fail,
+)
 
 
 def report_command(
@@ -43,10 +47,4 @@ def report_command(
     err_console.print(f"wrote {out}", highlight=False)
 
 
-def command_line() -> str:
-    """This process's command line as ``graphcal ARGS`` (quoted for a shell), for the
-    report's header."""
-    return shlex.join(["graphcal", *sys.argv[1:]])
-
-
-__all__ = ["command_line", "report_command"]
+__all__ = ["report_command"]

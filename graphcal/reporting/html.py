@@ -617,7 +617,7 @@ def _data_section(cal: Calibration, dataset: Dataset, views: Mapping[str, Residu
         ])
     compared = "aligned with ADS-B" if reference == "adsb" else "cross-radar residuals"
     table = _table(["radar", "type", "plots", "plots used", compared, "aircraft",
-                    "time span (UTC)"], rows)
+                    "time span (UTC)"], rows, left=2)
     lines = [f"<p>{len(plots):,} plots from {len(dataset.sites)} radars, "
              f"{_span_text(plots['time_s'])} UTC.</p>" if len(plots) else "<p>No plots.</p>"]
     if dataset.adsb is None:

@@ -191,9 +191,11 @@ def binned_figure(view: ResidualView):
                 ax.set_xticks(range(0, 361, 90))
             if col == 0:
                 ax.set_ylabel(_coordinate_label(c), fontsize=8)
-    axes[0, 0].legend(fontsize=7, loc="lower left")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, fontsize=7, loc="upper right", ncol=3, frameon=False)
     fig.suptitle(f"{view.radar_id}: corrected residuals against {_reference_text(view)}, "
-                 "binned (equal counts; azimuth 30° bins)", fontsize=11)
+                 "binned (equal counts; azimuth 30° bins)", fontsize=11, x=0.07, ha="left")
     height = fig.get_figheight()
     fig.subplots_adjust(left=0.07, right=0.99, bottom=0.55 / height, top=1 - 0.5 / height,
                         hspace=0.55, wspace=0.08)
