@@ -115,7 +115,7 @@ td.l,th.l{text-align:left}img{max-width:100%;height:auto;display:block}
 header table td{text-align:left;border:none;padding:1px 10px 1px 0}
 header table td:first-child{color:#555;white-space:nowrap}
 header code{white-space:pre-wrap;word-break:break-all}
-tr.flag td{background:#fde2e1}td.z{font-weight:bold;color:#b00020}
+tr.flag td{background:#fde2e1}.zflag{font-weight:bold;color:#b00020}
 tr.first td{border-top:2px solid #999}
 table.corr td,table.corr th{padding:2px 4px;font-size:.8em;min-width:2.6em}
 table.corr th{font-weight:normal}table.corr th.l{white-space:nowrap}
@@ -217,7 +217,8 @@ def _estimate_row(name: str, key: str, value: float | None, sigma: float | None,
             flagged = math.isfinite(z) and abs(z) > Z_FLAG
             z_text = f"{z:+.1f}" if math.isfinite(z) else "–"
             row += [value_text(truth * f, digits), value_text(error, digits),
-                    f'<span title="|z| > {Z_FLAG:g}">⚠ {z_text}</span>' if flagged else z_text]
+                    f'<span class="zflag" title="|z| > {Z_FLAG:g}">⚠ {z_text}</span>' if flagged
+                    else z_text]
     if crlb_columns:
         eff = sigma / crlb_sigma if crlb_sigma and sigma is not None else None
         row += [value_text(None if crlb_sigma is None else crlb_sigma * f, digits + 1),
@@ -398,8 +399,9 @@ def _residual_rows(views: Mapping[str, ResidualView]) -> tuple[list[list[str]], 
 
 def _residuals_section(views: Mapping[str, ResidualView], emit, rng) -> str:
     if not views:
-        return ("<p>No residuals: the dataset has no ADS-B and no two calibrated radars saw "
-                "the same aircraft.</p>")
+        return ("<p>No residuals: the dataset has no ADS-B (or no plot aligned with it), and "
+                "no two calibrated radars have usable plots of the same aircraft (within 2.5 "
+                "scans of each other; a 2-D radar's plots need a Mode C altitude).</p>")
     reference = next(iter(views.values())).reference
     what = ("ADS-B (the aircraft's reported position interpolated to the plot time)"
             if reference == "adsb" else "the other radars' corrected plots of the same aircraft "
@@ -446,7 +448,8 @@ def _pairs_section(views: Mapping[str, ResidualView]) -> str:
         if views and next(iter(views.values())).reference == "adsb":
             return ("<p>The dataset has ADS-B: the residuals above are against it. Radar "
                     "versus radar residuals are shown when there is no ADS-B.</p>")
-        return "<p>No two calibrated radars saw the same aircraft.</p>"
+        return ("<p>No pair of calibrated radars with usable plots of the same aircraft "
+                "(see above).</p>")
     rows, classes = [], []
     previous = None
     for s in summaries:
