@@ -267,11 +267,12 @@ def calibrate_command(
                 "adsb": adsb, "fix": fix or [], "drift": drift or [], "break": breaks or [],
                 "steps": steps, "clean": clean})
         if report is not None:
+            from graphcal.cli.common import command_line
             from graphcal.reporting.html import write_report_for
 
             if report.suffix != ".html":
                 fail(f"--report {report}: the file must end in .html", EXIT_BAD_INPUT)
-            write_report_for(cal, dataset, report, truth_path=truth)
+            write_report_for(cal, dataset, report, truth_path=truth, command=command_line())
             err_console.print(f"wrote {report}", highlight=False)
         if out is not None:
             cal.write_json(out)

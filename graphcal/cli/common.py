@@ -201,11 +201,20 @@ def _plain_progress(description: str) -> Iterator[Callable[..., None]]:
         thread.join()
 
 
+def command_line() -> str:
+    """This process's command line as ``graphcal ARGS`` (quoted for a shell), e.g. for the
+    header of a report."""
+    import shlex
+
+    return shlex.join(["graphcal", *sys.argv[1:]])
+
+
 __all__ = [
     "EXIT_BAD_INPUT",
     "EXIT_ESTIMATION_FAILED",
     "PLAIN_PROGRESS_INTERVAL_S",
     "PLAIN_WIDTH",
+    "command_line",
     "console",
     "cat063_codes",
     "err_console",

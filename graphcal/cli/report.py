@@ -7,7 +7,13 @@ from typing import Annotated
 
 import typer
 
-from graphcal.cli.common import EXIT_BAD_INPUT, err_console, errors_to_exit, fail
+from graphcal.cli.common import (
+    EXIT_BAD_INPUT,
+    command_line,
+    err_console,
+    errors_to_exit,
+    fail,
+)
 
 
 def report_command(
@@ -37,7 +43,7 @@ def report_command(
         if unknown and len(unknown) == len(cal.radar_ids):
             fail(f"{result}: none of its radars ({', '.join(unknown)}) is in {dataset_dir}",
                  EXIT_BAD_INPUT)
-        write_report_for(cal, dataset, out, truth_path=truth)
+        write_report_for(cal, dataset, out, truth_path=truth, command=command_line())
     err_console.print(f"wrote {out}", highlight=False)
 
 

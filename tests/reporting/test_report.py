@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import io
+import math
 import re
 
 import numpy as np
@@ -62,8 +63,8 @@ def test_report_has_every_section(page) -> None:
 
 def test_report_images_are_valid_embedded_pngs(page) -> None:
     images = _images(page)
-    # residuals + histograms per radar, map, correlation
-    assert len(images) == 2 * 2 + 2
+    # before/after, binned and histograms per radar, the map (the correlation is a table)
+    assert len(images) == 3 * 2 + 1
     assert page.count("<img") == len(images)
     for png in images:
         assert png.startswith(PNG_SIGNATURE)
@@ -80,10 +81,16 @@ def test_report_estimates_show_each_radar_with_truth(page, scenario) -> None:
     estimates = page.split('<h2 id="estimates">')[1].split("<h2 ")[0]
     for rid in ("RA", "RB"):
         assert f'<td class="l">{rid}</td>' in estimates
-    assert "azimuth_bias_mrad" in estimates and "elevation_bias_mrad" in estimates
+    assert "azimuth bias" in estimates and "elevation bias" in estimates
     assert "truth" in estimates and "error / σ" in estimates
-    value = cal.value("RA", "range_offset_m")
-    assert f"{value:.4g}" in estimates
+    # Display units: the gain in ppm, decimals from its sigma (2 significant digits).
+    gain_ppm = cal.value("RA", "range_gain") * 1e6
+    sigma_ppm = cal.sigma("RA", "range_gain") * 1e6
+    decimals = max(0, 1 - math.floor(math.log10(sigma_ppm)))
+    row = next(r for r in re.findall(r"<tr[^>]*>(.*?)</tr>", estimates)
+               if "range gain" in r and ">ppm<" in r)
+    assert f">{gain_ppm:.{decimals}f}<" in row
+    assert "0.000" not in row  # not the fraction
 
 
 def test_report_without_adsb_still_builds(scenario) -> None:
@@ -92,7 +99,10 @@ def test_report_without_adsb_still_builds(scenario) -> None:
     text = build_report(cal, no_adsb, crlb=False)
     for sid, _ in SECTIONS:
         assert f'<h2 id="{sid}">' in text
-    assert "No residuals against ADS-B" in text
+    # Without ADS-B the residuals are radar versus radar.
+    assert "the other radars' corrected plots" in text
+    pairs = text.split('<h2 id="pairs">')[1].split("<h2 id=")[0]
+    assert "<table" in pairs and "minus partner" in pairs
 
 
 def test_write_report_and_pdf(tmp_path, scenario) -> None:
@@ -194,13 +204,14 @@ def test_report_estimates_show_the_height_model(tmp_path, scenario, determined) 
         "height_offset_m": 184.0, "height_scale": 0.02, "sigma": {}}}))
     page = build_report(with_height, dataset, truth=truth, crlb=False)
     estimates = page.split('<h2 id="estimates">')[1].split("<h2 ")[0]
-    rows = re.findall(r"<tr>(.*?)</tr>", estimates, flags=re.S)
-    offset = next(r for r in rows if ">height_offset_m<" in r)
-    scale = next(r for r in rows if ">height_scale<" in r)
+    rows = re.findall(r"<tr[^>]*>(.*?)</tr>", estimates, flags=re.S)
+    offset = next(r for r in rows if ">height offset<" in r)
+    scale = next(r for r in rows if ">height scale<" in r)
     assert "atmosphere" in offset
     if determined:
-        assert ">190<" in offset and ">4<" in offset and ">184<" in offset
-        assert ">1.5<" in offset  # (190 - 184) / 4
-        assert ">1<" in scale  # (0.021 - 0.02) / 0.001
+        # sigma 4 m: one decimal; the scale in ppm (sigma 1000 ppm: no decimal)
+        assert ">190.0<" in offset and ">4.0<" in offset and ">184.0<" in offset
+        assert ">+1.5<" in offset  # (190 - 184) / 4
+        assert ">21000<" in scale.replace("\u2009", "") and ">+1.0<" in scale
     else:
         assert "not determined" in offset and "not determined" in scale
