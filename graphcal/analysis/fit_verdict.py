@@ -29,7 +29,8 @@ Verdict
     judged: pressure altitudes taken for geometric heights give chi2/dof of 35
     without any bias being wrong, and no bias term acts on them.
 
-    A radar also fails when its estimated ``range_gain`` is beyond
+    A radar also fails when its estimate corrects some of its plots to a negative
+    range, and when its estimated ``range_gain`` is beyond
     :data:`MAX_RANGE_GAIN` (1 %, i.e. 2.5 km at 250 km; real gains are of the
     order of 1e-4): ranges in km or NM are *exactly* a range gain of -0.999,
     which the residuals cannot reveal.
@@ -49,6 +50,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 from scipy import special
 
 from graphcal.analysis.model_checks import ModelChecks, calibrated_residuals, normalised_sums
@@ -99,6 +101,7 @@ class RadarFit:
     radar_id: str
     coordinates: list[CoordinateFit] = field(default_factory=list)
     range_gain: float | None = None
+    negative_ranges: int = 0
 
     @property
     def gain_implausible(self) -> bool:
@@ -107,8 +110,9 @@ class RadarFit:
 
     @property
     def failed(self) -> bool:
-        """A coordinate failed, or the range gain is implausible."""
-        return self.gain_implausible or any(c.failed for c in self.coordinates)
+        """A coordinate failed, the range gain is implausible, or ranges corrected negative."""
+        return (self.gain_implausible or self.negative_ranges > 0
+                or any(c.failed for c in self.coordinates))
 
     @property
     def worst(self) -> float:
@@ -119,6 +123,8 @@ class RadarFit:
         """``NORD: azimuth chi2/dof 893,425, range 80.4`` (what failed), plain words."""
         parts = [f"{c.coordinate} chi2/dof {_fmt(c.ratio)}"
                  for c in sorted(self.coordinates, key=lambda c: -c.ratio) if c.failed]
+        if self.negative_ranges:
+            parts.append(f"{self.negative_ranges} plots corrected to a negative range")
         if self.gain_implausible:
             parts.append(f"range gain {self.range_gain:.4g} (beyond ±{MAX_RANGE_GAIN:g})")
         return f"{self.radar_id}: " + ", ".join(parts)
@@ -132,6 +138,7 @@ class RadarFit:
                             for c in self.coordinates},
             "range_gain": self.range_gain,
             "range_gain_implausible": self.gain_implausible,
+            "negative_ranges": self.negative_ranges,
         }
 
 
@@ -214,16 +221,34 @@ def _n_terms(cal: Calibration, radar_id: str) -> int:
     return sum(1 for rid, _ in cal.labels if rid == radar_id)
 
 
+def negative_ranges(dataset: Dataset, cal: Calibration) -> dict[str, int]:
+    """Per radar of ``cal``: its plots whose corrected range ``(r - offset) / (1 + gain)``
+    is not positive (an estimate no geometry allows; the residuals cannot be formed)."""
+    out = {}
+    for rid in cal.radar_ids:
+        if rid not in dataset.sites:
+            continue
+        bias = cal.bias(rid)
+        r = dataset.plots_of(rid)["range_m"].to_numpy(dtype=float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            corrected = (r - bias.range_offset_m) / (1.0 + bias.range_gain)
+        out[rid] = int(np.sum(~(corrected > 0)))
+    return out
+
+
 def verdict_from_sums(cal: Calibration, reference: str,
                       sums: Mapping[str, Mapping[str, tuple[float, int]]], *,
-                      p: float = P, floor: float = FLOOR) -> FitVerdict:
+                      p: float = P, floor: float = FLOOR,
+                      negative: Mapping[str, int] | None = None) -> FitVerdict:
     """The verdict from each radar's ``{coordinate: (sum e^2/v, count)}``.
 
-    ``dof`` = count less the radar's estimated terms (at least 1).
+    ``dof`` = count less the radar's estimated terms (at least 1).  ``negative``:
+    per radar, the plots corrected to a non-positive range (:func:`negative_ranges`).
     """
     radars: dict[str, RadarFit] = {}
     for rid in cal.radar_ids:
-        fit = RadarFit(rid, range_gain=cal.value(rid, "range_gain"))
+        fit = RadarFit(rid, range_gain=cal.value(rid, "range_gain"),
+                       negative_ranges=(negative or {}).get(rid, 0))
         k = _n_terms(cal, rid)
         for coordinate, (chi2, n) in (sums.get(rid) or {}).items():
             if coordinate not in JUDGED or n <= 0 or not math.isfinite(chi2):
@@ -264,17 +289,24 @@ def fit_verdict(
     Returns
     -------
     FitVerdict
+        A radar whose estimate corrects plots to a negative range fails on that
+        alone, and its residuals are not formed (nor are pairs with it).
     """
+    negative = negative_ranges(dataset, cal)
     if checks is not None:
         sums = {rid: {c: (r.chi2_per_dof[c] * r.n_residuals[c], r.n_residuals[c])
                       for c in r.chi2_per_dof if c in r.n_residuals}
                 for rid, r in checks.radars.items()}
-        return verdict_from_sums(cal, checks.reference, sums, p=p, floor=floor)
-    reference, residuals, _ = calibrated_residuals(dataset, cal, use_adsb=use_adsb,
+        return verdict_from_sums(cal, checks.reference, sums, p=p, floor=floor,
+                                 negative=negative)
+    biases = {rid: cal.bias(rid) for rid in cal.radar_ids
+              if rid in dataset.sites and not negative.get(rid)}
+    reference, residuals, _ = calibrated_residuals(dataset, biases, use_adsb=use_adsb,
                                                    adsb_max_gap_s=adsb_max_gap_s)
     sums = {rid: normalised_sums(res) for rid, res in residuals.items()}
-    return verdict_from_sums(cal, reference, sums, p=p, floor=floor)
+    return verdict_from_sums(cal, reference, sums, p=p, floor=floor, negative=negative)
 
 
 __all__ = ["FLOOR", "JUDGED", "MAX_RANGE_GAIN", "P", "CoordinateFit", "FitVerdict",
-           "ModelMisfitError", "RadarFit", "chi2_limit", "fit_verdict", "verdict_from_sums"]
+           "ModelMisfitError", "RadarFit", "chi2_limit", "fit_verdict", "negative_ranges",
+           "verdict_from_sums"]

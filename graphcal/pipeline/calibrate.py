@@ -292,7 +292,7 @@ def calibrate(
         timing["crlb_s"] = time.perf_counter() - t0
         timing["total_s"] = time.perf_counter() - start
     checks = None
-    if model_checks and cal.radar_ids:
+    if model_checks and cal.radar_ids and not _impossible(cal, dataset):
         if progress is not None:
             progress("model checks", 0, 1)
         checks = _check_model(cal, dataset, use_adsb=use_adsb,
@@ -304,6 +304,14 @@ def calibrate(
         _judge_fit(cal, dataset, checks, use_adsb=use_adsb, max_gap_s=options.get("max_gap_s"),
                    raise_on_failure=check_fit)
     return cal
+
+
+def _impossible(cal: Calibration, dataset: Dataset) -> bool:
+    """Whether the estimate corrects plots to negative ranges (no residuals can be formed:
+    the model checks are skipped, the fit verdict fails)."""
+    from graphcal.analysis.fit_verdict import negative_ranges
+
+    return any(negative_ranges(dataset, cal).values())
 
 
 def _judge_fit(cal: Calibration, dataset: Dataset, checks: Any, *, use_adsb: bool,
