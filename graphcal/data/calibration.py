@@ -30,11 +30,11 @@ from numpy.typing import ArrayLike, NDArray
 from graphcal.core.errors import ResultError
 from graphcal.data.bias import (
     CONTRACT_KEYS,
-    contract_unit,
     ECCENTRICITY_NAMES,
     NAME_FROM_KEY,
     PARAMETER_NAMES,
     RadarBias,
+    contract_unit,
 )
 from graphcal.data.height import HeightModelEstimate
 
