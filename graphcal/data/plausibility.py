@@ -400,7 +400,7 @@ def check_tables(sites: Mapping[str, Site], plots: pd.DataFrame,
 
 
 #: What the error says to do about a finding.
-FORCE_HINT = "check the data, or give --force (Python: force=True) to proceed anyway"
+FORCE_HINT = "check the data; --force, or force=True in Python, proceeds anyway"
 
 
 def raise_if_implausible(findings: Sequence[Finding], paths: Mapping[str, Path | str]) -> None:

@@ -56,6 +56,13 @@ Cleaning (``clean=True``)
     include the context).  On a recording without such defects the windows are
     those of cleaning the whole dataset.
 
+Plausibility (unless ``force=True``)
+    The unit and frame heuristics of :mod:`graphcal.data.plausibility` run on each
+    window's validated rows before cleaning (an error is raised when its window is
+    reached), and the time overlap of the ADS-B and plot tables is checked on their
+    spans before the first window (the first pass of ``order="auto"`` measures them;
+    otherwise Parquet statistics or the ``time_s`` column).
+
 Other differences from ``split_windows(load_dataset(...))``: each window's tables
 have their own fresh ``RangeIndex``; a window whose ADS-B reports are all dropped
 keeps an empty ADS-B table (``load_dataset`` drops the table only when every report
