@@ -384,8 +384,8 @@ def calibrated_residuals(
 ) -> tuple[str, dict[str, RadarResiduals], list[str]]:
     """Each calibrated radar's corrected residuals: ``(reference, residuals, notes)``.
 
-    Against ADS-B when ``use_adsb`` and the dataset has it, else against the other
-    radars' plots (:mod:`graphcal.analysis.check_residuals`); ``reference`` is
+    Against ADS-B when ``use_adsb`` and the dataset has it (and some plot aligns with
+    it), else against the other radars' plots (:mod:`graphcal.analysis.check_residuals`); ``reference`` is
     ``"none"`` when no radar has any.  ``notes``: the radars without residuals.
     Parameters as for :func:`model_checks`.
     """
@@ -399,6 +399,7 @@ def calibrated_residuals(
         biases = {rid: b for rid, b in calibration.items() if rid in dataset.sites}
     notes: list[str] = []
     residuals: dict[str, RadarResiduals] = {}
+    reference = "none"
     if use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0:
         reference = "adsb"
         gap = DEFAULT_ADSB_MAX_GAP_S if adsb_max_gap_s is None else adsb_max_gap_s
@@ -408,7 +409,9 @@ def calibrated_residuals(
                 notes.append(f"{rid}: no plot aligned with ADS-B; not checked")
             else:
                 residuals[rid] = res
-    else:
+    if reference != "adsb" or not residuals:
+        if reference == "adsb":  # ADS-B on another time base or place: nothing aligned
+            notes = ["no plot aligned with ADS-B: checked against the other radars"]
         reference = "cross"
         residuals = cross_radar_residuals(dataset, biases, height_model)
         notes += [f"{rid}: no cross-radar pair; not checked" for rid in biases
