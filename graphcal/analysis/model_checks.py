@@ -385,8 +385,9 @@ def calibrated_residuals(
     """Each calibrated radar's corrected residuals: ``(reference, residuals, notes)``.
 
     Against ADS-B when ``use_adsb`` and the dataset has it (and some plot aligns with
-    it), else against the other radars' plots (:mod:`graphcal.analysis.check_residuals`); ``reference`` is
-    ``"none"`` when no radar has any.  ``notes``: the radars without residuals.
+    it), else against the other radars' plots
+    (:mod:`graphcal.analysis.check_residuals`); ``reference`` is ``"none"`` when no
+    radar has any.  ``notes``: the radars without residuals.
     Parameters as for :func:`model_checks`.
     """
     height_model = None
