@@ -31,6 +31,8 @@ _EXPORTS: dict[str, str] = {
     "load_sites": "graphcal.io.folder",
     "load_scenario": "graphcal.simulation.scenario",
     "Calibration": "graphcal.data.calibration",
+    "load_truth": "graphcal.data.truth",
+    "compare_to_truth": "graphcal.data.truth",
     "Dataset": "graphcal.data.dataset",
     "Site": "graphcal.data.dataset",
     "RadarBias": "graphcal.data.bias",
@@ -53,6 +55,8 @@ __all__ = [
     "load_sites",
     "load_scenario",
     "Calibration",
+    "load_truth",
+    "compare_to_truth",
     "Dataset",
     "Site",
     "RadarBias",
@@ -69,6 +73,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and the API reference
     from graphcal.data.calibration import Calibration
     from graphcal.data.correct import correct_dataset
     from graphcal.data.dataset import Dataset, Site
+    from graphcal.data.truth import compare_to_truth, load_truth
     from graphcal.io.folder import load_dataset, load_sites, write_dataset
     from graphcal.pipeline.calibrate import calibrate
     from graphcal.pipeline.compare import compare

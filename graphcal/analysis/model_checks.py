@@ -177,6 +177,9 @@ class RadarChecks:
         Per coordinate, the mean squared normalised residual (near 1 when the
         sites.toml sigmas are right, above 1 when they are too small).
     tests : list of CheckTest
+    n_residuals : dict of str to int
+        Per coordinate, the finite residuals ``chi2_per_dof`` averages over (the
+        fit verdict's degrees of freedom, :mod:`graphcal.analysis.fit_verdict`).
     partners : tuple of str
         ``cross``: the radars its residuals are measured against.
     explained_by : str or None
@@ -195,6 +198,7 @@ class RadarChecks:
     partners: tuple[str, ...] = ()
     explained_by: str | None = None
     seen_via: list[str] = field(default_factory=list)
+    n_residuals: dict[str, int] = field(default_factory=dict)
 
     @property
     def fired(self) -> list[CheckTest]:
@@ -237,6 +241,7 @@ class RadarChecks:
             "threshold_p": self.threshold_p,
             "fired": [t.name for t in self.fired],
             "chi2_per_dof": {f"{k}_{COORDINATES[k][0]}": v for k, v in self.chi2_per_dof.items()},
+            "n_residuals": {f"{k}_{COORDINATES[k][0]}": v for k, v in self.n_residuals.items()},
             "partners": list(self.partners),
             "explained_by": self.explained_by,
             "seen_via": list(self.seen_via),
@@ -315,11 +320,11 @@ def radar_checks(res: RadarResiduals, site: Site,
     """
     tests: list[CheckTest] = []
     chi2_per_dof: dict[str, float] = {}
+    n_residuals: dict[str, int] = {}
+    for coordinate, (chi2, n) in normalised_sums(res).items():
+        chi2_per_dof[coordinate], n_residuals[coordinate] = chi2 / n, n
     for coordinate, e in res.residuals.items():
         v = res.variances[coordinate]
-        finite = np.isfinite(e) & np.isfinite(v) & (v > 0)
-        if finite.any():
-            chi2_per_dof[coordinate] = float(np.mean(e[finite] ** 2 / v[finite]))
         scale = COORDINATES[coordinate][1]
         terms = fit_terms(e * scale, v * scale**2, res.regressors[coordinate])
         for variable in res.variables:
@@ -336,7 +341,18 @@ def radar_checks(res: RadarResiduals, site: Site,
                          gain_modelled="range_gain" in site.estimate, pressure=pressure)
         t.pattern, t.magnitude, t.cause = words.pattern, words.magnitude, words.cause
     return RadarChecks(res.radar_id, res.reference, len(res), res.n_outliers, threshold,
-                       chi2_per_dof, tests, res.partners)
+                       chi2_per_dof, tests, res.partners, n_residuals=n_residuals)
+
+
+def normalised_sums(res: RadarResiduals) -> dict[str, tuple[float, int]]:
+    """Per coordinate with a finite residual: ``(sum e^2 / v, count)`` over the finite ones."""
+    out: dict[str, tuple[float, int]] = {}
+    for coordinate, e in res.residuals.items():
+        v = res.variances[coordinate]
+        finite = np.isfinite(e) & np.isfinite(v) & (v > 0)
+        if finite.any():
+            out[coordinate] = (float(np.sum(e[finite] ** 2 / v[finite])), int(finite.sum()))
+    return out
 
 
 def _explaining_partner(res: RadarResiduals, checks: RadarChecks) -> str | None:
@@ -357,6 +373,53 @@ def _explaining_partner(res: RadarResiduals, checks: RadarChecks) -> str | None:
         if min(p_values) >= checks.threshold_p and min(p_values) > best_p:
             best, best_p = partner, min(p_values)
     return best
+
+
+def calibrated_residuals(
+    dataset: Dataset,
+    calibration: Calibration | Mapping[str, RadarBias],
+    *,
+    use_adsb: bool = True,
+    adsb_max_gap_s: float | None = None,
+) -> tuple[str, dict[str, RadarResiduals], list[str]]:
+    """Each calibrated radar's corrected residuals: ``(reference, residuals, notes)``.
+
+    Against ADS-B when ``use_adsb`` and the dataset has it (and some plot aligns with
+    it), else against the other radars' plots
+    (:mod:`graphcal.analysis.check_residuals`); ``reference`` is ``"none"`` when no
+    radar has any.  ``notes``: the radars without residuals.
+    Parameters as for :func:`model_checks`.
+    """
+    height_model = None
+    if isinstance(calibration, Calibration):
+        biases = {rid: calibration.bias(rid) for rid in calibration.radar_ids
+                  if rid in dataset.sites}
+        if calibration.atmosphere is not None:
+            height_model = calibration.atmosphere.model
+    else:
+        biases = {rid: b for rid, b in calibration.items() if rid in dataset.sites}
+    notes: list[str] = []
+    residuals: dict[str, RadarResiduals] = {}
+    reference = "none"
+    if use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0:
+        reference = "adsb"
+        gap = DEFAULT_ADSB_MAX_GAP_S if adsb_max_gap_s is None else adsb_max_gap_s
+        for rid, bias in biases.items():
+            res = adsb_radar_residuals(dataset, rid, bias, gap, height_model)
+            if res is None:
+                notes.append(f"{rid}: no plot aligned with ADS-B; not checked")
+            else:
+                residuals[rid] = res
+    if reference != "adsb" or not residuals:
+        if reference == "adsb":  # ADS-B on another time base or place: nothing aligned
+            notes = ["no plot aligned with ADS-B: checked against the other radars"]
+        reference = "cross"
+        residuals = cross_radar_residuals(dataset, biases, height_model)
+        notes += [f"{rid}: no cross-radar pair; not checked" for rid in biases
+                  if rid not in residuals]
+    if not residuals:
+        reference = "none"
+    return reference, residuals, notes
 
 
 @shared
@@ -392,32 +455,8 @@ def model_checks(
         ``reference`` "none" and no radars when there is nothing to compare with.
     """
     start = time.perf_counter()
-    height_model = None
-    if isinstance(calibration, Calibration):
-        biases = {rid: calibration.bias(rid) for rid in calibration.radar_ids
-                  if rid in dataset.sites}
-        if calibration.atmosphere is not None:
-            height_model = calibration.atmosphere.model
-    else:
-        biases = {rid: b for rid, b in calibration.items() if rid in dataset.sites}
-    notes: list[str] = []
-    residuals: dict[str, RadarResiduals] = {}
-    if use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0:
-        reference = "adsb"
-        gap = DEFAULT_ADSB_MAX_GAP_S if adsb_max_gap_s is None else adsb_max_gap_s
-        for rid, bias in biases.items():
-            res = adsb_radar_residuals(dataset, rid, bias, gap, height_model)
-            if res is None:
-                notes.append(f"{rid}: no plot aligned with ADS-B; not checked")
-            else:
-                residuals[rid] = res
-    else:
-        reference = "cross"
-        residuals = cross_radar_residuals(dataset, biases, height_model)
-        notes += [f"{rid}: no cross-radar pair; not checked" for rid in biases
-                  if rid not in residuals]
-    if not residuals:
-        reference = "none"
+    reference, residuals, notes = calibrated_residuals(
+        dataset, calibration, use_adsb=use_adsb, adsb_max_gap_s=adsb_max_gap_s)
     radars = {rid: radar_checks(res, dataset.sites[rid], family_false_alarm,
                                 dataset.pressure_altitudes)
               for rid, res in residuals.items()}
@@ -440,4 +479,4 @@ def model_checks(
 
 
 __all__ = ["COORDINATES", "FAMILY_FALSE_ALARM", "VARIABLES", "CheckTest", "ModelChecks",
-           "RadarChecks", "model_checks", "radar_checks"]
+           "RadarChecks", "calibrated_residuals", "model_checks", "normalised_sums", "radar_checks"]

@@ -9,6 +9,7 @@ import typer
 
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
+    FORCE_HELP,
     cat063_codes,
     console,
     err_console,
@@ -192,8 +193,13 @@ def calibrate_command(
         typer.Option("--sac-sic", metavar="RADAR=SAC/SIC",
                      help="--cat063: a radar's SAC/SIC (e.g. NORD=25/201); repeatable."),
     ] = None,
+    force: Annotated[bool, typer.Option("--force", help=FORCE_HELP)] = False,
 ) -> None:
-    """Estimate every radar's biases from a dataset folder."""
+    """Estimate every radar's biases from a dataset folder.
+
+    Exit status 3 when the data cannot support the answer, among others when a radar's
+    residuals are far beyond their sigmas (the fit verdict, docs/model-checks.md).
+    """
     import time
 
     from graphcal.data.calibration import load_result
@@ -215,7 +221,7 @@ def calibrate_command(
             sites = load_sites(dataset_dir / SITES_FILE)
         else:
             with progress_bar("loading"):
-                dataset = load_dataset(dataset_dir, clean=clean)
+                dataset = load_dataset(dataset_dir, clean=clean, force=force)
             sites = dataset.sites
         load_s = time.perf_counter() - start
         codes = cat063_codes(cat063, sac_sic, sites, sites if dataset is None
@@ -246,7 +252,7 @@ def calibrate_command(
                     iterations=iterations, linearise=linearise, select=select, budget=budget,
                     select_unit=select_unit, segment_s=segment_s, select_seed=select_seed,
                     model_checks=model_checks and window is None, progress=callback,
-                    **windowed,
+                    force=force, **windowed,
                 )
         except ValueError as exc:
             fail(str(exc), EXIT_BAD_INPUT)

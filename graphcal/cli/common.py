@@ -38,6 +38,12 @@ EXIT_BAD_INPUT = 2
 #: Exit status when the data do not allow an estimate.
 EXIT_ESTIMATION_FAILED = 3
 
+#: Help of ``--force`` (every command that reads a dataset folder).
+FORCE_HELP = ("Proceed even when the data look like a unit or frame mistake (azimuth in "
+              "radians, range in km, heights in feet, ADS-B latitude and longitude swapped, "
+              "an implausible antenna height, ADS-B on another time base); see "
+              "docs/data-formats.md.")
+
 
 def fail(message: str, status: int) -> NoReturn:
     """Print ``error: message`` on one line of standard error and exit with ``status``."""
@@ -212,6 +218,7 @@ def command_line() -> str:
 __all__ = [
     "EXIT_BAD_INPUT",
     "EXIT_ESTIMATION_FAILED",
+    "FORCE_HELP",
     "PLAIN_PROGRESS_INTERVAL_S",
     "PLAIN_WIDTH",
     "command_line",

@@ -92,26 +92,25 @@ def render_table(result):
     for name, justify in (
         ("method", "left"), ("radar", "left"), ("parameter", "left"), ("truth", "right"),
         ("mean ± std", "right"), ("RMSE", "right"), ("RMSE/√CRLB", "right"),
-        ("σ̂/std", "right"), ("failures", "right"),
+        ("σ̂/std", "right"), ("failures", "right"), ("status", "left"),
     ):
         table.add_column(name, justify=justify)
     previous = None
     for row in result.table.itertuples(index=False):
         if previous is not None and row.method != previous:
             table.add_section()
-        table.add_row(
-            row.method if row.method != previous else "", row.radar, row.parameter,
-            _num(row.truth), f"{_num(row.mean)} ± {_num(row.std, 3)}", _num(row.rmse, 3),
-            _num(row.rmse_over_crlb, 3), _num(row.consistency, 3),
-            f"{row.failures}/{result.runs}",
-        )
-        previous = row.method
-    shown = set(result.table["method"])
-    for row in result.failures.itertuples(index=False):
-        if row.method not in shown:
-            table.add_section()
+        if not row.parameter:  # a method that never gave an estimate
             table.add_row(row.method, "–", "no estimate", "", "", "", "", "",
-                          f"{row.failures}/{result.runs}")
+                          f"{row.failures}/{result.runs}", "failed")
+        else:
+            table.add_row(
+                row.method if row.method != previous else "", row.radar, row.parameter,
+                _num(row.truth), f"{_num(row.mean)} ± {_num(row.std, 3)}", _num(row.rmse, 3),
+                _num(row.rmse_over_crlb, 3), _num(row.consistency, 3),
+                f"{row.failures}/{result.runs}",
+                "ok" if row.status == "ok" else f"failed {row.failures}/{result.runs}",
+            )
+        previous = row.method
     return table
 
 

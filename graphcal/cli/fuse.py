@@ -9,6 +9,7 @@ import typer
 
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
+    FORCE_HELP,
     console,
     err_console,
     errors_to_exit,
@@ -36,6 +37,7 @@ def fuse_command(
                      "(default 100: manoeuvring civil traffic)."),
     ] = None,
     grid_s: Annotated[float, typer.Option(help="Fusion time step \\[s].")] = 1.0,
+    force: Annotated[bool, typer.Option("--force", help=FORCE_HELP)] = False,
 ) -> None:
     """Track every aircraft with every radar, fuse the tracks, score them against ADS-B."""
     from graphcal.core.atomic import atomic_write_table
@@ -49,7 +51,7 @@ def fuse_command(
     if out is not None and out.suffix not in (".csv", ".parquet"):
         fail(f"--out {out}: the suffix must be .csv or .parquet", EXIT_BAD_INPUT)
     with errors_to_exit():
-        dataset = load_dataset(dataset_dir)
+        dataset = load_dataset(dataset_dir, force=force)
         with progress_bar("fusing raw plots") as callback:
             raw = fuse_dataset(dataset, None, q_m2_s3=q, grid_s=grid_s, progress=callback)
         corrected = None

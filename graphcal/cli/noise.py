@@ -7,7 +7,14 @@ from typing import Annotated
 
 import typer
 
-from graphcal.cli.common import EXIT_BAD_INPUT, console, err_console, errors_to_exit, fail
+from graphcal.cli.common import (
+    EXIT_BAD_INPUT,
+    FORCE_HELP,
+    console,
+    err_console,
+    errors_to_exit,
+    fail,
+)
 
 
 def noise_command(
@@ -36,6 +43,7 @@ def noise_command(
     overwrite: Annotated[
         bool, typer.Option(help="Replace existing --write-sites / --table files.")
     ] = False,
+    force: Annotated[bool, typer.Option("--force", help=FORCE_HELP)] = False,
 ) -> None:
     """Estimate every radar's random-error sigmas (range, azimuth, elevation) from its data."""
     import pandas as pd
@@ -56,7 +64,7 @@ def noise_command(
     if not (range_bin_km > 0 and 0 < azimuth_bin_deg <= 360):
         fail("--range-bin-km must be > 0 and --azimuth-bin-deg in (0, 360]", EXIT_BAD_INPUT)
     with errors_to_exit():
-        dataset = load_dataset(dataset_dir)
+        dataset = load_dataset(dataset_dir, force=force)
         try:
             estimates = estimate_noise(dataset, use_adsb=modes[method])
         except ValueError as exc:

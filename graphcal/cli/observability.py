@@ -7,7 +7,14 @@ from typing import Annotated
 
 import typer
 
-from graphcal.cli.common import EXIT_BAD_INPUT, console, err_console, errors_to_exit, fail
+from graphcal.cli.common import (
+    EXIT_BAD_INPUT,
+    FORCE_HELP,
+    console,
+    err_console,
+    errors_to_exit,
+    fail,
+)
 
 
 def observability_command(
@@ -40,6 +47,7 @@ def observability_command(
         int, typer.Option(help="--budget: random subsets drawn for the baseline.")
     ] = 20,
     seed: Annotated[int, typer.Option(help="--budget: seed of the random subsets.")] = 0,
+    force: Annotated[bool, typer.Option("--force", help=FORCE_HELP)] = False,
 ) -> None:
     """How well the traffic determines each bias: rank, condition, Deg, weak directions."""
     import json
@@ -57,7 +65,7 @@ def observability_command(
         if path is not None and path.suffix.lower() != suffix:
             fail(f"{path}: the file must end in {suffix}", EXIT_BAD_INPUT)
     with errors_to_exit():
-        dataset = load_dataset(dataset_dir)
+        dataset = load_dataset(dataset_dir, force=force)
         dataset, _ = fill_missing_sigmas(dataset)
         try:
             blocks = observation_blocks(dataset, method, use_adsb=adsb)

@@ -9,6 +9,7 @@ import typer
 
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
+    FORCE_HELP,
     command_line,
     err_console,
     errors_to_exit,
@@ -24,6 +25,7 @@ def report_command(
         Path | None,
         typer.Option(help="Truth JSON to compare with (default: DIR/truth.json if present)."),
     ] = None,
+    force: Annotated[bool, typer.Option("--force", help=FORCE_HELP)] = False,
 ) -> None:
     """Write a self-contained HTML report (estimates, residuals, map, correlations)."""
     from graphcal.data.calibration import Calibration
@@ -36,7 +38,7 @@ def report_command(
         fail(f"--out {out}: folder {out.parent} does not exist", EXIT_BAD_INPUT)
     with errors_to_exit():
         cal = Calibration.read_json(result)
-        dataset = load_dataset(dataset_dir)
+        dataset = load_dataset(dataset_dir, force=force)
         if truth is not None and not truth.exists():
             fail(f"{truth}: no such file", EXIT_BAD_INPUT)
         unknown = [rid for rid in cal.radar_ids if rid not in dataset.sites]

@@ -53,3 +53,17 @@ class ResultError(GraphcalInputError):
 
 class EstimationError(RuntimeError):
     """An estimator cannot run on the given data (no usable observations, ...)."""
+
+
+class ImplausibleDataError(DatasetError):
+    """A valid dataset whose values look like a unit or frame mistake (exit 2, ``--force``).
+
+    ``findings`` holds every field that looks wrong
+    (:class:`graphcal.data.plausibility.Finding`), the first named by the message.
+    """
+
+    def __init__(self, message: str, *, path: str | Path | None = None,
+                 row: int | None = None, field: str | None = None,
+                 findings: list | None = None) -> None:
+        super().__init__(message, path=path, row=row, field=field)
+        self.findings = list(findings or [])

@@ -52,6 +52,15 @@ CONTRACT_KEYS: dict[str, tuple[str, float]] = {
 NAME_FROM_KEY: dict[str, str] = {key: name for name, (key, _) in CONTRACT_KEYS.items()}
 
 
+def contract_unit(key: str) -> str:
+    """The unit of a contract key, from its suffix: ``m``, ``mrad``, ``s``, or ``fraction``
+    (``range_gain``, a plain fraction: 0.005 is 0.5 %)."""
+    for suffix, unit in (("_mrad", "mrad"), ("_m", "m"), ("_s", "s")):
+        if key.endswith(suffix):
+            return unit
+    return "fraction"
+
+
 def to_contract_units(name: str, value_si: float) -> float:
     """Convert a parameter value from SI (m, fraction, rad, s) to its contract unit."""
     return value_si * CONTRACT_KEYS[name][1]

@@ -34,6 +34,7 @@ from graphcal.data.bias import (
     NAME_FROM_KEY,
     PARAMETER_NAMES,
     RadarBias,
+    contract_unit,
 )
 from graphcal.data.height import HeightModelEstimate
 
@@ -276,6 +277,60 @@ class Calibration:
     atmosphere: HeightModelEstimate | None = None
     series: dict[str, Any] | None = field(default=None, repr=False)
     events: list[dict[str, Any]] | None = None
+
+    # ----------------------------------------------------------------- display
+    #: Radars :meth:`__repr__` lists before summarising the rest.
+    REPR_RADARS = 12
+
+    def __repr__(self) -> str:
+        """A short summary: the method and counts, then one line per radar (value ± sigma).
+
+        At most :attr:`REPR_RADARS` radars are listed; the rest are counted.
+        """
+        n = len(self.radar_ids)
+        head = (f"Calibration(method={self.method!r}, {n} radar{'s' if n != 1 else ''}, "
+                f"{len(self.labels)} estimated parameters, {len(self.warnings)} warnings"
+                + (", with series" if self.series is not None else "") + ")")
+        lines = [head]
+        frame = self.to_frame()
+        for rid in self.radar_ids[: self.REPR_RADARS]:
+            rows = frame[frame["radar"] == rid]
+            terms = [f"{row.parameter} {_short(row.value)}"
+                     + (" (fixed)" if row.fixed else f" ± {_short(row.sigma, 2)}")
+                     for row in rows.itertuples(index=False)]
+            lines.append(f"  {rid}: " + (", ".join(terms) if terms else "no terms"))
+        if len(self.radar_ids) > self.REPR_RADARS:
+            lines.append(f"  ... and {len(self.radar_ids) - self.REPR_RADARS} more radars")
+        return "\n".join(lines)
+
+    def to_frame(self) -> Any:
+        """The estimates as a table: one row per radar and bias term, contract units.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns ``radar``, ``parameter`` (contract key, e.g.
+            ``azimuth_bias_mrad``), ``value``, ``sigma`` (1-sigma, NaN for a fixed
+            term), ``unit`` (``m``, ``fraction``, ``mrad``, ``s``) and ``fixed``
+            (held at a known value, not estimated).  Radars in :attr:`radar_ids`
+            order, terms in contract order; the terms a radar has neither
+            estimated nor fixed are left out.
+        """
+        import pandas as pd
+
+        rows = []
+        for rid in self.radar_ids:
+            for name, (key, _) in CONTRACT_KEYS.items():
+                estimated = self._position(rid, name) is not None
+                if not estimated and (rid, name) not in self.fixed:
+                    continue
+                sigma = self.sigma(rid, key) if estimated else None
+                rows.append({"radar": rid, "parameter": key, "value": self.value(rid, key),
+                             "sigma": np.nan if sigma is None else sigma,
+                             "unit": contract_unit(key), "fixed": not estimated})
+        columns = ["radar", "parameter", "value", "sigma", "unit", "fixed"]
+        return pd.DataFrame(rows, columns=columns).astype({"value": float, "sigma": float,
+                                                           "fixed": bool})
 
     # ----------------------------------------------------------------- queries
     def _position(self, radar_id: str, name: str) -> int | None:
@@ -663,6 +718,13 @@ class Calibration:
         from graphcal.core.atomic import atomic_write_text
 
         atomic_write_text(Path(path), self.to_json() + "\n")
+
+
+def _short(value: float | None, digits: int = 4) -> str:
+    """A number in ``digits`` significant digits (``nan`` for a missing one)."""
+    if value is None or not np.isfinite(value):
+        return "nan" if value is None or np.isnan(value) else str(value)
+    return f"{value:.{digits}g}"
 
 
 def _read_series(value: Any) -> dict[str, Any] | None:

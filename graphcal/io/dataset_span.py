@@ -294,8 +294,8 @@ def parquet_times(path: Path, required: tuple[str, ...]) -> FileTimes | None:
     return FileTimes(path, metadata.num_rows, t_min, t_max)
 
 
-def _table_span(files: list[Path], required: tuple[str, ...]) -> TableSpan:
-    """Statistics where a Parquet file has them, else the ``time_s`` column."""
+def table_span(files: list[Path], required: tuple[str, ...]) -> TableSpan:
+    """A table's times: statistics where a Parquet file has them, else its ``time_s`` column."""
     spans = []
     for path in files:
         found = parquet_times(path, required) if path.suffix == ".parquet" else None
@@ -334,11 +334,11 @@ def dataset_span(folder: str | Path) -> DatasetSpan:
     check_folder(folder)
     sites = load_sites(folder / SITES_FILE)
     plot_files, adsb_files = dataset_tables(folder)
-    plots = _table_span(plot_files, PLOT_COLUMNS)
+    plots = table_span(plot_files, PLOT_COLUMNS)
     if plots.n_rows == 0:
         raise DatasetError("the table has no data rows",
                            path=plot_files[0] if len(plot_files) == 1 else folder / "plots")
-    adsb = None if adsb_files is None else _table_span(adsb_files, ADSB_COLUMNS)
+    adsb = None if adsb_files is None else table_span(adsb_files, ADSB_COLUMNS)
     return DatasetSpan(folder, tuple(sites), plots, adsb)
 
 
@@ -350,4 +350,5 @@ __all__ = [
     "first_time",
     "parquet_times",
     "scan_times",
+    "table_span",
 ]

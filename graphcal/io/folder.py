@@ -84,6 +84,7 @@ from graphcal.data.dataset import (
     Site,
 )
 from graphcal.data.height import GEOMETRIC, PLOT_ALTITUDE_CHOICES
+from graphcal.data.plausibility import check_tables, raise_if_implausible
 from graphcal.data.sensor_models import SensorModel, load_sensor_model
 from graphcal.io.table_checks import validate_adsb, validate_plots
 from graphcal.io.table_files import find_table_files, read_rows
@@ -534,7 +535,7 @@ def dataset_tables(folder: Path) -> tuple[list[Path], list[Path] | None]:
 # --------------------------------------------------------------------------- dataset
 
 
-def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
+def load_dataset(folder: str | Path, *, clean: bool = True, force: bool = False) -> Dataset:
     """Read and validate a dataset folder.
 
     Parameters
@@ -548,6 +549,11 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
         ADS-B reports, mislabelled aircraft, see :mod:`graphcal.data.cleaning`) from
         the tables in memory; the files are not touched.  The report is kept in
         :attr:`Dataset.cleaning`.
+    force : bool, optional
+        Skip the unit and frame heuristics (:mod:`graphcal.data.plausibility`:
+        azimuths in radians, ranges in km, heights in feet, swapped latitude and
+        longitude, an implausible antenna height, ADS-B on another time base),
+        which otherwise run on the validated tables, before cleaning.
 
     Returns
     -------
@@ -561,6 +567,9 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
     ------
     DatasetError
         For the first problem found, naming the file, the row and the field.
+    ImplausibleDataError
+        (a :class:`DatasetError`) Unless ``force``: the tables look like a unit or
+        frame mistake; the message names the file, the field and the likely mistake.
     """
     folder = Path(folder)
     check_folder(folder)
@@ -571,6 +580,9 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
         sites = three_d_without_sigmas(sites, elevation_complete(plots), folder / SITES_FILE)
     adsb = None if adsb_files is None else _load_table(adsb_files, ADSB_COLUMNS, validate_adsb)
     plot_altitude = load_plot_altitude(folder / SITES_FILE)
+    if not force:
+        raise_if_implausible(check_tables(sites, plots, adsb),
+                             table_paths(folder, plot_files, adsb_files))
     dataset = Dataset(sites=sites, plots=plots, adsb=adsb, path=folder,
                       plot_altitude=plot_altitude)
     if clean:
@@ -578,6 +590,18 @@ def load_dataset(folder: str | Path, *, clean: bool = True) -> Dataset:
 
         dataset, _ = clean_dataset(dataset)
     return dataset
+
+
+def table_paths(folder: Path, plot_files: list[Path],
+                adsb_files: list[Path] | None) -> dict[str, Path]:
+    """The path naming each table in messages: its file, or its folder of parts."""
+    def where(files: list[Path]) -> Path:
+        return files[0] if len(files) == 1 else files[0].parent
+
+    paths = {"sites": folder / SITES_FILE, "plots": where(plot_files)}
+    if adsb_files:
+        paths["adsb"] = where(adsb_files)
+    return paths
 
 
 def elevation_complete(plots: pd.DataFrame) -> dict[str, bool]:

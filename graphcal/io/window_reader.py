@@ -56,6 +56,13 @@ Cleaning (``clean=True``)
     include the context).  On a recording without such defects the windows are
     those of cleaning the whole dataset.
 
+Plausibility (unless ``force=True``)
+    The unit and frame heuristics of :mod:`graphcal.data.plausibility` run on each
+    window's validated rows before cleaning (an error is raised when its window is
+    reached), and the time overlap of the ADS-B and plot tables is checked on their
+    spans before the first window (the first pass of ``order="auto"`` measures them;
+    otherwise Parquet statistics or the ``time_s`` column).
+
 Other differences from ``split_windows(load_dataset(...))``: each window's tables
 have their own fresh ``RangeIndex``; a window whose ADS-B reports are all dropped
 keeps an empty ADS-B table (``load_dataset`` drops the table only when every report
@@ -78,14 +85,22 @@ import pandas as pd
 
 from graphcal.data.cleaning import clean_dataset
 from graphcal.data.dataset import ADSB_COLUMNS, PLOT_COLUMNS, SITES_FILE, Dataset, Site
+from graphcal.data.plausibility import check_tables, check_time_overlap, raise_if_implausible
 from graphcal.data.windows import DEFAULT_ADSB_MARGIN_S, Window, window_index
-from graphcal.io.dataset_span import DEFAULT_MAX_LATENESS_S, first_time, scan_times
+from graphcal.io.dataset_span import (
+    DEFAULT_MAX_LATENESS_S,
+    TableSpan,
+    first_time,
+    scan_times,
+    table_span,
+)
 from graphcal.io.folder import (
     check_folder,
     dataset_tables,
     load_plot_altitude,
     load_sites,
     needs_elevation_scan,
+    table_paths,
     three_d_without_sigmas,
 )
 from graphcal.io.table_checks import ExtraCheck, validate_adsb, validate_plots
@@ -109,14 +124,16 @@ Table = OrderedTable | SpilledTable
 
 def _open_table(files: list[Path], required: tuple[str, ...], validate: Validator, *,
                 order: str, window_s: float, max_lateness_s: float, chunk_rows: int,
-                spill_dir: str | Path | None, spill_rows: int) -> Table:
-    """The table read in order when it can be, else sorted by window (module docstring)."""
+                spill_dir: str | Path | None, spill_rows: int) -> tuple[Table, TableSpan | None]:
+    """The table read in order when it can be, else sorted by window (module docstring),
+    and its span when the first pass of ``order="auto"`` measured it."""
     empty = empty_table(files, required, validate)
+    span = None
     if order == "sorted":
         sources = [TableSource([path], required, validate, chunk_rows, max_lateness_s,
                                first_time(path, required, max_lateness_s=max_lateness_s))
                    for path in files]
-        return OrderedTable(sources, empty)
+        return OrderedTable(sources, empty), None
     if order == "auto":
         span = scan_times(files, required, max_lateness_s=max_lateness_s,
                           chunk_rows=chunk_rows)
@@ -124,9 +141,19 @@ def _open_table(files: list[Path], required: tuple[str, ...], validate: Validato
             sources = [TableSource([f.path], required, validate, chunk_rows, max_lateness_s,
                                    -math.inf if math.isnan(f.t_min_s) else f.t_min_s)
                        for f in span.files]
-            return OrderedTable(sources, empty)
+            return OrderedTable(sources, empty), span
     source = TableSource(files, required, validate, chunk_rows, None)
-    return SpilledTable(source, window_s, empty, spill_dir=spill_dir, spill_rows=spill_rows)
+    return SpilledTable(source, window_s, empty, spill_dir=spill_dir,
+                        spill_rows=spill_rows), span
+
+
+def _check_overlap(plots: TableSpan | None, adsb: TableSpan | None, plot_files: list[Path],
+                   adsb_files: list[Path], paths: dict[str, Path]) -> None:
+    """Plausibility: the ADS-B table overlaps the plots in time (spans measured if needed)."""
+    plots = plots if plots is not None else table_span(plot_files, PLOT_COLUMNS)
+    adsb = adsb if adsb is not None else table_span(adsb_files, ADSB_COLUMNS)
+    finding = check_time_overlap((plots.t_min_s, plots.t_max_s), (adsb.t_min_s, adsb.t_max_s))
+    raise_if_implausible([finding] if finding is not None else [], paths)
 
 
 def _elevation_complete(files: Sequence[Path], chunk_rows: int) -> dict[str, bool]:
@@ -187,6 +214,7 @@ def iter_windows(
     chunk_rows: int = DEFAULT_CHUNK_ROWS,
     spill_dir: str | Path | None = None,
     spill_rows: int = DEFAULT_SPILL_ROWS,
+    force: bool = False,
 ) -> Iterator[Window]:
     """The time windows of a dataset folder, read window by window (module docstring).
 
@@ -215,6 +243,11 @@ def iter_windows(
         deleted when the iteration ends); default the system's temporary folder.
     spill_rows : int, optional
         Rows held in memory while sorting by window.
+    force : bool, optional
+        Skip the unit and frame heuristics (:mod:`graphcal.data.plausibility`),
+        which otherwise run on each window's validated rows before cleaning, and
+        on the whole tables' time spans (ADS-B on another time base) before the
+        first window.
 
     Yields
     ------
@@ -234,6 +267,10 @@ def iter_windows(
         For the first bad row of a file (naming the file, its row and the field),
         a row out of time order with ``order="sorted"``, or a missing or
         unreadable file.
+    ImplausibleDataError
+        (a :class:`DatasetError`) Unless ``force``: the ADS-B table does not
+        overlap the plots in time (before the first window), or a window's rows
+        look like a unit or frame mistake (when that window is reached).
     """
     window_index(np.zeros(0), window_s)
     if not adsb_margin_s >= 0.0:
@@ -254,18 +291,25 @@ def iter_windows(
     options = {"order": order, "window_s": window_s, "max_lateness_s": max_lateness_s,
                "chunk_rows": chunk_rows, "spill_dir": spill_dir, "spill_rows": spill_rows}
     reach = adsb_margin_s + (CLEANING_CONTEXT_S if clean else 0.0)
+    paths = table_paths(folder, plot_files, adsb_files)
     with ExitStack() as stack:
-        plots = _open_table(plot_files, PLOT_COLUMNS, _plots_validator(file_sites), **options)
+        plots, plots_span = _open_table(plot_files, PLOT_COLUMNS, _plots_validator(file_sites),
+                                        **options)
         stack.callback(plots.close)
         adsb = None
         if adsb_files is not None:
-            adsb = _open_table(adsb_files, ADSB_COLUMNS, _adsb_validator, **options)
+            adsb, adsb_span = _open_table(adsb_files, ADSB_COLUMNS, _adsb_validator, **options)
             stack.callback(adsb.close)
+            if not force:
+                _check_overlap(plots_span, adsb_span, plot_files, adsb_files, paths)
         while (k := plots.next_window(window_s)) is not None:
             start, end = k * window_s, (k + 1) * window_s
             window_plots = plots.take(start, end)
             plots.forget_before(end)
             window_adsb = None if adsb is None else adsb.take(start - reach, end + reach)
+            if not force:
+                raise_if_implausible(check_tables(sites, window_plots, window_adsb,
+                                                  time_overlap=False), paths)
             dataset = Dataset(sites=sites, plots=window_plots, adsb=window_adsb, path=folder,
                               plot_altitude=plot_altitude)
             dataset = _window_dataset(dataset, start - adsb_margin_s, end + adsb_margin_s,

@@ -132,6 +132,8 @@ def calibrate(
     breaks: Mapping[str, list[float]] | None = None,
     detect_steps: bool = True,
     progress: Progress | None = None,
+    force: bool = False,
+    check_fit: bool = True,
 ) -> Calibration:
     """Estimate every radar's biases: select, solve, bound and judge, once.
 
@@ -193,6 +195,14 @@ def calibrate(
         and a selection are not computed per window.
     progress : callable, optional
         ``progress(stage, done, total)``.
+    force : bool
+        With a folder: skip the unit and frame heuristics of the loaded data
+        (:mod:`graphcal.data.plausibility`; ``--force``).
+    check_fit : bool
+        Raise :class:`~graphcal.analysis.fit_verdict.ModelMisfitError` when the
+        fit verdict fails: a radar's residuals far beyond their sigmas, or a range
+        gain beyond 1 % (:mod:`graphcal.analysis.fit_verdict`).  The verdict is
+        recorded in ``info["fit_verdict"]`` either way (not with ``window``).
 
     Returns
     -------
@@ -207,6 +217,9 @@ def calibrate(
         Bad dataset folder.
     EstimationError
         The data do not allow an estimate.
+    ModelMisfitError
+        (an :class:`EstimationError`) With ``check_fit``: the fit verdict failed;
+        the exception's ``calibration`` holds the result.
     ValueError
         Unknown method or option value, or an option the method does not use.
     """
@@ -217,7 +230,7 @@ def calibrate(
             folder = dataset
             sites = load_sites(Path(folder) / SITES_FILE)
         else:
-            dataset = load_dataset(dataset, clean=clean)
+            dataset = load_dataset(dataset, clean=clean, force=force)
     if folder is None:
         sites = dataset.sites
     estimator = get_estimator(method)
@@ -233,7 +246,8 @@ def calibrate(
         return _calibrate_windows(folder if folder is not None else dataset, method, window,
                                   options, clean=clean, select=select,
                                   bound=bound, scheduler=scheduler, drift=drift,
-                                  breaks=breaks, detect_steps=detect_steps, progress=progress)
+                                  breaks=breaks, detect_steps=detect_steps, progress=progress,
+                                  force=force)
     windowed_only = {"scheduler": scheduler, "drift": drift, "breaks": breaks}
     for name, value in windowed_only.items():
         if value:
@@ -277,20 +291,47 @@ def calibrate(
         timing = cal.info.setdefault("timing_s", {})
         timing["crlb_s"] = time.perf_counter() - t0
         timing["total_s"] = time.perf_counter() - start
-    if model_checks and cal.radar_ids:
+    checks = None
+    if model_checks and cal.radar_ids and not _impossible(cal, dataset):
         if progress is not None:
             progress("model checks", 0, 1)
-        _check_model(cal, dataset, use_adsb=use_adsb, max_gap_s=options.get("max_gap_s"))
+        checks = _check_model(cal, dataset, use_adsb=use_adsb,
+                              max_gap_s=options.get("max_gap_s"))
         timing = cal.info.setdefault("timing_s", {})
         timing["model_checks_s"] = cal.info["model_checks"]["seconds"]
         timing["total_s"] = time.perf_counter() - start
+    if cal.radar_ids:
+        _judge_fit(cal, dataset, checks, use_adsb=use_adsb, max_gap_s=options.get("max_gap_s"),
+                   raise_on_failure=check_fit)
     return cal
+
+
+def _impossible(cal: Calibration, dataset: Dataset) -> bool:
+    """Whether the estimate corrects plots to negative ranges (no residuals can be formed:
+    the model checks are skipped, the fit verdict fails)."""
+    from graphcal.analysis.fit_verdict import negative_ranges
+
+    return any(negative_ranges(dataset, cal).values())
+
+
+def _judge_fit(cal: Calibration, dataset: Dataset, checks: Any, *, use_adsb: bool,
+               max_gap_s: float | None, raise_on_failure: bool) -> None:
+    """Record the fit verdict in ``info["fit_verdict"]``; raise when it failed and asked to."""
+    from graphcal.analysis.fit_verdict import ModelMisfitError, fit_verdict
+
+    verdict = fit_verdict(dataset, cal, checks=checks, use_adsb=use_adsb,
+                          adsb_max_gap_s=max_gap_s)
+    cal.info["fit_verdict"] = verdict.to_dict()
+    if not verdict.passed:
+        if raise_on_failure:
+            raise ModelMisfitError(verdict, cal)
+        cal.warnings.append(verdict.message())
 
 
 def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,
                        window: float | str, options: dict[str, Any], *, clean: bool,
                        select: str | None, bound: bool | None, progress: Progress | None,
-                       **chain: Any) -> Calibration:
+                       force: bool = False, **chain: Any) -> Calibration:
     """``calibrate(window=...)``: the graph per window, chained (pipeline.windowed)."""
     from graphcal.core.durations import parse_duration
     from graphcal.pipeline.windowed import calibrate_windows
@@ -314,17 +355,21 @@ def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,
         max_iterations=options["max_iterations"],
         **({"max_gap_s": options["max_gap_s"]} if "max_gap_s" in options else {}))
     return calibrate_windows(dataset, parse_duration(window), clean=clean,
-                             options=window_options, progress=progress, **chain)
+                             options=window_options, progress=progress, force=force, **chain)
 
 
 def _check_model(cal: Calibration, dataset: Dataset, *, use_adsb: bool,
-                 max_gap_s: float | None) -> None:
-    """Run the model checks on the data the estimator used; record them and their warnings."""
+                 max_gap_s: float | None) -> Any:
+    """Run the model checks on the data the estimator used; record them and their warnings.
+
+    Returns the :class:`~graphcal.analysis.model_checks.ModelChecks`.
+    """
     from graphcal.analysis.model_checks import model_checks
 
     checks = model_checks(dataset, cal, use_adsb=use_adsb, adsb_max_gap_s=max_gap_s)
     cal.info["model_checks"] = checks.to_dict()
     cal.warnings.extend(checks.warnings())
+    return checks
 
 
 def _poorly_excited(labels: list[tuple[str, str]], data_information: np.ndarray) -> list[str]:

@@ -13,7 +13,11 @@ dataset.  Over the runs, per method, radar and parameter (contract units):
 ``crlb_sigma``     square root of the mean (over runs) Cramér-Rao bound variance
 ``rmse_over_crlb`` ``rmse / crlb_sigma``: 1 for an efficient unbiased estimator
 ``n``              runs that gave a finite value for this parameter
-``failures``       runs in which the method failed (EstimationError, non-finite)
+``failures``       runs in which the method failed (an error, a non-finite estimate)
+``status``         ``ok``, ``failed in K of N runs``, or for a method that never
+                   gave an estimate ``failed: <first error>`` (its one row has no
+                   radar or parameter and NaN figures: failed methods stay in the
+                   table)
 =================  =============================================================
 
 The results do not depend on ``jobs``: every run's randomness comes from its
@@ -52,13 +56,20 @@ _KEY_ORDER: dict[str, str] = {
 #: Columns of :attr:`ComparisonResult.table`, in order.
 TABLE_COLUMNS: tuple[str, ...] = (
     "method", "radar", "parameter", "truth", "n", "mean", "std", "rmse", "mean_sigma",
-    "consistency", "crlb_sigma", "rmse_over_crlb", "failures",
+    "consistency", "crlb_sigma", "rmse_over_crlb", "failures", "status",
 )
 
 #: Columns of :attr:`ComparisonResult.estimates` (one row per run, method, radar, parameter).
 ESTIMATE_COLUMNS: tuple[str, ...] = ("run", "method", "radar", "parameter", "value", "sigma")
 
 Progress = Callable[[int, int], None]
+
+#: What counts as a method failing on a run (recorded, not raised): the data do not
+#: allow its estimate (:class:`~graphcal.core.errors.EstimationError`), or its numerics
+#: break down on them (GTSAM's indeterminate system is a ``RuntimeError``).
+FAILURES: tuple[type[BaseException], ...] = (
+    EstimationError, RuntimeError, ValueError, ArithmeticError, np.linalg.LinAlgError,
+)
 
 
 @dataclass
@@ -115,15 +126,16 @@ class ComparisonResult:
             "reported sigma / std; RMSE/sqrt(CRLB) needs graphcal.analysis.crlb.",
             "",
             "| method | radar | parameter | truth | mean | std | RMSE | mean σ̂ | σ̂/std "
-            "| RMSE/√CRLB | n | failures |",
-            "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+            "| RMSE/√CRLB | n | failures | status |",
+            "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
         ]
         for row in self.table.itertuples(index=False):
             lines.append(
                 f"| {row.method} | {row.radar} | {row.parameter} | {_fmt(row.truth)} "
                 f"| {_fmt(row.mean)} | {_fmt(row.std)} | {_fmt(row.rmse)} "
                 f"| {_fmt(row.mean_sigma)} | {_fmt(row.consistency, 3)} "
-                f"| {_fmt(row.rmse_over_crlb, 3)} | {row.n} | {row.failures} |"
+                f"| {_fmt(row.rmse_over_crlb, 3)} | {row.n} | {row.failures} "
+                f"| {row.status.replace('|', '/')} |"
             )
         lines += [
             "",
@@ -266,8 +278,8 @@ def _one_run(
         try:
             cal = estimator(dataset, **dict(method_options.get(method, {})))
             elapsed = time.perf_counter() - start
-        except EstimationError as exc:
-            outcome[method] = (time.perf_counter() - start, f"EstimationError: {exc}")
+        except FAILURES as exc:
+            outcome[method] = (time.perf_counter() - start, f"{type(exc).__name__}: {exc}")
             continue
         method_rows = []
         for rid, name in cal.labels:
@@ -414,6 +426,10 @@ def _summarise(
         time_rows.append({"method": method, "runs": runs, "mean_s": float(times.mean()),
                           "median_s": float(np.median(times)), "total_s": float(times.sum())})
 
+    status = {}
+    for row in fail_rows:
+        k = row["failures"]
+        status[row["method"]] = "ok" if k == 0 else f"failed in {k} of {runs} runs"
     table_rows = []
     radar_order = {rid: i for i, rid in enumerate(dict.fromkeys(r for r, _ in truth))}
     key_order = {k: i for i, k in enumerate(_KEY_ORDER)}
@@ -440,7 +456,16 @@ def _summarise(
                 "consistency": mean_sigma / std if std and np.isfinite(std) else math.nan,
                 "crlb_sigma": bound,
                 "rmse_over_crlb": rmse / bound if bound > 0 else math.nan,
+                "failures": n_failed[method], "status": status[method],
+            })
+        if not groups:  # never an estimate: one row saying so, not silence
+            first = next(r["first_error"] for r in fail_rows if r["method"] == method)
+            table_rows.append({
+                "method": method, "radar": "", "parameter": "", "truth": math.nan, "n": 0,
+                "mean": math.nan, "std": math.nan, "rmse": math.nan, "mean_sigma": math.nan,
+                "consistency": math.nan, "crlb_sigma": math.nan, "rmse_over_crlb": math.nan,
                 "failures": n_failed[method],
+                "status": f"failed: {first}" if first else "failed",
             })
     table = pd.DataFrame(table_rows, columns=list(TABLE_COLUMNS))
     table["n"] = table["n"].astype(int)

@@ -19,7 +19,8 @@ def _table_format(folder: Path | None) -> str:
 
 
 def correct_folder(
-    dataset_dir: str | Path, result: str | Path, out: str | Path, *, overwrite: bool = False
+    dataset_dir: str | Path, result: str | Path, out: str | Path, *, overwrite: bool = False,
+    force: bool = False,
 ) -> Dataset:
     """Read a dataset folder and a result JSON, write the corrected dataset to ``out``.
 
@@ -27,6 +28,8 @@ def correct_folder(
     (read with :func:`graphcal.data.calibration.read_biases`).  The output keeps the
     table format of the input and is written atomically
     (:func:`graphcal.io.folder.write_dataset`); ``dataset_dir`` is only read.
+    ``force`` skips the unit and frame heuristics on reading it
+    (:func:`graphcal.io.folder.load_dataset`).
 
     Raises
     ------
@@ -39,7 +42,7 @@ def correct_folder(
     dataset_dir, out = Path(dataset_dir), Path(out)
     if out.exists() and dataset_dir.exists() and out.resolve() == dataset_dir.resolve():
         raise DatasetError("the output folder must differ from the input dataset", path=out)
-    dataset = load_dataset(dataset_dir)
+    dataset = load_dataset(dataset_dir, force=force)
     biases = read_biases(result)
     corrected = correct_dataset(dataset, biases)
     write_dataset(corrected, out, fmt=_table_format(dataset_dir), overwrite=overwrite)

@@ -87,6 +87,7 @@ def calibrate_windows(
     step_false_alarm: float = DEFAULT_STEP_FALSE_ALARM,
     options: WindowOptions | None = None,
     progress: Progress | None = None,
+    force: bool = False,
 ) -> Calibration:
     """Calibrate ``dataset`` in windows of ``window_s`` seconds (module docstring).
 
@@ -116,6 +117,9 @@ def calibrate_windows(
         How each window is calibrated (default: :class:`WindowOptions`'s defaults).
     progress : callable, optional
         ``progress(stage, done, total)``.
+    force : bool
+        With a folder: skip the unit and frame heuristics on the rows read
+        (:mod:`graphcal.data.plausibility`).
 
     Raises
     ------
@@ -128,7 +132,7 @@ def calibrate_windows(
     scheduler = check_scheduler(scheduler)
     rates = parse_drift(drift or {})
     source = (_memory_source(dataset, window_s) if isinstance(dataset, Dataset)
-              else _folder_source(Path(dataset), window_s, clean))
+              else _folder_source(Path(dataset), window_s, clean, force))
     for rid in breaks or {}:
         if rid not in source.sites:
             raise ValueError(f"--break {rid}@...: unknown radar; known: "
@@ -216,18 +220,18 @@ def _memory_source(dataset: Dataset, window_s: float) -> _Source:
                    info, warnings)
 
 
-def _folder_source(folder: Path, window_s: float, clean: bool) -> _Source:
+def _folder_source(folder: Path, window_s: float, clean: bool, force: bool) -> _Source:
     from graphcal.io.dataset_span import dataset_span
     from graphcal.io.window_reader import iter_windows
 
-    first = next(iter(iter_windows(folder, window_s, clean=clean)), None)
+    first = next(iter(iter_windows(folder, window_s, clean=clean, force=force)), None)
     if first is None:
         raise EstimationError(f"{folder}: no plots to calibrate")
     filled, info, warnings = filled_with_notes(first.dataset)
     sites = filled.sites
 
     def windows() -> Iterator[Window]:
-        for window in iter_windows(folder, window_s, clean=clean):
+        for window in iter_windows(folder, window_s, clean=clean, force=force):
             yield replace(window, dataset=replace(window.dataset, sites=sites))
 
     total = len(dataset_span(folder).window_indices(window_s))

@@ -118,9 +118,15 @@ def test_failures_are_counted(tmp_path):
     assert failures.loc["ls", "failures"] == 2
     assert "EstimationError" in failures.loc["ls", "first_error"]
     assert failures.loc["wls", "failures"] == 0
-    assert set(result.table["method"]) == {"wls"}
-    assert (result.table["failures"] == 0).all()
-    assert "ls" in result.to_markdown()
+    # The failed method stays in the table: one row with its status, no figures.
+    table = result.table
+    assert set(table["method"]) == {"ls", "wls"}
+    [ls_row] = table[table["method"] == "ls"].itertuples(index=False)
+    assert ls_row.status.startswith("failed: EstimationError") and ls_row.failures == 2
+    assert ls_row.n == 0 and ls_row.radar == "" and np.isnan(ls_row.mean)
+    wls = table[table["method"] == "wls"]
+    assert (wls["failures"] == 0).all() and (wls["status"] == "ok").all()
+    assert "| ls |  |  |" in result.to_markdown()
 
 
 def test_unknown_method_and_bad_counts():

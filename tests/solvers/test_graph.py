@@ -211,10 +211,13 @@ def test_cli_calibrates_with_graph_by_default_and_writes_the_result(tmp_path: Pa
     assert data["method"] == "graph"
     assert data["info"]["cross"] == "pairwise" and data["info"]["robust"]["kernel"] == "huber"
     assert data["radars"]["A"]["azimuth_bias_mrad"] == pytest.approx(3.0, abs=0.2)
-    result = runner.invoke(app, ["calibrate", str(tmp_path / "ds"), "--fix", "A.range_gain=0.1",
+    result = runner.invoke(app, ["calibrate", str(tmp_path / "ds"), "--fix", "A.range_gain=0.001",
                                  "--cross", "target-state", "--robust", "cauchy"])
     assert result.exit_code == 0, result.output
     assert "method graph" in result.output
+    # A gain held 100 times off its true 0.001: the residuals refuse it (fit verdict, exit 3).
+    result = runner.invoke(app, ["calibrate", str(tmp_path / "ds"), "--fix", "A.range_gain=0.1"])
+    assert result.exit_code == 3 and "A: range chi2/dof" in " ".join(result.output.split())
     for bad in (["--fix", "A.bogus=1"], ["--fix", "A.range_gain"], ["--fix", "Z.range_gain=0"],
                 ["--cross", "bogus"], ["--robust", "tukey"]):
         result = runner.invoke(app, ["calibrate", str(tmp_path / "ds"), *bad])

@@ -129,7 +129,14 @@ def test_cli_time_offset_option(tmp_path: Path) -> None:
     assert abs(result["time_offset_s"] - 1.0) < 3 * result["sigma"]["time_offset_s"]
     off = runner.invoke(app, ["calibrate", str(data), "--time-offset", "off", "--out",
                               str(out_off)])
-    assert off.exit_code == 0, off.output
-    assert "time_offset_s" not in json.loads(out_off.read_text())["radars"]["NORD"]
+    # NORD's 1-s offset left out of the model: its range residuals (1 s x ~200 m/s) are
+    # far beyond their sigmas, and the fit verdict refuses the result (exit 3).
+    assert off.exit_code == 3, off.output
+    assert "NORD: range chi2/dof" in " ".join(off.output.split()) and not out_off.exists()
+    from graphcal.pipeline.calibrate import calibrate
+
+    cal = calibrate(run.dataset, time_offset="off", check_fit=False, model_checks=False)
+    assert "time_offset_s" not in cal.to_dict()["radars"]["NORD"]
+    assert cal.info["fit_verdict"]["failed"] == ["NORD"]
     bad = runner.invoke(app, ["calibrate", str(data), "--time-offset", "maybe"])
     assert bad.exit_code == 2 and "auto, on or off" in bad.output

@@ -1,0 +1,312 @@
+"""The fit verdict: are a calibration's residuals within their sigmas, radar by radar?
+
+An estimator always returns numbers, and its covariance assumes the model is
+right.  When it is not (azimuths in radians, ADS-B heights in feet, an antenna
+140 km off), the biases come out with tiny sigmas and mean nothing.  The
+residuals say so: corrected against ADS-B (or, without it, against the other
+radars' plots; :func:`graphcal.analysis.model_checks.calibrated_residuals`), each
+radar's residuals in range, azimuth and (3-D) elevation, normalised by their
+expected variance (the radar's sigmas, given in ``sites.toml`` or estimated from
+the data, plus the reference's), have a mean square ``chi2 / dof`` near 1.
+
+Verdict
+    A coordinate of a radar *fails* when its ``chi2 / dof`` exceeds
+
+    ``limit(dof) = max(FLOOR, chi2_isf(P, dof) / dof)``
+
+    * ``chi2_isf(P, dof) / dof``: the value a correct model with the stated noise
+      exceeds with probability :data:`P` (1e-6) given the residuals' degrees of
+      freedom (their count less the radar's estimated terms).  It matters for
+      few residuals (4.7 at 10 dof, 2.3 at 50); for the thousands a
+      calibration has it approaches 1 (1.1 at 10,000 dof), where the floor rules.
+    * :data:`FLOOR` = 4: room for an imperfect noise model.  Stated sigmas are
+      nominal and real noise is not exactly Gaussian; residuals up to twice
+      their sigma on average (chi2/dof 4) pass.  Unmodelled effects the model
+      checks report (refraction, pressure altitudes: chi2/dof 1-2 on the
+      scenarios) stay below it; a unit or frame mistake gives 10^2 to 10^8.
+
+    ``altitude`` residuals (a 2-D radar's Mode C height against ADS-B) are not
+    judged: pressure altitudes taken for geometric heights give chi2/dof of 35
+    without any bias being wrong, and no bias term acts on them.
+
+    A radar also fails when its estimate corrects some of its plots to a negative
+    range, and when its estimated ``range_gain`` is beyond
+    :data:`MAX_RANGE_GAIN` (1 %, i.e. 2.5 km at 250 km; real gains are of the
+    order of 1e-4): ranges in km or NM are *exactly* a range gain of -0.999,
+    which the residuals cannot reveal.
+
+Without ADS-B each residual compares two radars, so a radar's misfit also shows
+in its partners': the radars are listed worst first.
+
+:func:`fit_verdict` computes it (from the model checks when they ran, else from
+the residuals); :class:`FitVerdict` holds it, and ``graphcal calibrate`` turns a
+failed verdict into exit status 3 (:class:`ModelMisfitError`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import special
+
+from graphcal.analysis.model_checks import ModelChecks, calibrated_residuals, normalised_sums
+from graphcal.core.errors import EstimationError
+from graphcal.data.calibration import Calibration
+from graphcal.data.dataset import Dataset
+
+#: Chance that a correct model with the stated noise exceeds the limit (given its dof).
+P = 1e-6
+#: Smallest limit of chi2/dof: residuals twice their sigma on average (noise-model error).
+FLOOR = 4.0
+#: Largest plausible |range_gain| (fraction); beyond: ranges in another unit.
+MAX_RANGE_GAIN = 0.01
+#: The coordinates judged (their bias terms are estimated; altitude is not judged).
+JUDGED: tuple[str, ...] = ("range", "azimuth", "elevation")
+
+
+def chi2_limit(dof: float, p: float = P, floor: float = FLOOR) -> float:
+    """Largest passing ``chi2 / dof`` at ``dof`` degrees of freedom (module docstring)."""
+    dof = max(float(dof), 1.0)
+    return max(floor, float(special.chdtri(dof, p)) / dof)
+
+
+@dataclass(frozen=True)
+class CoordinateFit:
+    """One radar's residuals in one coordinate: chi-square, degrees of freedom, limit."""
+
+    coordinate: str
+    chi2: float
+    dof: float
+    limit: float
+
+    @property
+    def ratio(self) -> float:
+        """``chi2 / dof``."""
+        return self.chi2 / self.dof
+
+    @property
+    def failed(self) -> bool:
+        """``chi2 / dof`` above the limit."""
+        return self.ratio > self.limit
+
+
+@dataclass
+class RadarFit:
+    """The verdict on one radar: its coordinates and a range gain beyond reason."""
+
+    radar_id: str
+    coordinates: list[CoordinateFit] = field(default_factory=list)
+    range_gain: float | None = None
+    negative_ranges: int = 0
+
+    @property
+    def gain_implausible(self) -> bool:
+        """``|range_gain|`` above :data:`MAX_RANGE_GAIN`."""
+        return self.range_gain is not None and abs(self.range_gain) > MAX_RANGE_GAIN
+
+    @property
+    def failed(self) -> bool:
+        """A coordinate failed, the range gain is implausible, or ranges corrected negative."""
+        return (self.gain_implausible or self.negative_ranges > 0
+                or any(c.failed for c in self.coordinates))
+
+    @property
+    def worst(self) -> float:
+        """The largest ``chi2 / dof`` over the coordinates (0 without any)."""
+        return max((c.ratio for c in self.coordinates), default=0.0)
+
+    def describe(self) -> str:
+        """``NORD: azimuth chi2/dof 893,425, range 80.4`` (what failed), plain words."""
+        parts = [f"{c.coordinate} chi2/dof {_fmt(c.ratio)}"
+                 for c in sorted(self.coordinates, key=lambda c: -c.ratio) if c.failed]
+        if self.negative_ranges:
+            parts.append(f"{self.negative_ranges} plots corrected to a negative range")
+        if self.gain_implausible:
+            parts.append(f"range gain {self.range_gain:.4g} (beyond ±{MAX_RANGE_GAIN:g})")
+        return f"{self.radar_id}: " + ", ".join(parts)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: per coordinate chi2, dof, chi2/dof, limit and whether it failed."""
+        return {
+            "failed": self.failed,
+            "coordinates": {c.coordinate: {"chi2": c.chi2, "dof": c.dof, "chi2_per_dof": c.ratio,
+                                           "limit": c.limit, "failed": c.failed}
+                            for c in self.coordinates},
+            "range_gain": self.range_gain,
+            "range_gain_implausible": self.gain_implausible,
+            "negative_ranges": self.negative_ranges,
+        }
+
+
+def _fmt(value: float) -> str:
+    return f"{value:,.0f}" if abs(value) >= 100 else f"{value:.3g}"
+
+
+@dataclass
+class FitVerdict:
+    """The fit verdict of a calibration (module docstring).
+
+    Attributes
+    ----------
+    reference : {"adsb", "cross", "none"}
+        What the residuals were measured against.
+    radars : dict of str to RadarFit
+    p, floor : float
+        The limit's probability and floor.
+    """
+
+    reference: str
+    radars: dict[str, RadarFit]
+    p: float = P
+    floor: float = FLOOR
+
+    @property
+    def failed(self) -> list[str]:
+        """The radars that failed, worst first."""
+        bad = [r for r in self.radars.values() if r.failed]
+        return [r.radar_id for r in sorted(bad, key=lambda r: (not r.gain_implausible, -r.worst))]
+
+    @property
+    def passed(self) -> bool:
+        """No radar failed."""
+        return not self.failed
+
+    def message(self) -> str:
+        """One line: the radars that failed, what, and the likely causes."""
+        if self.passed:
+            return "the residuals are within their sigmas"
+        text = ("the residuals are far beyond their sigmas (limit chi2/dof "
+                f"{self.floor:g}, or the 1e-6 quantile for few residuals): "
+                + "; ".join(self.radars[rid].describe() for rid in self.failed)
+                + ". The biases would be meaningless: check the data's units and frames "
+                "(azimuth in degrees, range and heights in metres, ADS-B latitude and "
+                "longitude, the sites' positions and heights; a range gain of -0.999 is "
+                "ranges in km) and the sigmas in sites.toml")
+        if self.reference == "cross":
+            text += (" (without ADS-B each residual compares two radars, so one radar's "
+                     "misfit shows in its partners' too; the worst is named first)")
+        return text
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (``Calibration.info["fit_verdict"]``)."""
+        return {
+            "reference": self.reference,
+            "passed": self.passed,
+            "failed": self.failed,
+            "p": self.p,
+            "floor": self.floor,
+            "max_range_gain": MAX_RANGE_GAIN,
+            "radars": {rid: r.to_dict() for rid, r in self.radars.items()},
+        }
+
+
+class ModelMisfitError(EstimationError):
+    """A calibration whose residuals are far beyond their sigmas (exit status 3).
+
+    ``calibration`` holds the result (its ``info["fit_verdict"]`` the verdict), for
+    inspection; ``verdict`` the :class:`FitVerdict`.
+    """
+
+    def __init__(self, verdict: FitVerdict, calibration: Calibration) -> None:
+        super().__init__(verdict.message())
+        self.verdict = verdict
+        self.calibration = calibration
+
+
+def _n_terms(cal: Calibration, radar_id: str) -> int:
+    return sum(1 for rid, _ in cal.labels if rid == radar_id)
+
+
+def negative_ranges(dataset: Dataset, cal: Calibration) -> dict[str, int]:
+    """Per radar of ``cal``: its plots whose corrected range ``(r - offset) / (1 + gain)``
+    is not positive (an estimate no geometry allows; the residuals cannot be formed)."""
+    out = {}
+    for rid in cal.radar_ids:
+        if rid not in dataset.sites:
+            continue
+        bias = cal.bias(rid)
+        r = dataset.plots_of(rid)["range_m"].to_numpy(dtype=float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            corrected = (r - bias.range_offset_m) / (1.0 + bias.range_gain)
+        out[rid] = int(np.sum(~(corrected > 0)))
+    return out
+
+
+def verdict_from_sums(cal: Calibration, reference: str,
+                      sums: Mapping[str, Mapping[str, tuple[float, int]]], *,
+                      p: float = P, floor: float = FLOOR,
+                      negative: Mapping[str, int] | None = None) -> FitVerdict:
+    """The verdict from each radar's ``{coordinate: (sum e^2/v, count)}``.
+
+    ``dof`` = count less the radar's estimated terms (at least 1).  ``negative``:
+    per radar, the plots corrected to a non-positive range (:func:`negative_ranges`).
+    """
+    radars: dict[str, RadarFit] = {}
+    for rid in cal.radar_ids:
+        fit = RadarFit(rid, range_gain=cal.value(rid, "range_gain"),
+                       negative_ranges=(negative or {}).get(rid, 0))
+        k = _n_terms(cal, rid)
+        for coordinate, (chi2, n) in (sums.get(rid) or {}).items():
+            if coordinate not in JUDGED or n <= 0 or not math.isfinite(chi2):
+                continue
+            dof = max(n - k, 1)
+            fit.coordinates.append(CoordinateFit(coordinate, float(chi2), float(dof),
+                                                 chi2_limit(dof, p, floor)))
+        radars[rid] = fit
+    return FitVerdict(reference, radars, p, floor)
+
+
+def fit_verdict(
+    dataset: Dataset,
+    cal: Calibration,
+    *,
+    checks: ModelChecks | None = None,
+    use_adsb: bool = True,
+    adsb_max_gap_s: float | None = None,
+    p: float = P,
+    floor: float = FLOOR,
+) -> FitVerdict:
+    """Judge a calibration's residuals (module docstring).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The data the calibration used (sigmas filled in).
+    cal : Calibration
+        The estimate.
+    checks : ModelChecks, optional
+        The model checks of ``cal`` on ``dataset``, when they ran: their residuals'
+        sums are reused.  Without them the residuals are computed here.
+    use_adsb, adsb_max_gap_s
+        As for :func:`graphcal.analysis.model_checks.model_checks`.
+    p, floor : float
+        The limit's probability and floor (:func:`chi2_limit`).
+
+    Returns
+    -------
+    FitVerdict
+        A radar whose estimate corrects plots to a negative range fails on that
+        alone, and its residuals are not formed (nor are pairs with it).
+    """
+    negative = negative_ranges(dataset, cal)
+    if checks is not None:
+        sums = {rid: {c: (r.chi2_per_dof[c] * r.n_residuals[c], r.n_residuals[c])
+                      for c in r.chi2_per_dof if c in r.n_residuals}
+                for rid, r in checks.radars.items()}
+        return verdict_from_sums(cal, checks.reference, sums, p=p, floor=floor,
+                                 negative=negative)
+    biases = {rid: cal.bias(rid) for rid in cal.radar_ids
+              if rid in dataset.sites and not negative.get(rid)}
+    reference, residuals, _ = calibrated_residuals(dataset, biases, use_adsb=use_adsb,
+                                                   adsb_max_gap_s=adsb_max_gap_s)
+    sums = {rid: normalised_sums(res) for rid, res in residuals.items()}
+    return verdict_from_sums(cal, reference, sums, p=p, floor=floor, negative=negative)
+
+
+__all__ = ["FLOOR", "JUDGED", "MAX_RANGE_GAIN", "P", "CoordinateFit", "FitVerdict",
+           "ModelMisfitError", "RadarFit", "chi2_limit", "fit_verdict", "negative_ranges",
+           "verdict_from_sums"]

@@ -1,0 +1,99 @@
+"""The fit verdict: residuals far beyond their sigmas fail, the scenarios pass."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import graphcal
+from graphcal.analysis.fit_verdict import (
+    FLOOR,
+    MAX_RANGE_GAIN,
+    ModelMisfitError,
+    chi2_limit,
+    verdict_from_sums,
+)
+from graphcal.core.errors import EstimationError
+from tests.paths import SCENARIOS
+
+
+@pytest.mark.parametrize("dof", [1, 3, 10, 50, 1000, 100_000])
+def test_limit_is_the_one_in_a_million_quantile_or_the_floor(dof: int) -> None:
+    quantile = stats.chi2.isf(1e-6, dof) / dof
+    assert chi2_limit(dof) == pytest.approx(max(FLOOR, quantile), rel=1e-9)
+    # a correct model exceeds the limit with probability at most 1e-6
+    assert stats.chi2.sf(chi2_limit(dof) * dof, dof) <= 1e-6 * (1 + 1e-9)
+
+
+@pytest.fixture(scope="module")
+def demo() -> graphcal.Dataset:
+    return graphcal.simulate(SCENARIOS / "demo_network.toml", seed=2).dataset
+
+
+def _scaled(ds, radar: str, column: str, scale: float):
+    plots = ds.plots.copy()
+    rows = plots["radar_id"] == radar
+    plots.loc[rows, column] = plots.loc[rows, column] * scale
+    return replace(ds, plots=plots)
+
+
+def test_verdict_from_sums_counts_dof_and_ignores_altitude(demo) -> None:
+    cal = graphcal.calibrate(demo, "fl-ls", model_checks=False)
+    k = sum(1 for rid, _ in cal.labels if rid == "NORD")
+    sums = {"NORD": {"range": (5.0 * (1000 - k), 1000), "azimuth": (900.0, 1000),
+                     "altitude": (1e9, 1000)}}
+    verdict = verdict_from_sums(cal, "adsb", sums)
+    assert verdict.failed == ["NORD"]
+    [range_fit, azimuth_fit] = verdict.radars["NORD"].coordinates
+    assert range_fit.ratio == pytest.approx(5.0) and range_fit.failed
+    assert azimuth_fit.ratio == pytest.approx(900.0 / (1000 - k)) and not azimuth_fit.failed
+    assert "NORD: range chi2/dof 5" in verdict.message()
+
+
+@pytest.mark.parametrize("method", ["graph", "fl-ls", "wls"])
+def test_a_correct_dataset_passes(demo, method: str) -> None:
+    cal = graphcal.calibrate(demo, method)
+    verdict = cal.info["fit_verdict"]
+    assert verdict["passed"] and verdict["reference"] == "adsb"
+    ratios = [c["chi2_per_dof"] for r in verdict["radars"].values()
+              for c in r["coordinates"].values()]
+    assert len(ratios) >= 10 and max(ratios) < 1.3
+
+
+@pytest.mark.parametrize(("method", "use_adsb"), [("graph", True), ("wls", False)])
+def test_azimuth_in_radians_fails_naming_the_radar(demo, method: str, use_adsb: bool) -> None:
+    broken = _scaled(demo, "NORD", "azimuth_deg", math.pi / 180)
+    if not use_adsb:
+        broken = replace(broken, adsb=None)
+    with pytest.raises(ModelMisfitError) as info:
+        graphcal.calibrate(broken, method, model_checks=use_adsb)
+    verdict = info.value.verdict
+    assert verdict.reference == ("adsb" if use_adsb else "cross")
+    assert verdict.failed[0] == "NORD"
+    assert isinstance(info.value, EstimationError)
+    assert "): NORD: " in str(info.value)
+    if use_adsb:  # against ADS-B only the broken radar fails
+        assert verdict.failed == ["NORD"]
+    assert info.value.calibration.info["fit_verdict"]["failed"] == verdict.failed
+
+
+def test_range_in_km_fails_on_its_gain(demo) -> None:
+    broken = _scaled(demo, "SUD", "range_m", 1e-3)
+    with pytest.raises(ModelMisfitError) as info:
+        graphcal.calibrate(broken, "graph")
+    fit = info.value.verdict.radars["SUD"]
+    assert fit.range_gain == pytest.approx(-0.999, abs=1e-4)  # exactly a gain: fits well
+    assert fit.gain_implausible and abs(fit.range_gain) > MAX_RANGE_GAIN
+    assert info.value.verdict.failed == ["SUD"]
+
+
+def test_check_fit_off_records_the_verdict_as_a_warning(demo) -> None:
+    broken = _scaled(demo, "NORD", "azimuth_deg", math.pi / 180)
+    cal = graphcal.calibrate(broken, "fl-ls", check_fit=False, model_checks=False)
+    assert cal.info["fit_verdict"]["failed"] == ["NORD"]
+    assert any("far beyond their sigmas" in w for w in cal.warnings)
+    assert np.isfinite(cal.value("NORD", "azimuth_bias_mrad"))
