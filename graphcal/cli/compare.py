@@ -9,6 +9,7 @@ import typer
 
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
+    check_output_file,
     console,
     err_console,
     errors_to_exit,
@@ -54,8 +55,7 @@ def compare_command(
     if out is not None and out.suffix.lower() not in OUT_SUFFIXES:
         fail(f"--out {out}: the format comes from the suffix: .md, .csv or .json",
               EXIT_BAD_INPUT)
-    if out is not None and not out.parent.is_dir():
-        fail(f"--out {out}: folder {out.parent} does not exist", EXIT_BAD_INPUT)
+    check_output_file(out, "--out", inputs=[scenario])
 
     with errors_to_exit():
         spec = load_scenario(scenario)
