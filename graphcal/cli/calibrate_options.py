@@ -77,8 +77,11 @@ def check_calibrate_options(ctx: typer.Context) -> None:
     """
     params: Mapping[str, Any] = ctx.params
     method = params.get("method") or "graph"
+    if method not in METHOD_CHOICES:
+        fail(f"--method: unknown method '{method}'; use one of: {', '.join(METHOD_CHOICES)}",
+             EXIT_BAD_INPUT)
     for name, option, choices in (
-        ("method", "--method", METHOD_CHOICES), ("cross", "--cross", CROSS_CHOICES),
+        ("cross", "--cross", CROSS_CHOICES),
         ("robust", "--robust", ROBUST_CHOICES), ("init", "--init", INIT_CHOICES),
         ("time_offset", "--time-offset", TIME_OFFSET_CHOICES),
         ("linearise", "--linearise", LINEARISE_CHOICES),

@@ -24,7 +24,8 @@ OUT_SUFFIXES = (".md", ".csv", ".json")
 def compare_command(
     scenario: Annotated[Path, typer.Argument(help="Scenario TOML file.")],
     methods: Annotated[
-        str, typer.Option(help="Comma-separated estimators (see 'graphcal methods').")
+        str, typer.Option(metavar="METHOD,...",
+                          help="Comma-separated estimators (see 'graphcal methods').")
     ] = DEFAULT_METHODS,
     runs: Annotated[int, typer.Option(help="Monte-Carlo runs.")] = 20,
     jobs: Annotated[
