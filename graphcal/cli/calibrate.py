@@ -335,7 +335,7 @@ def _print_warnings(cal, dataset, method: str) -> None:
     if dataset is not None and dataset.cleaning is not None and method != "graph":
         warnings = [w for w in dataset.cleaning.warnings if w not in warnings] + warnings
     for warning in warnings:
-        console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
+        console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False, soft_wrap=True)
 
 
 def _append_history(path: Path, cal, sites, dataset, dataset_dir: Path, options: dict) -> None:

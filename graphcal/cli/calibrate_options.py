@@ -110,9 +110,10 @@ def _check_adsb(ctx: typer.Context, method: str) -> None:
         fail(f"--no-adsb: {method} estimates each radar against ADS-B and needs it; for "
              "the radars' common observations only use --method graph or wls",
              EXIT_BAD_INPUT)
-    if ctx.params.get("adsb") and method in CROSS_RADAR_METHODS:
-        fail(f"--adsb: {method} uses only the radars' common observations; use --method "
-             "graph to add ADS-B", EXIT_BAD_INPUT)
+    if method in CROSS_RADAR_METHODS:
+        flag = "--adsb" if ctx.params.get("adsb") else "--no-adsb"
+        fail(f"{flag}: {method} uses only the radars' common observations, never ADS-B; "
+             "drop the option, or use --method graph to choose", EXIT_BAD_INPUT)
 
 
 def _check_method_options(ctx: typer.Context, method: str) -> None:
