@@ -26,8 +26,9 @@ def simulate_command(
                                      help="Table format: csv or parquet.")] = "csv",
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
     chunk: Annotated[str | None, typer.Option(
-        "--chunk", metavar="DURATION", help="Simulate and write in chunks of this much time (e.g. 1h), holding "
-                        "one chunk in memory: for long scenarios.")] = None,
+        "--chunk", metavar="DURATION",
+        help="Simulate and write in chunks of this much time (e.g. 1h), holding "
+             "one chunk in memory: for long scenarios.")] = None,
 ) -> None:
     """Simulate a scenario into a dataset folder plus truth.json."""
     import numpy as np
