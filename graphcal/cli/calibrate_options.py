@@ -78,17 +78,17 @@ def check_calibrate_options(ctx: typer.Context) -> None:
     params: Mapping[str, Any] = ctx.params
     method = params.get("method") or "graph"
     if method not in METHOD_CHOICES:
-        fail(f"--method: unknown method '{method}'; use one of: {', '.join(METHOD_CHOICES)}",
-             EXIT_BAD_INPUT)
-    for name, option, choices in (
-        ("cross", "--cross", CROSS_CHOICES),
-        ("robust", "--robust", ROBUST_CHOICES), ("init", "--init", INIT_CHOICES),
-        ("time_offset", "--time-offset", TIME_OFFSET_CHOICES),
-        ("linearise", "--linearise", LINEARISE_CHOICES),
-        ("select", "--select", SELECT_CHOICES),
-        ("select_unit", "--select-unit", SELECT_UNIT_CHOICES),
+        check_choice(method, "--method", METHOD_CHOICES, "method")
+    for name, option, choices, what in (
+        ("cross", "--cross", CROSS_CHOICES, "cross-radar mode"),
+        ("robust", "--robust", ROBUST_CHOICES, "robust kernel"),
+        ("init", "--init", INIT_CHOICES, "initialisation"),
+        ("time_offset", "--time-offset", TIME_OFFSET_CHOICES, "choice"),
+        ("linearise", "--linearise", LINEARISE_CHOICES, "choice"),
+        ("select", "--select", SELECT_CHOICES, "selection method"),
+        ("select_unit", "--select-unit", SELECT_UNIT_CHOICES, "selection unit"),
     ):
-        check_choice(params.get(name), option, choices)
+        check_choice(params.get(name), option, choices, what)
     _check_adsb(ctx, method)
     _check_method_options(ctx, method)
     _check_selection(ctx, method)

@@ -57,10 +57,14 @@ def fail(message: str, status: int) -> NoReturn:
     raise typer.Exit(status)
 
 
-def check_choice(value: str | None, option: str, choices: Sequence[str]) -> None:
-    """Refuse (exit 2) a ``value`` of ``option`` that is not one of ``choices``."""
+def check_choice(value: str | None, option: str, choices: Sequence[str],
+                 what: str = "value") -> None:
+    """Refuse (exit 2) a ``value`` of ``option`` that is not one of ``choices``:
+    ``--select: unknown selection method 'best'; use one of: greedy, ...`` (``what``:
+    ``"selection method"``)."""
     if value is not None and value not in choices:
-        fail(f"{option} must be one of {', '.join(choices)}, not '{value}'", EXIT_BAD_INPUT)
+        fail(f"{option}: unknown {what} '{value}'; use one of: {', '.join(choices)}",
+             EXIT_BAD_INPUT)
 
 
 def check_input_path(path: Path | None, option: str, *, folder: bool = False) -> None:

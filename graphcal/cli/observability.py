@@ -68,8 +68,8 @@ def observability_command(
     for path, suffix in ((plot, ".png"), (out, ".json")):
         if path is not None and path.suffix.lower() != suffix:
             fail(f"{path}: the file must end in {suffix}", EXIT_BAD_INPUT)
-    check_choice(method, "--method", ("graph", "wls"))
-    check_choice(unit, "--unit", ("observation", "segment", "track"))
+    check_choice(method, "--method", ("graph", "wls"), "method")
+    check_choice(unit, "--unit", ("observation", "segment", "track"), "selection unit")
     if method == "wls" and not adsb:
         fail("--no-adsb: the wls observations are the radars' common ones; it never uses "
              "ADS-B", EXIT_BAD_INPUT)

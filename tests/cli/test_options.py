@@ -45,8 +45,10 @@ runner = CliRunner()
     (["--window", "10min", "--report", "r.html"], "run 'graphcal report' on it"),
     (["--out", "r.json", "--truth", "t.json"], "with --out alone it is not used"),
     (["--method", "magic"], "unknown method 'magic'"),
-    (["--cross", "everything"], "--cross must be one of pairwise, target-state, none"),
-    (["--select", "best"], "--select must be one of greedy, e-optimal, d-optimal, random"),
+    (["--cross", "everything"],
+     "--cross: unknown cross-radar mode 'everything'; use one of: pairwise, target-state, none"),
+    (["--select", "best"], "--select: unknown selection method 'best'; use one of: greedy, "
+     "e-optimal, d-optimal, random"),
 ])
 def test_unused_or_unknown_options_are_refused(tmp_path: Path, argv: list[str],
                                                why: str) -> None:
