@@ -83,12 +83,14 @@ def check_calibrate_options(ctx: typer.Context) -> None:
         ("cross", "--cross", CROSS_CHOICES, "cross-radar mode"),
         ("robust", "--robust", ROBUST_CHOICES, "robust kernel"),
         ("init", "--init", INIT_CHOICES, "initialisation"),
-        ("time_offset", "--time-offset", TIME_OFFSET_CHOICES, "choice"),
         ("linearise", "--linearise", LINEARISE_CHOICES, "choice"),
         ("select", "--select", SELECT_CHOICES, "selection method"),
         ("select_unit", "--select-unit", SELECT_UNIT_CHOICES, "selection unit"),
     ):
         check_choice(params.get(name), option, choices, what)
+    if params.get("time_offset") not in TIME_OFFSET_CHOICES:
+        fail(f"--time-offset must be auto, on or off, not '{params.get('time_offset')}'",
+             EXIT_BAD_INPUT)
     _check_adsb(ctx, method)
     _check_method_options(ctx, method)
     _check_selection(ctx, method)
