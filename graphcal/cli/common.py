@@ -162,15 +162,17 @@ def check_output_file(path: Path | None, option: str, *, overwrite: bool | None 
         fail(f"{label}: exists; pass --overwrite to replace it", EXIT_BAD_INPUT)
 
 
-def check_output_folder(path: Path, option: str, *, overwrite: bool,
+def check_output_folder(path: Path | None, option: str, *, overwrite: bool,
                         inputs: Iterable[Path | None] = ()) -> None:
     """Refuse (exit 2), before any work, a dataset folder that cannot or must not be written.
 
     ``path`` may be missing (it is created, with its missing parents, when the nearest
     existing one is a writable folder) or an empty folder; an existing file is refused,
     a non-empty folder without ``overwrite``, and a folder that is, lies inside or holds
-    one of the ``inputs``.
+    one of the ``inputs``.  ``None`` (not asked for): nothing to check.
     """
+    if path is None:
+        return
     label = f"{option} {path}"
     if path.exists() and not path.is_dir():
         fail(f"{label}: exists and is not a folder", EXIT_BAD_INPUT)

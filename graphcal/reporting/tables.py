@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from rich.table import Table
+from rich.text import Text
 
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY_NAMES, PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
@@ -98,41 +99,55 @@ def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> 
 
 
 def calibration_tables(cal: Calibration, truth: dict[str, Any] | None = None,
-                       width: int = 120) -> list[Table]:
-    """The calibration table for a terminal ``width`` characters wide.
+                       width: int = 120) -> list[Table | Text]:
+    """The calibration table laid out for a terminal ``width`` characters wide.
 
     :func:`calibration_table` when it fits; otherwise one compact table per radar
     (its id and plot count in the title, no radar and plots columns) and one for the
-    atmosphere, so that no id or number is ever cut.
+    atmosphere; and when even those do not fit, a list: per radar its title, then per
+    parameter its key and one line per field (``value ± sigma``, ``σ/CRLB r``,
+    ``truth t``, ``error/σ z``).  No id or number is ever cut.
     """
     from rich import box
     from rich.console import Console
     from rich.measure import Measurement
 
+    console = Console(width=100_000)  # to measure a table's natural width
+
+    def fits(table: Table) -> bool:
+        return Measurement.get(console, console.options, table).maximum <= width
+
     wide = calibration_table(cal, truth)
-    console = Console(width=100_000)  # to measure the table's natural width
-    if Measurement.get(console, console.options, wide).maximum <= width:
+    if fits(wide):
         return [wide]
     efficiency = cal.info.get("efficiency") or {}
+    groups = [(f"{rid}: {cal.n_plots.get(rid, 0)} plots, method {cal.method}",
+               _radar_rows(cal, rid, efficiency, truth)) for rid in cal.radar_ids]
+    if cal.atmosphere is not None:
+        groups.append(("atmosphere (height model of pressure altitudes)",
+                       _atmosphere_value_rows(cal, efficiency, truth)))
     tables = []
-
-    def compact(title: str) -> Table:
+    for title, rows in groups:
         table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD,
                       show_edge=False, pad_edge=False)
         _value_columns(table, bool(efficiency), truth is not None)
-        return table
-
-    for rid in cal.radar_ids:
-        table = compact(f"{rid}: {cal.n_plots.get(rid, 0)} plots, method {cal.method}")
-        for row in _radar_rows(cal, rid, efficiency, truth):
+        for row in rows:
             table.add_row(*row)
         tables.append(table)
-    if cal.atmosphere is not None:
-        table = compact("atmosphere (height model of pressure altitudes)")
-        for row in _atmosphere_value_rows(cal, efficiency, truth):
-            table.add_row(*row)
-        tables.append(table)
-    return tables
+    if all(fits(table) for table in tables):
+        return tables
+    names = ["", "σ/CRLB"] if efficiency else [""]
+    if truth is not None:
+        names += ["truth", "error/σ"]
+    blocks = []
+    for title, rows in groups:
+        lines = [title]
+        for key, *values in rows:
+            fields = [f"{name} {value}".strip() for name, value in zip(names, values,
+                                                                         strict=True) if value]
+            lines += [f"  {key}", *(f"    {field}" for field in fields)]
+        blocks.append(Text("\n".join(lines), overflow="fold"))
+    return blocks
 
 
 def _atmosphere_rows(

@@ -53,7 +53,7 @@ def _graphcal(*argv: str, columns: int | None = None, **env: str) -> subprocess.
                           env=environment, capture_output=True, text=True, timeout=300)
 
 
-@pytest.mark.parametrize("columns", [80, 100])
+@pytest.mark.parametrize("columns", [40, 60, 80, 100])
 def test_calibrate_table_fits_the_width_and_cuts_nothing(folder: Path, tmp_path: Path,
                                                          columns: int) -> None:
     """Piped with ``COLUMNS``: no line wider than the terminal, no ellipsis, and every id
