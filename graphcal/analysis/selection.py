@@ -605,8 +605,12 @@ def compare_selections(
     n_random: int = 20,
     methods: tuple[str, ...] = ("greedy", "e-optimal", "d-optimal"),
     solver: str = "CLARABEL",
+    progress: Callable[[str, int, int], None] | None = None,
 ) -> pd.DataFrame:
     """Every method at one budget, with ``n_random`` random subsets as the baseline.
+
+    ``progress(stage, done, total)``, when given, is called before each method and
+    each random draw (``total``: the methods plus the draws).
 
     Returns
     -------
@@ -628,9 +632,20 @@ def compare_selections(
                 "degree": rep.degree, **sel.scaled_figures(), "mean_sigma_ratio": ratio,
                 "seconds": sel.seconds}
 
-    for method in methods:
+    total = len(methods) + n_random
+
+    def step(stage: str, done: int) -> None:
+        if progress is not None:
+            progress(stage, done, total)
+
+    for i, method in enumerate(methods):
+        step(method, i)
         rows.append(row(select(units, method, budget, solver=solver), method))
-    draws = [row(select(units, "random", budget, rng=rng), "random") for _ in range(n_random)]
+    draws = []
+    for i in range(n_random):
+        step("random", len(methods) + i)
+        draws.append(row(select(units, "random", budget, rng=rng), "random"))
+    step("done", total)
     if draws:
         degrees = np.array([d["degree"] for d in draws])
         median = draws[int(np.argsort(degrees)[len(degrees) // 2])]

@@ -7,10 +7,12 @@ and exits with status 2 (:mod:`graphcal.cli.common`).
 from __future__ import annotations
 
 import sys
+from typing import Annotated
 
 import typer
 
 from graphcal.cli.calibrate import calibrate_command
+from graphcal.cli.common import console
 from graphcal.cli.compare import compare_command
 from graphcal.cli.correct import correct_command
 from graphcal.cli.fuse import fuse_command
@@ -28,6 +30,28 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
 )
+
+
+
+def _print_version(value: bool) -> None:
+    """``--version``: print ``graphcal VERSION`` and stop."""
+    if value:
+        from graphcal import __version__
+
+        console.print(f"graphcal {__version__}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_print_version, is_eager=True,
+                     help="Print graphcal's version and exit."),
+    ] = False,
+) -> None:
+    """Joint bias calibration of air-surveillance radar networks."""
+
 
 app.command(name="simulate")(simulate_command)
 app.command(name="calibrate")(calibrate_command)

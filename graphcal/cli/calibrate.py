@@ -7,10 +7,14 @@ from typing import Annotated
 
 import typer
 
+from graphcal.cli.calibrate_options import check_calibrate_options
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
     FORCE_HELP,
     cat063_codes,
+    check_distinct_outputs,
+    check_input_path,
+    check_output_file,
     console,
     err_console,
     errors_to_exit,
@@ -18,17 +22,25 @@ from graphcal.cli.common import (
     progress_bar,
 )
 
+#: ``--cat063`` formats, by suffix.
+CAT063_SUFFIXES = (".json", ".csv", ".ast", ".bin")
+
 
 def calibrate_command(
+    ctx: typer.Context,
     dataset_dir: Annotated[Path, typer.Argument(metavar="DIR", help="Dataset folder.")],
     method: Annotated[
         str | None,
         typer.Option(
+            metavar="graph|ls|fl|fl-ls|wls|wls-pruned",
             help="Estimator: graph (default), ls, fl, fl-ls, wls, wls-pruned "
             "(see 'graphcal methods')."
         ),
     ] = None,
     out: Annotated[Path | None, typer.Option("--out", help="Write the result JSON here.")] = None,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace existing --out, --report and --cat063 files.")
+    ] = False,
     truth: Annotated[
         Path | None,
         typer.Option(help="Truth JSON to compare with (default: DIR/truth.json if present)."),
@@ -40,10 +52,13 @@ def calibrate_command(
         float | None, typer.Option(help="Longest time gap bridged by interpolation \\[s].")
     ] = None,
     cross: Annotated[
-        str, typer.Option(help="graph: cross-radar factors: pairwise, target-state or none.")
+        str, typer.Option(metavar="pairwise|target-state|none",
+                          help="graph: cross-radar factors: pairwise, target-state or none.")
     ] = "pairwise",
     robust: Annotated[
-        str, typer.Option(help="graph: robust kernel on every measurement: huber, cauchy, none.")
+        str, typer.Option(metavar="huber|cauchy|none",
+                          help="graph: robust kernel on every measurement: huber, cauchy, "
+                          "none.")
     ] = "huber",
     robust_scale: Annotated[
         float, typer.Option(help="graph: multiplies the kernel's default threshold.")
@@ -52,7 +67,8 @@ def calibrate_command(
         bool, typer.Option("--adsb/--no-adsb", help="graph: use the ADS-B table if present.")
     ] = True,
     init: Annotated[
-        str, typer.Option(help="graph: initial values: auto, zero, or a closed-form method.")
+        str, typer.Option(metavar="auto|zero|ls|fl|fl-ls|wls|wls-pruned",
+                          help="graph: initial values: auto, zero, or a closed-form method.")
     ] = "auto",
     fix: Annotated[
         list[str] | None,
@@ -68,6 +84,7 @@ def calibrate_command(
     time_offset: Annotated[
         str,
         typer.Option(
+            metavar="auto|on|off",
             help="graph: estimate each radar's time-stamping bias: auto (with ADS-B, where "
             "the traffic determines it), on, off."
         ),
@@ -100,7 +117,8 @@ def calibrate_command(
     ] = None,
     select_unit: Annotated[
         str,
-        typer.Option(help="--select: choose whole segments of one aircraft's track "
+        typer.Option(metavar="segment|track|observation",
+                     help="--select: choose whole segments of one aircraft's track "
                      "(every radar), whole tracks, or single observations."),
     ] = "segment",
     segment_s: Annotated[
@@ -112,6 +130,7 @@ def calibrate_command(
     linearise: Annotated[
         str,
         typer.Option(
+            metavar="plots|neighbours",
             help="wls/wls-pruned: evaluate the Jacobians at the plots (the paper) or at "
             "each plot's track neighbours (removes the errors-in-variables bias)."
         ),
@@ -202,20 +221,19 @@ def calibrate_command(
     """
     import time
 
-    from graphcal.data.calibration import load_result
+    check_calibrate_options(ctx)
+    _check_paths(dataset_dir, truth, out, report, cat063, history, overwrite)
     from graphcal.io.folder import SITES_FILE, load_dataset, load_sites
     from graphcal.pipeline.calibrate import calibrate as run_calibration
-    from graphcal.reporting.tables import calibration_table
+    from graphcal.reporting.tables import calibration_tables
 
     with errors_to_exit():
-        if history is not None and not history.parent.resolve().is_dir():
-            fail(f"--history {history}: the folder {history.parent} does not exist",
-                 EXIT_BAD_INPUT)
+        truth_path = truth if truth is not None else dataset_dir / "truth.json"
+        truth_data = None
+        if out is None and truth_path.exists():  # read (and checked) before the estimation
+            truth_data = _read_truth(truth_path)
         start = time.perf_counter()
         if window is not None:
-            if report is not None:
-                fail("--report draws one batch of plots; with --window, write the result "
-                     "(--out) and run 'graphcal report' on it", EXIT_BAD_INPUT)
             # Read window by window (bounded memory) by the pipeline: the sites only here.
             dataset = None
             sites = load_sites(dataset_dir / SITES_FILE)
@@ -283,9 +301,8 @@ def calibrate_command(
         if out is not None:
             cal.write_json(out)
             err_console.print(f"wrote {out}", highlight=False)
+            _print_warnings(cal, dataset, method)
             return
-        truth_path = truth if truth is not None else dataset_dir / "truth.json"
-        truth_data = load_result(truth_path) if truth_path.exists() else None
         if truth_data is not None and cal.series is not None:
             from graphcal.data.bias_schedule import truth_over_windows
 
@@ -294,17 +311,47 @@ def calibrate_command(
             truth_data = truth_over_windows(truth_data, spans)
         if cal.series is not None:
             _print_windows(cal)
-        console.print(calibration_table(cal, truth_data))
+        for table in calibration_tables(cal, truth_data, console.width):
+            console.print(table)
         obs = cal.observability
         console.print(
             f"observability degree {obs.degree:.3g}, rank {obs.rank} of {obs.n_parameters}",
             highlight=False,
         )
-        warnings = list(cal.warnings)
-        if dataset is not None and dataset.cleaning is not None and method != "graph":
-            warnings = [w for w in dataset.cleaning.warnings if w not in warnings] + warnings
-        for warning in warnings:
-            console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False)
+        _print_warnings(cal, dataset, method)
+
+
+def _check_paths(dataset_dir: Path, truth: Path | None, out: Path | None,
+                 report: Path | None, cat063: Path | None, history: Path | None,
+                 overwrite: bool) -> None:
+    """Every input and output path, before any work (exit 2 with one line)."""
+    check_input_path(truth, "--truth")
+    inputs = [dataset_dir, truth]
+    check_output_file(out, "--out", overwrite=overwrite, inputs=inputs)
+    check_output_file(report, "--report", overwrite=overwrite, inputs=inputs,
+                      suffixes=(".html",))
+    check_output_file(cat063, "--cat063", overwrite=overwrite, inputs=inputs,
+                      suffixes=CAT063_SUFFIXES)
+    check_output_file(history, "--history", inputs=inputs)  # appended to, not replaced
+    check_distinct_outputs(("--out", out), ("--report", report), ("--cat063", cat063),
+                           ("--history", history))
+
+
+def _read_truth(path: Path) -> dict:
+    """A truth JSON for the table, checked (a bad one: exit 2 naming file and field)."""
+    from graphcal.data.calibration import load_result, read_biases
+
+    read_biases(path)  # JSON, a radars object, numbers where the contract keys are
+    return load_result(path)
+
+
+def _print_warnings(cal, dataset, method: str) -> None:
+    """The estimator's warnings (and the cleaning's for the closed-form methods)."""
+    warnings = list(cal.warnings)
+    if dataset is not None and dataset.cleaning is not None and method != "graph":
+        warnings = [w for w in dataset.cleaning.warnings if w not in warnings] + warnings
+    for warning in warnings:
+        console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False, soft_wrap=True)
 
 
 def _append_history(path: Path, cal, sites, dataset, dataset_dir: Path, options: dict) -> None:

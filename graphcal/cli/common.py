@@ -12,7 +12,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, NoReturn
@@ -22,10 +22,22 @@ from rich.console import Console
 
 from graphcal.core.errors import EstimationError, GraphcalInputError
 
-#: Width used when the output is not a terminal (pipes, logs, ``make demo``).
+#: Width used when the output is not a terminal (pipes, logs, ``make demo``) and the
+#: environment variable ``COLUMNS`` does not give one.
 PLAIN_WIDTH = 120
+
+
+def plain_width() -> int:
+    """Width of output that is not a terminal: ``COLUMNS`` when set, else :data:`PLAIN_WIDTH`."""
+    try:
+        width = int(os.environ.get("COLUMNS", ""))
+    except ValueError:
+        return PLAIN_WIDTH
+    return width if width > 0 else PLAIN_WIDTH
+
+
 #: Standard output: tables and summaries.
-console = Console(width=None if sys.stdout.isatty() else PLAIN_WIDTH)
+console = Console(width=None if sys.stdout.isatty() else plain_width())
 #: Standard error: errors, warnings about files, ``wrote FILE`` lines, progress bars.
 err_console = Console(stderr=True)
 
@@ -49,6 +61,144 @@ def fail(message: str, status: int) -> NoReturn:
     """Print ``error: message`` on one line of standard error and exit with ``status``."""
     err_console.print(f"error: {message}", highlight=False, soft_wrap=True, markup=False)
     raise typer.Exit(status)
+
+
+def check_choice(value: str | None, option: str, choices: Sequence[str],
+                 what: str = "value") -> None:
+    """Refuse (exit 2) a ``value`` of ``option`` that is not one of ``choices``:
+    ``--select: unknown selection method 'best'; use one of: greedy, ...`` (``what``:
+    ``"selection method"``)."""
+    if value is not None and value not in choices:
+        fail(f"{option}: unknown {what} '{value}'; use one of: {', '.join(choices)}",
+             EXIT_BAD_INPUT)
+
+
+def check_input_path(path: Path | None, option: str, *, folder: bool = False) -> None:
+    """Refuse (exit 2) an input that is missing, or a file where a folder is wanted (and
+    the reverse): ``"OPTION PATH: no such file"``."""
+    if path is None:
+        return
+    label = f"{option} {path}" if option else str(path)
+    if not path.exists():
+        fail(f"{label}: no such {'folder' if folder else 'file'}", EXIT_BAD_INPUT)
+    if folder and not path.is_dir():
+        fail(f"{label}: not a folder", EXIT_BAD_INPUT)
+    if not folder and path.is_dir():
+        fail(f"{label}: is a folder; give a file", EXIT_BAD_INPUT)
+
+
+def _resolved(path: Path) -> Path:
+    return Path(os.path.abspath(path)).resolve()
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """``path`` is ``folder`` or lies below it (both resolved)."""
+    return path == folder or folder in path.parents
+
+
+def _writable_folder(folder: Path, label: str, *, create: bool) -> None:
+    """The folder an output goes into: it must exist (or, with ``create``, its nearest
+    existing ancestor must) and be a writable folder."""
+    probe = folder
+    if create:
+        while not probe.exists() and probe != probe.parent:
+            if probe.is_symlink():  # a dangling link
+                break
+            probe = probe.parent
+    if not probe.exists():
+        fail(f"{label}: folder {folder} does not exist", EXIT_BAD_INPUT)
+    if not probe.is_dir():
+        fail(f"{label}: {probe} is not a folder", EXIT_BAD_INPUT)
+    if not os.access(probe, os.W_OK | os.X_OK):
+        fail(f"{label}: cannot write in folder {probe} (permission denied)", EXIT_BAD_INPUT)
+
+
+def _check_against_inputs(path: Path, label: str, inputs: Iterable[Path | None],
+                          *, folder: bool) -> None:
+    """Refuse an output that is an input, lies inside an input folder, or (a folder
+    output) holds an input."""
+    target = _resolved(path)
+    for source in inputs:
+        if source is None or not source.exists():
+            continue
+        given = _resolved(source)
+        if target == given:
+            fail(f"{label}: is the input {source}; write elsewhere", EXIT_BAD_INPUT)
+        if source.is_dir() and _inside(target, given):
+            fail(f"{label}: is inside the input folder {source}; write elsewhere",
+                 EXIT_BAD_INPUT)
+        if folder and _inside(given, target):
+            fail(f"{label}: holds the input {source}; write elsewhere", EXIT_BAD_INPUT)
+
+
+def check_output_file(path: Path | None, option: str, *, overwrite: bool | None = None,
+                      inputs: Iterable[Path | None] = (),
+                      suffixes: Sequence[str] | None = None) -> None:
+    """Refuse (exit 2), before any work, an output file that cannot or must not be written.
+
+    Checked: the suffix (when ``suffixes`` are given, case-insensitive), that ``path`` is
+    not a folder, that its folder exists and is writable, that it is not an input and
+    does not lie inside an input folder (``inputs``: dataset folders and input files),
+    and, when ``overwrite`` is false, that it does not exist yet (``None``: replacing
+    is allowed without asking).
+
+    Parameters
+    ----------
+    path : Path or None
+        The output (``None``: not asked for, nothing to check).
+    option : str
+        The option naming it in messages, e.g. ``"--out"``.
+    overwrite : bool or None, optional
+        ``False``: an existing file is refused (``pass --overwrite``).
+    inputs : iterable of Path
+        What the command reads.
+    suffixes : sequence of str, optional
+        Accepted suffixes, e.g. ``(".csv", ".parquet")``.
+    """
+    if path is None:
+        return
+    label = f"{option} {path}"
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        fail(f"{label}: the file must end in {' or '.join(suffixes)}", EXIT_BAD_INPUT)
+    if path.is_dir():
+        fail(f"{label}: is a folder; give a file name", EXIT_BAD_INPUT)
+    _writable_folder(path.parent, label, create=False)
+    _check_against_inputs(path, label, inputs, folder=False)
+    if overwrite is False and (path.exists() or path.is_symlink()):
+        fail(f"{label}: exists; pass --overwrite to replace it", EXIT_BAD_INPUT)
+
+
+def check_output_folder(path: Path | None, option: str, *, overwrite: bool,
+                        inputs: Iterable[Path | None] = ()) -> None:
+    """Refuse (exit 2), before any work, a dataset folder that cannot or must not be written.
+
+    ``path`` may be missing (it is created, with its missing parents, when the nearest
+    existing one is a writable folder) or an empty folder; an existing file is refused,
+    a non-empty folder without ``overwrite``, and a folder that is, lies inside or holds
+    one of the ``inputs``.  ``None`` (not asked for): nothing to check.
+    """
+    if path is None:
+        return
+    label = f"{option} {path}"
+    if path.exists() and not path.is_dir():
+        fail(f"{label}: exists and is not a folder", EXIT_BAD_INPUT)
+    _check_against_inputs(path, label, inputs, folder=True)
+    if path.is_dir() and not overwrite and any(path.iterdir()):
+        fail(f"{label}: folder exists and is not empty; pass --overwrite to replace it",
+             EXIT_BAD_INPUT)
+    _writable_folder(path.parent, label, create=True)
+
+
+def check_distinct_outputs(*paths: tuple[str, Path | None]) -> None:
+    """Refuse two outputs of one command that name the same file: ``(option, path)``."""
+    seen: dict[Path, str] = {}
+    for option, path in paths:
+        if path is None:
+            continue
+        key = _resolved(path)
+        if key in seen:
+            fail(f"{option} {path}: {seen[key]} writes the same file", EXIT_BAD_INPUT)
+        seen[key] = option
 
 
 @contextmanager
@@ -222,11 +372,17 @@ __all__ = [
     "PLAIN_PROGRESS_INTERVAL_S",
     "PLAIN_WIDTH",
     "command_line",
+    "check_choice",
+    "check_distinct_outputs",
+    "check_input_path",
+    "check_output_file",
+    "check_output_folder",
     "console",
     "cat063_codes",
     "err_console",
     "errors_to_exit",
     "fail",
     "parse_sac_sic",
+    "plain_width",
     "progress_bar",
 ]

@@ -9,6 +9,7 @@ import typer
 
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
+    check_output_file,
     console,
     err_console,
     errors_to_exit,
@@ -23,7 +24,8 @@ OUT_SUFFIXES = (".md", ".csv", ".json")
 def compare_command(
     scenario: Annotated[Path, typer.Argument(help="Scenario TOML file.")],
     methods: Annotated[
-        str, typer.Option(help="Comma-separated estimators (see 'graphcal methods').")
+        str, typer.Option(metavar="METHOD,...",
+                          help="Comma-separated estimators (see 'graphcal methods').")
     ] = DEFAULT_METHODS,
     runs: Annotated[int, typer.Option(help="Monte-Carlo runs.")] = 20,
     jobs: Annotated[
@@ -54,8 +56,7 @@ def compare_command(
     if out is not None and out.suffix.lower() not in OUT_SUFFIXES:
         fail(f"--out {out}: the format comes from the suffix: .md, .csv or .json",
               EXIT_BAD_INPUT)
-    if out is not None and not out.parent.is_dir():
-        fail(f"--out {out}: folder {out.parent} does not exist", EXIT_BAD_INPUT)
+    check_output_file(out, "--out", inputs=[scenario])
 
     with errors_to_exit():
         spec = load_scenario(scenario)

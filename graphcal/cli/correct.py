@@ -7,7 +7,15 @@ from typing import Annotated
 
 import typer
 
-from graphcal.cli.common import FORCE_HELP, console, errors_to_exit
+from graphcal.cli.common import (
+    FORCE_HELP,
+    check_input_path,
+    check_output_folder,
+    console,
+    err_console,
+    errors_to_exit,
+    progress_bar,
+)
 
 
 def correct_command(
@@ -19,16 +27,32 @@ def correct_command(
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
     force: Annotated[bool, typer.Option("--force", help=FORCE_HELP)] = False,
 ) -> None:
-    """Remove the biases of RESULT.json from DIR's plots; write the dataset to --out."""
+    """Remove the biases of RESULT.json from DIR's plots; write the dataset to --out.
+
+    The plots and ADS-B reports that cleaning drops (duplicates, non-finite values, ...)
+    are not written; their counts are printed.
+    """
+    from graphcal.data.calibration import read_biases
     from graphcal.pipeline.correct import correct_folder
 
-    with errors_to_exit():
+    check_input_path(result, "")
+    check_output_folder(out, "--out", overwrite=overwrite, inputs=[dataset_dir, result])
+    with errors_to_exit(), progress_bar("correcting"):
         corrected = correct_folder(dataset_dir, result, out, overwrite=overwrite,
                                    force=force)
+    if corrected.cleaning is not None:
+        for line in corrected.cleaning.summary():
+            err_console.print(f"cleaning: {line} (not written)", highlight=False)
     console.print(
         f"wrote {out}: {len(corrected.plots)} corrected plots of {len(corrected.sites)} radars",
         highlight=False,
     )
+    with errors_to_exit():
+        missing = sorted(set(corrected.sites) - set(read_biases(result)))
+    if missing:
+        console.print(f"[yellow]warning:[/yellow] {result} has no biases for "
+                      f"{', '.join(missing)}: their plots are written uncorrected",
+                      highlight=False)
 
 
 __all__ = ["correct_command"]

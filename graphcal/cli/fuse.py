@@ -10,6 +10,8 @@ import typer
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
     FORCE_HELP,
+    check_input_path,
+    check_output_file,
     console,
     err_console,
     errors_to_exit,
@@ -50,8 +52,11 @@ def fuse_command(
         fail("--q-m2-s3 must be >= 0 and --grid-s > 0", EXIT_BAD_INPUT)
     if out is not None and out.suffix not in (".csv", ".parquet"):
         fail(f"--out {out}: the suffix must be .csv or .parquet", EXIT_BAD_INPUT)
+    check_input_path(calibration, "--calibration")
+    check_output_file(out, "--out", inputs=[dataset_dir, calibration])
     with errors_to_exit():
-        dataset = load_dataset(dataset_dir, force=force)
+        with progress_bar("loading"):
+            dataset = load_dataset(dataset_dir, force=force)
         with progress_bar("fusing raw plots") as callback:
             raw = fuse_dataset(dataset, None, q_m2_s3=q, grid_s=grid_s, progress=callback)
         corrected = None

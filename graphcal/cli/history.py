@@ -16,7 +16,14 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from graphcal.cli.common import EXIT_BAD_INPUT, console, err_console, errors_to_exit, fail
+from graphcal.cli.common import (
+    EXIT_BAD_INPUT,
+    check_output_file,
+    console,
+    err_console,
+    errors_to_exit,
+    fail,
+)
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -210,15 +217,14 @@ def _print_csv(flagged: pd.DataFrame) -> None:
     sys.stdout.write(frame.to_csv(index=False, na_rep=""))
 
 
-def _check_plot_path(plot: Path | None) -> None:
+def _check_plot_path(plot: Path | None, db: Path) -> None:
     from graphcal.reporting.history_plot import PLOT_FORMATS
 
     if plot is None:
         return
     if plot.suffix.lower() not in PLOT_FORMATS:
         fail(f"--plot {plot}: use a {', '.join(PLOT_FORMATS)} suffix", EXIT_BAD_INPUT)
-    if not plot.parent.is_dir():
-        fail(f"--plot {plot}: folder {plot.parent} does not exist", EXIT_BAD_INPUT)
+    check_output_file(plot, "--plot", inputs=[db])
 
 
 def _check_tolerance_keys(tolerances: dict[str, float], series: pd.DataFrame) -> None:
@@ -269,7 +275,7 @@ def history_command(
         when = None if since is None else parse_since(since)
     except ValueError as exc:
         fail(str(exc), EXIT_BAD_INPUT)
-    _check_plot_path(plot)
+    _check_plot_path(plot, db)
     with errors_to_exit():
         runs = read_runs(db)
         series = read_series(db, radar=radar, since=when)

@@ -7,7 +7,14 @@ from typing import Annotated
 
 import typer
 
-from graphcal.cli.common import EXIT_BAD_INPUT, console, errors_to_exit, fail, progress_bar
+from graphcal.cli.common import (
+    EXIT_BAD_INPUT,
+    check_output_folder,
+    console,
+    errors_to_exit,
+    fail,
+    progress_bar,
+)
 
 
 def _format_span(span: tuple[float, float] | None) -> str:
@@ -62,9 +69,11 @@ def import_asterix_command(
         typer.Option(help="ADS-B source replacing the recording's CAT021 (see --adsb-format)."),
     ] = None,
     adsb_format: Annotated[
-        str, typer.Option("--adsb-format", help="Format of --adsb: asterix or opensky.")
+        str, typer.Option("--adsb-format", metavar="asterix|opensky",
+                          help="Format of --adsb: asterix or opensky.")
     ] = "asterix",
-    fmt: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
+    fmt: Annotated[str, typer.Option("--format", metavar="csv|parquet",
+                                     help="Table format: csv or parquet.")] = "csv",
     overwrite: Annotated[
         bool, typer.Option(help="Replace an existing output folder (or sites template).")
     ] = False,
@@ -106,6 +115,7 @@ def import_asterix_command(
     for path in [*files, *([adsb] if adsb is not None else [])]:
         if not path.is_file():
             fail(f"{path}: no such file", EXIT_BAD_INPUT)
+    check_output_folder(out, "--out", overwrite=overwrite, inputs=[*files, adsb, sites])
     with errors_to_exit():
         user_sites = None if sites is None else load_user_sites(sites)
         with progress_bar("decoding ASTERIX") as callback:

@@ -10,17 +10,21 @@ import typer
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
     FORCE_HELP,
+    check_distinct_outputs,
+    check_output_file,
     console,
     err_console,
     errors_to_exit,
     fail,
+    progress_bar,
 )
 
 
 def noise_command(
     dataset_dir: Annotated[Path, typer.Argument(metavar="DIR", help="Dataset folder.")],
     method: Annotated[
-        str, typer.Option(help="auto (ADS-B where a radar has enough, else line fits), "
+        str, typer.Option(metavar="auto|adsb|line-fit",
+                          help="auto (ADS-B where a radar has enough, else line fits), "
                           "adsb, or line-fit (paper 000's straight legs; no ADS-B needed).")
     ] = "auto",
     sites_out: Annotated[
@@ -56,17 +60,19 @@ def noise_command(
     modes = {"auto": "auto", "adsb": True, "line-fit": False}
     if method not in modes:
         fail(f"--method must be auto, adsb or line-fit, not '{method}'", EXIT_BAD_INPUT)
-    for path in (sites_out, table):
-        if path is not None and path.exists() and not overwrite:
-            fail(f"{path} exists; pass --overwrite to replace it", EXIT_BAD_INPUT)
     if table is not None and table.suffix not in (".csv", ".parquet"):
         fail(f"--table {table}: the suffix must be .csv or .parquet", EXIT_BAD_INPUT)
+    check_output_file(sites_out, "--write-sites", overwrite=overwrite, inputs=[dataset_dir])
+    check_output_file(table, "--table", overwrite=overwrite, inputs=[dataset_dir])
+    check_distinct_outputs(("--write-sites", sites_out), ("--table", table))
     if not (range_bin_km > 0 and 0 < azimuth_bin_deg <= 360):
         fail("--range-bin-km must be > 0 and --azimuth-bin-deg in (0, 360]", EXIT_BAD_INPUT)
     with errors_to_exit():
-        dataset = load_dataset(dataset_dir, force=force)
+        with progress_bar("loading"):
+            dataset = load_dataset(dataset_dir, force=force)
         try:
-            estimates = estimate_noise(dataset, use_adsb=modes[method])
+            with progress_bar("estimating the noise") as callback:
+                estimates = estimate_noise(dataset, use_adsb=modes[method], progress=callback)
         except ValueError as exc:
             fail(f"{dataset_dir}: {exc}", EXIT_BAD_INPUT)
     console.print(noise_table(dataset.sites, estimates))

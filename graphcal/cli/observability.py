@@ -10,17 +10,22 @@ import typer
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
     FORCE_HELP,
+    check_choice,
+    check_distinct_outputs,
+    check_output_file,
     console,
     err_console,
     errors_to_exit,
     fail,
+    progress_bar,
 )
 
 
 def observability_command(
     dataset_dir: Annotated[Path, typer.Argument(metavar="DIR", help="Dataset folder.")],
     method: Annotated[
-        str, typer.Option(help="Whose observations: graph (ADS-B and pairs) or wls (pairs).")
+        str, typer.Option(metavar="graph|wls",
+                          help="Whose observations: graph (ADS-B and pairs) or wls (pairs).")
     ] = "graph",
     adsb: Annotated[
         bool, typer.Option("--adsb/--no-adsb", help="graph: use the ADS-B table if present.")
@@ -39,7 +44,8 @@ def observability_command(
                      "001 eq. 12), E-optimal, D-optimal and random subsets."),
     ] = None,
     unit: Annotated[
-        str, typer.Option(help="--budget: select single observations, segments of one "
+        str, typer.Option(metavar="observation|segment|track",
+                          help="--budget: select single observations, segments of one "
                           "aircraft's track, or whole tracks.")
     ] = "segment",
     segment_s: Annotated[float, typer.Option(help="--budget: segment length \\[s].")] = 60.0,
@@ -64,12 +70,22 @@ def observability_command(
     for path, suffix in ((plot, ".png"), (out, ".json")):
         if path is not None and path.suffix.lower() != suffix:
             fail(f"{path}: the file must end in {suffix}", EXIT_BAD_INPUT)
+    check_choice(method, "--method", ("graph", "wls"), "method")
+    check_choice(unit, "--unit", ("observation", "segment", "track"), "selection unit")
+    if method == "wls" and not adsb:
+        fail("--no-adsb: the wls observations are the radars' common ones; it never uses "
+             "ADS-B", EXIT_BAD_INPUT)
+    check_output_file(out, "--out", inputs=[dataset_dir])
+    check_output_file(plot, "--plot", inputs=[dataset_dir])
+    check_distinct_outputs(("--out", out), ("--plot", plot))
     with errors_to_exit():
-        dataset = load_dataset(dataset_dir, force=force)
+        with progress_bar("loading"):
+            dataset = load_dataset(dataset_dir, force=force)
         dataset, _ = fill_missing_sigmas(dataset)
         try:
-            blocks = observation_blocks(dataset, method, use_adsb=adsb)
-            report = analyse(blocks)
+            with progress_bar("observations"):
+                blocks = observation_blocks(dataset, method, use_adsb=adsb)
+                report = analyse(blocks)
         except ValueError as exc:
             fail(str(exc), EXIT_BAD_INPUT)
     table = Table(title=f"observability of {dataset_dir} ({method}, {report.n_observations} "
@@ -97,8 +113,9 @@ def observability_command(
     if budget is not None:
         with errors_to_exit():
             try:
-                comparison = _compare(dataset, method, adsb, budget, unit, segment_s,
-                                      random_draws, seed)
+                with progress_bar(f"selections of {budget} observations") as callback:
+                    comparison = _compare(dataset, method, adsb, budget, unit, segment_s,
+                                          random_draws, seed, callback)
             except ValueError as exc:
                 fail(str(exc), EXIT_BAD_INPUT)
         console.print(_comparison_table(comparison, budget))
@@ -116,16 +133,19 @@ def observability_command(
 
 
 def _compare(dataset, method: str, adsb: bool, budget: int, unit: str, segment_s: float,
-             draws: int, seed: int):
+             draws: int, seed: int, progress=None):
     """The selection comparison table (:func:`graphcal.analysis.selection.compare_selections`)."""
     import numpy as np
 
     from graphcal.analysis.observability import observation_blocks
     from graphcal.analysis.selection import MAX_CONVEX_UNITS, compare_selections, selection_units
 
+    if progress is not None:
+        progress("observations", 0, 1)
     blocks = observation_blocks(dataset, method, use_adsb=adsb, linearise="neighbours")
     units = selection_units(blocks, unit, segment_s, MAX_CONVEX_UNITS)
-    return compare_selections(units, budget, np.random.default_rng(seed), n_random=draws)
+    return compare_selections(units, budget, np.random.default_rng(seed), n_random=draws,
+                              progress=progress)
 
 
 def _comparison_table(comparison, budget: int):

@@ -10,10 +10,13 @@ import typer
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
     FORCE_HELP,
+    check_input_path,
+    check_output_file,
     command_line,
     err_console,
     errors_to_exit,
     fail,
+    progress_bar,
 )
 
 
@@ -34,18 +37,20 @@ def report_command(
 
     if out.suffix.lower() not in (".html", ".htm"):
         fail(f"--out {out}: the report is HTML; use a .html suffix", EXIT_BAD_INPUT)
-    if out.parent and not out.parent.exists():
-        fail(f"--out {out}: folder {out.parent} does not exist", EXIT_BAD_INPUT)
+    check_input_path(truth, "--truth")
+    check_output_file(out, "--out", inputs=[result, dataset_dir, truth])
     with errors_to_exit():
         cal = Calibration.read_json(result)
-        dataset = load_dataset(dataset_dir, force=force)
+        with progress_bar("loading"):
+            dataset = load_dataset(dataset_dir, force=force)
         if truth is not None and not truth.exists():
             fail(f"{truth}: no such file", EXIT_BAD_INPUT)
         unknown = [rid for rid in cal.radar_ids if rid not in dataset.sites]
         if unknown and len(unknown) == len(cal.radar_ids):
             fail(f"{result}: none of its radars ({', '.join(unknown)}) is in {dataset_dir}",
                  EXIT_BAD_INPUT)
-        write_report_for(cal, dataset, out, truth_path=truth, command=command_line())
+        with progress_bar("writing the report"):
+            write_report_for(cal, dataset, out, truth_path=truth, command=command_line())
     err_console.print(f"wrote {out}", highlight=False)
 
 

@@ -7,18 +7,28 @@ from typing import Annotated
 
 import typer
 
-from graphcal.cli.common import EXIT_BAD_INPUT, console, errors_to_exit, fail, progress_bar
+from graphcal.cli.common import (
+    EXIT_BAD_INPUT,
+    check_input_path,
+    check_output_folder,
+    console,
+    errors_to_exit,
+    fail,
+    progress_bar,
+)
 
 
 def simulate_command(
     scenario: Annotated[Path, typer.Argument(help="Scenario TOML file.")],
     out: Annotated[Path, typer.Option("--out", help="Dataset folder to write.")],
     seed: Annotated[int, typer.Option(help="Seed of the random generator.")] = 0,
-    fmt: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
+    fmt: Annotated[str, typer.Option("--format", metavar="csv|parquet",
+                                     help="Table format: csv or parquet.")] = "csv",
     overwrite: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
     chunk: Annotated[str | None, typer.Option(
-        "--chunk", help="Simulate and write in chunks of this much time (e.g. 1h), holding "
-                        "one chunk in memory: for long scenarios.")] = None,
+        "--chunk", metavar="DURATION",
+        help="Simulate and write in chunks of this much time (e.g. 1h), holding "
+             "one chunk in memory: for long scenarios.")] = None,
 ) -> None:
     """Simulate a scenario into a dataset folder plus truth.json."""
     import numpy as np
@@ -31,6 +41,8 @@ def simulate_command(
 
     if fmt not in ("csv", "parquet"):
         fail(f"--format must be csv or parquet, not '{fmt}'", EXIT_BAD_INPUT)
+    check_input_path(scenario, "")
+    check_output_folder(out, "--out", overwrite=overwrite, inputs=[scenario])
     chunk_s = None
     if chunk is not None:
         try:

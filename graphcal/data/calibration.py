@@ -19,6 +19,7 @@ the same queries work on a file.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -519,6 +520,8 @@ class Calibration:
                 return np.nan
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise fail(f"{value!r} is not a number", where)
+            if not math.isfinite(value):  # NaN or Infinity: not JSON; the contract has null
+                raise fail(f"{value!r} is not a finite number (write null)", where)
             return float(value)
 
         if not isinstance(data, Mapping):
@@ -554,6 +557,9 @@ class Calibration:
         matrix = np.array(
             [[number(v, "covariance.matrix") for v in row] for row in rows], dtype=float
         ).reshape(p, p)
+        problem = covariance_problem(matrix, [str(text) for text in raw_labels])
+        if problem is not None:
+            raise fail(problem, "covariance.matrix")
         scale = _contract_scale(labels)
         estimate = np.array(
             [
@@ -727,6 +733,66 @@ def _short(value: float | None, digits: int = 4) -> str:
     return f"{value:.{digits}g}"
 
 
+#: Relative tolerances of :func:`covariance_problem`: asymmetry against
+#: ``sqrt(C_ii C_jj)``, and the most negative eigenvalue of the correlation matrix.
+SYMMETRY_TOLERANCE = 1e-6
+PSD_TOLERANCE = 1e-6
+
+
+def covariance_problem(matrix: NDArray[np.float64], labels: list[str]) -> str | None:
+    """What is wrong with a result's covariance matrix, or ``None`` when it is valid.
+
+    A valid covariance has no negative variance, is symmetric and is positive
+    semi-definite, within relative tolerances (:data:`SYMMETRY_TOLERANCE` of
+    ``sqrt(C_ii C_jj)``; the correlation matrix's smallest eigenvalue not below
+    ``-PSD_TOLERANCE``).  NaN entries (``null`` in the JSON: an undetermined
+    parameter's infinite variance) are allowed; the checks apply to the parameters
+    with a finite variance.
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (p, p)
+        The covariance, any consistent units.
+    labels : list of str
+        The ``RADAR.key`` label of each row, for the message.
+    """
+    diagonal = np.diag(matrix)
+    for i in np.flatnonzero(diagonal < 0.0):
+        return f"negative variance {diagonal[i]:.6g} of {labels[i]}"
+    known = np.flatnonzero(np.isfinite(diagonal))
+    block = matrix[np.ix_(known, known)]
+    both = np.isfinite(block) & np.isfinite(block.T)
+    size = np.sqrt(np.outer(diagonal[known], diagonal[known]))
+    asym = np.where(both, np.abs(block - block.T) - SYMMETRY_TOLERANCE * size, -np.inf)
+    if asym.size and asym.max() > 0.0:
+        i, j = np.unravel_index(np.argmax(asym), asym.shape)
+        a, b = labels[known[i]], labels[known[j]]
+        return (f"not symmetric: {block[i, j]:.6g} for ({a}, {b}) but {block[j, i]:.6g} "
+                f"for ({b}, {a})")
+    sigma = np.sqrt(diagonal[known])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = np.where(both, block, 0.0) / np.outer(sigma, sigma)
+    zero = sigma == 0.0
+    if np.any(zero):  # a zero variance allows only zero covariances
+        off = np.where(both, block, 0.0)[zero]
+        if np.any(np.abs(off) > 0.0):
+            row = labels[known[np.flatnonzero(zero)[0]]]
+            return f"not positive semi-definite: {row} has zero variance but a covariance"
+        rho = rho[np.ix_(~zero, ~zero)]
+    if rho.size == 0:
+        return None
+    rho = 0.5 * (rho + rho.T)
+    smallest = float(np.linalg.eigvalsh(rho)[0])
+    if smallest < -PSD_TOLERANCE:
+        off = np.abs(rho - np.diag(np.diag(rho)))
+        i, j = np.unravel_index(np.argmax(off), off.shape)
+        names = [labels[k] for k in known[~zero]]
+        return (f"not positive semi-definite (smallest eigenvalue of the correlation "
+                f"matrix {smallest:.3g}; the largest correlation is {rho[i, j]:.3g}, "
+                f"between {names[i]} and {names[j]})")
+    return None
+
+
 def _read_series(value: Any) -> dict[str, Any] | None:
     """A result's ``series`` block, checked: a window length and, per radar, windows
     with their span and finite values (``KeyError``/``ValueError`` otherwise)."""
@@ -842,6 +908,9 @@ def read_biases(path: str | Path) -> dict[str, RadarBias]:
                 continue
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise ResultError(f"{value!r} is not a number", path=path,
+                                  field=f"radars.{rid}.{key}")
+            if not math.isfinite(value):
+                raise ResultError(f"{value!r} is not a finite number", path=path,
                                   field=f"radars.{rid}.{key}")
             name = NAME_FROM_KEY[key]
             values[name] = float(value) / CONTRACT_KEYS[name][1]

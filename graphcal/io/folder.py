@@ -804,16 +804,17 @@ class DatasetWriter:
 
 
 def write_dataset(
-    dataset: Dataset, folder: str | Path, *, fmt: str = "csv", overwrite: bool = False
+    dataset: Dataset, folder: str | Path, *, fmt: str = "csv", overwrite: bool = False,
+    files: Mapping[str, str] | None = None,
 ) -> Path:
     """Write a dataset folder atomically.
 
     Everything (``sites.toml``, ``plots.<fmt>``, ``adsb.<fmt>`` when the dataset
     has ADS-B) is written into a temporary sibling folder, which is then renamed
     to ``folder``.  If writing fails, nothing is left behind and an existing
-    ``folder`` is untouched.  Callers add further files (``truth.json``) with
-    :func:`atomic_write_text`.  :class:`DatasetWriter` does the same piece by
-    piece.
+    ``folder`` is untouched.  Further text files (``truth.json``) given in
+    ``files`` go into the temporary folder too, so the folder never appears
+    without them.  :class:`DatasetWriter` does the same piece by piece.
 
     Parameters
     ----------
@@ -826,6 +827,8 @@ def write_dataset(
     overwrite : bool, optional
         Replace an existing non-empty ``folder`` (atomically: the old folder is
         renamed away, the new one renamed into place, then the old one deleted).
+    files : mapping of str to str, optional
+        Further files of the folder: name -> text (UTF-8), e.g. ``{"truth.json": ...}``.
 
     Returns
     -------
@@ -852,6 +855,8 @@ def write_dataset(
         write_table(dataset.plots, staging / f"plots.{fmt}")
         if dataset.adsb is not None:
             write_table(dataset.adsb, staging / f"adsb.{fmt}")
+        for name, text in (files or {}).items():
+            atomic_write_text(staging / name, text)
         _move_into_place(staging, target, overwrite)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)

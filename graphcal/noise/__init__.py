@@ -82,6 +82,7 @@ def estimate_noise(
     robust: bool = True,
     min_adsb_plots: int = DEFAULT_MIN_ADSB_PLOTS,
     options: LineFitOptions | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
 ) -> dict[str, NoiseEstimate]:
     """Random-error sigmas of every radar (paper 000, corrected; or ADS-B).
 
@@ -100,6 +101,8 @@ def estimate_noise(
         Threshold of ``"auto"``.
     options : LineFitOptions, optional
         Settings of the line-fit method.
+    progress : callable, optional
+        ``progress(radar_id, done, total)`` before each radar (and once at the end).
 
     Returns
     -------
@@ -121,7 +124,9 @@ def estimate_noise(
         if rid not in dataset.sites:
             raise ValueError(f"unknown radar {rid!r}; radars: {', '.join(dataset.sites)}")
     out: dict[str, NoiseEstimate] = {}
-    for rid in ids:
+    for done, rid in enumerate(ids):
+        if progress is not None:
+            progress(rid, done, len(ids))
         aligned = None
         if use_adsb == "auto":
             if dataset.adsb is not None:
@@ -133,6 +138,8 @@ def estimate_noise(
             out[rid] = estimate_noise_adsb(dataset, rid, robust=robust, aligned=aligned)
         else:
             out[rid] = estimate_noise_line_fit(dataset, rid, robust=robust, options=options)
+    if progress is not None:
+        progress("done", len(ids), len(ids))
     return out
 
 

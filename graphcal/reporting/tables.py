@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from rich.table import Table
+from rich.text import Text
 
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY_NAMES, PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
@@ -40,63 +41,136 @@ def format_value(key: str, value: float | None, sigma: float | None = None) -> s
 OPTIONAL_ROWS: tuple[str, ...] = ("time_offset", *ECCENTRICITY_NAMES)
 
 
+def _radar_rows(cal: Calibration, rid: str, efficiency: dict[str, Any],
+                truth: dict[str, Any] | None) -> list[list[str]]:
+    """One radar's rows: parameter, estimate ± 1 sigma, [σ/CRLB], [truth, error/σ]."""
+    rows = []
+    for name in (*PARAMETER_NAMES, *ECCENTRICITY_NAMES, "time_offset"):
+        key = CONTRACT_KEYS[name][0]
+        value, sigma = cal.value(rid, key), cal.sigma(rid, key)
+        if value is None or (name in OPTIONAL_ROWS and not sigma):
+            continue
+        shown = format_value(key, value, sigma)
+        if f"{rid}.{key}" in cal.info.get("undetermined", []):
+            shown = f"not determined (prior ± {_FORMATS.get(key, '{:.4g}').format(sigma)})"
+        row = [key, shown]
+        if efficiency:
+            ratio = efficiency.get(f"{rid}.{key}")
+            row.append("" if ratio is None else f"{ratio:.2f}")
+        if truth is not None:
+            true = truth.get("radars", {}).get(rid, {}).get(key)
+            if true is None and name in OPTIONAL_ROWS and rid in truth.get("radars", {}):
+                true = 0.0  # truth.json leaves out a zero time offset or eccentricity
+            row.append(format_value(key, true))
+            if true is not None and sigma and sigma == sigma and sigma != float("inf"):
+                row.append(f"{(value - true) / sigma:+.1f}")
+            else:
+                row.append("")
+        rows.append(row)
+    return rows
+
+
+def _value_columns(table: Table, efficiency: bool, truth: bool) -> None:
+    """The columns after the radar: parameter, estimate, [σ/CRLB], [truth, error/σ]."""
+    table.add_column("parameter", no_wrap=True)
+    table.add_column("estimate ± 1σ", justify="right", overflow="fold")
+    if efficiency:
+        table.add_column("σ/CRLB", justify="right", overflow="fold")
+    if truth:
+        table.add_column("truth", justify="right", overflow="fold")
+        table.add_column("error/σ", justify="right", overflow="fold")
+
+
 def calibration_table(cal: Calibration, truth: dict[str, Any] | None = None) -> Table:
     """A table: one row per radar and parameter, estimate ± 1 sigma, truth if given."""
     table = Table(title=f"graphcal calibration, method {cal.method}")
-    table.add_column("radar")
-    table.add_column("parameter", no_wrap=True)
-    table.add_column("estimate ± 1σ", justify="right", no_wrap=True)
+    table.add_column("radar", overflow="fold")
     efficiency = cal.info.get("efficiency") or {}
-    if efficiency:
-        table.add_column("σ/CRLB", justify="right")
-    if truth is not None:
-        table.add_column("truth", justify="right")
-        table.add_column("error/σ", justify="right")
-    table.add_column("plots", justify="right")
+    _value_columns(table, bool(efficiency), truth is not None)
+    table.add_column("plots", justify="right", overflow="fold")
     for rid in cal.radar_ids:
-        first = True
-        for name in (*PARAMETER_NAMES, *ECCENTRICITY_NAMES, "time_offset"):
-            key = CONTRACT_KEYS[name][0]
-            value, sigma = cal.value(rid, key), cal.sigma(rid, key)
-            if value is None or (name in OPTIONAL_ROWS and not sigma):
-                continue
-            shown = format_value(key, value, sigma)
-            if f"{rid}.{key}" in cal.info.get("undetermined", []):
-                shown = f"not determined (prior ± {_FORMATS.get(key, '{:.4g}').format(sigma)})"
-            row = [rid if first else "", key, shown]
-            if efficiency:
-                ratio = efficiency.get(f"{rid}.{key}")
-                row.append("" if ratio is None else f"{ratio:.2f}")
-            if truth is not None:
-                true = truth.get("radars", {}).get(rid, {}).get(key)
-                if true is None and name in OPTIONAL_ROWS and rid in truth.get("radars", {}):
-                    true = 0.0  # truth.json leaves out a zero time offset or eccentricity
-                row.append(format_value(key, true))
-                if true is not None and sigma and sigma == sigma and sigma != float("inf"):
-                    row.append(f"{(value - true) / sigma:+.1f}")
-                else:
-                    row.append("")
-            row.append(str(cal.n_plots.get(rid, "")) if first else "")
-            table.add_row(*row)
-            first = False
+        for i, row in enumerate(_radar_rows(cal, rid, efficiency, truth)):
+            first = i == 0
+            table.add_row(rid if first else "", *row,
+                          str(cal.n_plots.get(rid, "")) if first else "")
     if cal.atmosphere is not None:
         _atmosphere_rows(table, cal, efficiency, truth)
     return table
+
+
+def calibration_tables(cal: Calibration, truth: dict[str, Any] | None = None,
+                       width: int = 120) -> list[Table | Text]:
+    """The calibration table laid out for a terminal ``width`` characters wide.
+
+    :func:`calibration_table` when it fits; otherwise one compact table per radar
+    (its id and plot count in the title, no radar and plots columns) and one for the
+    atmosphere; and when even those do not fit, a list: per radar its title, then per
+    parameter its key and one line per field (``value ± sigma``, ``σ/CRLB r``,
+    ``truth t``, ``error/σ z``).  No id or number is ever cut.
+    """
+    from rich import box
+    from rich.console import Console
+    from rich.measure import Measurement
+
+    console = Console(width=100_000)  # to measure a table's natural width
+
+    def fits(table: Table) -> bool:
+        return Measurement.get(console, console.options, table).maximum <= width
+
+    wide = calibration_table(cal, truth)
+    if fits(wide):
+        return [wide]
+    efficiency = cal.info.get("efficiency") or {}
+    groups = [(f"{rid}: {cal.n_plots.get(rid, 0)} plots, method {cal.method}",
+               _radar_rows(cal, rid, efficiency, truth)) for rid in cal.radar_ids]
+    if cal.atmosphere is not None:
+        groups.append(("atmosphere (height model of pressure altitudes)",
+                       _atmosphere_value_rows(cal, efficiency, truth)))
+    tables = []
+    for title, rows in groups:
+        table = Table(title=title, title_justify="left", box=box.SIMPLE_HEAD,
+                      show_edge=False, pad_edge=False)
+        _value_columns(table, bool(efficiency), truth is not None)
+        for row in rows:
+            table.add_row(*row)
+        tables.append(table)
+    if all(fits(table) for table in tables):
+        return tables
+    names = ["", "σ/CRLB"] if efficiency else [""]
+    if truth is not None:
+        names += ["truth", "error/σ"]
+    blocks = []
+    for title, rows in groups:
+        lines = [title]
+        for key, *values in rows:
+            fields = [f"{name} {value}".strip() for name, value in zip(names, values,
+                                                                         strict=True) if value]
+            lines += [f"  {key}", *(f"    {field}" for field in fields)]
+        blocks.append(Text("\n".join(lines), overflow="fold"))
+    return blocks
 
 
 def _atmosphere_rows(
     table: Table, cal: Calibration, efficiency: dict[str, Any], truth: dict[str, Any] | None
 ) -> None:
     """The height model of pressure altitudes, under the radars (``atmosphere`` rows)."""
+    for i, row in enumerate(_atmosphere_value_rows(cal, efficiency, truth)):
+        table.add_row("atmosphere" if i == 0 else "", *row, "")
+
+
+def _atmosphere_value_rows(cal: Calibration, efficiency: dict[str, Any],
+                           truth: dict[str, Any] | None) -> list[list[str]]:
+    """The height model's rows: key, estimate ± 1 sigma, [σ/CRLB], [truth, error/σ]."""
     atmosphere = cal.atmosphere
     assert atmosphere is not None
     true_block = (truth or {}).get("atmosphere") or {}
-    for i, key in enumerate(("height_offset_m", "height_scale")):
+    rows = []
+    for key in ("height_offset_m", "height_scale"):
         value, sigma = getattr(atmosphere, key), atmosphere.sigma[key]
         shown = format_value(key, value, sigma)
         if f"atmosphere.{key}" in cal.info.get("undetermined", []):
             shown = f"not determined (prior ± {_FORMATS[key].format(sigma)})"
-        row = ["atmosphere" if i == 0 else "", key, shown]
+        row = [key, shown]
         if efficiency:
             ratio = efficiency.get(f"atmosphere.{key}")
             row.append("" if ratio is None else f"{ratio:.2f}")
@@ -104,8 +178,8 @@ def _atmosphere_rows(
             true = true_block.get(key)
             row.append(format_value(key, true))
             row.append(f"{(value - true) / sigma:+.1f}" if true is not None and sigma else "")
-        row.append("")
-        table.add_row(*row)
+        rows.append(row)
+    return rows
 
 
 # ------------------------------------------------------------------ marginals

@@ -63,7 +63,6 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
-from graphcal.core.atomic import atomic_write_text
 from graphcal.core.errors import ScenarioError
 from graphcal.core.refraction import Atmosphere, refracted_ray
 from graphcal.data.bias import (
@@ -837,7 +836,9 @@ def write_simulation(
     *,
     overwrite: bool = False,
 ) -> Path:
-    """Write the dataset folder and ``truth.json``, each atomically.
+    """Write the dataset folder with its ``truth.json``, atomically (one folder renamed
+    into place with every file in it, so an interruption never leaves a folder without
+    ``truth.json``).
 
     Parameters
     ----------
@@ -855,7 +856,7 @@ def write_simulation(
     Path
         ``out_dir``.
     """
-    folder = write_dataset(result.dataset, out_dir, fmt=fmt, overwrite=overwrite)
     text = json.dumps(truth_document(result), indent=2) + "\n"
-    atomic_write_text(Path(folder) / "truth.json", text)
+    folder = write_dataset(result.dataset, out_dir, fmt=fmt, overwrite=overwrite,
+                           files={"truth.json": text})
     return Path(folder)
