@@ -134,7 +134,8 @@ def test_cat063_with_sac_sic_option_and_from_sites(dataset_folder: Path,
         (folder / name).write_bytes((dataset_folder / name).read_bytes())
     text = (dataset_folder / "sites.toml").read_text()
     (folder / "sites.toml").write_text(text.replace('id = "R2D"', 'id = "R2D"\nsac = 7\nsic = 9'))
-    result = runner.invoke(app, ["calibrate", str(folder), "--cat063", str(export)])
+    result = runner.invoke(app, ["calibrate", str(folder), "--cat063", str(export),
+                                 "--overwrite"])
     assert result.exit_code == 0, result.output
     (record,) = json.loads(export.read_text())["records"]
     assert (record["sac"], record["sic"]) == (7, 9)
