@@ -20,6 +20,8 @@ do not depend on the scheduler.
 from __future__ import annotations
 
 import os
+import queue
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -66,6 +68,54 @@ def _client(scheduler: str) -> Any:
         raise ValueError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
 
 
+def read_ahead(items: Iterable[Any], depth: int = 1) -> Iterator[Any]:
+    """The items of ``items``, the next ``depth`` of them produced by a thread meanwhile.
+
+    Reading a window (CSV parsing, validation, cleaning: much of it in pandas and
+    numpy code that releases the GIL) then overlaps with calibrating the one before
+    on a second core.  The order is kept; an exception of the producer is raised
+    here, at the item it stopped at; at most ``depth + 1`` items are held.
+    Abandoning the iterator stops the producer at its next item.
+    """
+    out: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    done = object()
+
+    def produce() -> None:
+        try:
+            for item in items:
+                while not stop.is_set():
+                    try:
+                        out.put((item, None), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
+            out.put((done, exc))
+            return
+        out.put((done, None))
+
+    thread = threading.Thread(target=produce, name="graphcal-read-ahead", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item, error = out.get()
+            if item is done:
+                if error is not None:
+                    raise error
+                return
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():
+            try:
+                out.get_nowait()
+            except queue.Empty:
+                thread.join(timeout=0.1)
+
+
 def map_windows(
     function: Callable[..., Any],
     items: Iterable[Any],
@@ -97,7 +147,7 @@ def map_windows(
     """
     scheduler = check_scheduler(scheduler)
     if scheduler == "synchronous":
-        for done, item in enumerate(items, start=1):
+        for done, item in enumerate(read_ahead(items), start=1):
             result = function(item, *args)
             if progress is not None:
                 progress(stage, done, total or done)
