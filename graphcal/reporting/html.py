@@ -654,27 +654,6 @@ def _truth_atmosphere(truth: Any) -> dict[str, Any] | None:
                                               strict=True))
 
 
-def _as_truth(truth: Any) -> dict[str, RadarBias] | None:
-    if truth is None:
-        return None
-    if isinstance(truth, str | Path):
-        from graphcal.data.calibration import read_biases
-
-        return read_biases(truth)
-    if isinstance(truth, Calibration):
-        return {rid: truth.bias(rid) for rid in truth.radar_ids}
-    return {str(k): v for k, v in truth.items()}
-
-
-def _truth_atmosphere(truth: Any) -> dict[str, Any] | None:
-    """The true height model of a truth file or Calibration, when it has one."""
-    from graphcal.data.calibration import read_height_model
-
-    pair = read_height_model(truth)
-    return None if pair is None else dict(zip(("height_offset_m", "height_scale"), pair,
-                                              strict=True))
-
-
 def build_report(
     calibration: Calibration,
     dataset: Dataset,
