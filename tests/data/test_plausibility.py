@@ -21,9 +21,20 @@ from tests.paths import SCENARIOS
 SCENARIO_FILES = sorted(p for p in SCENARIOS.glob("*.toml") if p.stem != "demo_drift")
 
 
+def _simulated(path: Path, seed: int) -> graphcal.Dataset:
+    """The scenario's dataset; skipped when it replays the shared OpenSky table and that
+    table is absent (a checkout without ../shared/data)."""
+    from graphcal.simulation.scenario import load_scenario
+
+    scenario = load_scenario(path)
+    if scenario.opensky is not None and not scenario.opensky.file.is_file():
+        pytest.skip(f"shared OpenSky table not present: {scenario.opensky.file}")
+    return graphcal.simulate(path, seed=seed).dataset
+
+
 @pytest.mark.parametrize("path", SCENARIO_FILES, ids=lambda p: p.stem)
 def test_no_finding_on_any_scenario(path: Path) -> None:
-    ds = graphcal.simulate(path, seed=3).dataset
+    ds = _simulated(path, 3)
     assert check_tables(ds.sites, ds.plots, ds.adsb) == []
 
 
@@ -35,7 +46,7 @@ def demo() -> graphcal.Dataset:
 @pytest.fixture(scope="module")
 def paris() -> graphcal.Dataset:
     """Replayed OpenSky trajectories: mostly low traffic (median height 2.8 km)."""
-    return graphcal.simulate(SCENARIOS / "paris_opensky.toml", seed=1).dataset
+    return _simulated(SCENARIOS / "paris_opensky.toml", 1)
 
 
 def _plots(ds, radar: str, column: str, scale: float):
