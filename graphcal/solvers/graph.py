@@ -85,6 +85,10 @@ Progress = Callable[..., None]
 #: A term whose posterior variance exceeds this fraction of its prior variance is
 #: reported as not determined by the data.
 UNDETERMINED_VARIANCE_RATIO = 0.25
+
+#: The closed-form initial values use at most this many plots of a radar
+#: (:func:`thinned_for_initial_values`).
+INIT_MAX_PLOTS_PER_RADAR = 5_000
 #: ``time_offset=None`` (auto) keeps a radar's time offset only if its sigma is at most
 #: this [s] ...
 AUTO_TIME_OFFSET_MAX_SIGMA_S = 0.5
@@ -121,6 +125,8 @@ def initial_biases(
             )
         candidates = [init]
     notes = []
+    if use_adsb and init == "auto":
+        dataset = thinned_for_initial_values(dataset)
     for method in candidates:
         try:
             cal = METHODS[method](dataset)
@@ -133,6 +139,33 @@ def initial_biases(
             biases[rid] = RadarBias.from_vector(vector)
         return biases, method, notes
     return {}, "zero", notes
+
+
+def thinned_for_initial_values(
+    dataset: Dataset, max_plots_per_radar: int = INIT_MAX_PLOTS_PER_RADAR
+) -> Dataset:
+    """``dataset`` with at most ``max_plots_per_radar`` plots of each radar, for the
+    closed-form initial values.
+
+    Every ``k``-th plot of a radar (in table order, ``k`` the smallest stride that
+    brings it under the limit) is kept; radars under the limit keep all their plots,
+    and a dataset with no radar over it is returned as it is.  The ADS-B table is
+    kept whole.  An initial value only has to fall in the basin of the solution,
+    which a few thousand plots give as well as a million: the closed forms then
+    cost a fixed time per radar instead of growing with the recording.
+    """
+    radar_ids = dataset.plots["radar_id"].to_numpy()
+    names, codes = np.unique(radar_ids, return_inverse=True)
+    counts = np.bincount(codes, minlength=len(names))
+    if counts.max(initial=0) <= max_plots_per_radar:
+        return dataset
+    order = np.argsort(codes, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    keep = np.zeros(len(codes), dtype=bool)
+    for i, count in enumerate(counts):
+        stride = -(-int(count) // max_plots_per_radar)  # ceil
+        keep[order[starts[i]:starts[i + 1]:stride]] = True
+    return dataclasses.replace(dataset, plots=dataset.plots.loc[keep].reset_index(drop=True))
 
 
 def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) -> FloatArray:

@@ -223,3 +223,35 @@ def test_cli_calibrates_with_graph_by_default_and_writes_the_result(tmp_path: Pa
         result = runner.invoke(app, ["calibrate", str(tmp_path / "ds"), *bad])
         assert result.exit_code == 2, (bad, result.output)
         assert "error:" in result.output
+
+
+def test_thinned_initial_values_keep_a_strided_subset_per_radar(demo_runs) -> None:
+    from graphcal.solvers.graph import thinned_for_initial_values
+
+    dataset = demo_runs[0].dataset
+    counts = dataset.plots["radar_id"].value_counts()
+    assert thinned_for_initial_values(dataset, int(counts.max())) is dataset
+    cap = int(counts.min()) // 3
+    thin = thinned_for_initial_values(dataset, cap)
+    thin_counts = thin.plots["radar_id"].value_counts()
+    for rid, count in counts.items():
+        stride = -(-int(count) // cap)
+        assert thin_counts[rid] == -(-int(count) // stride) <= cap
+        # Every stride-th plot of the radar, in table order.
+        expected = dataset.plots[dataset.plots["radar_id"] == rid].iloc[::stride]
+        got = thin.plots[thin.plots["radar_id"] == rid]
+        np.testing.assert_array_equal(got["time_s"].to_numpy(), expected["time_s"].to_numpy())
+    assert thin.adsb is dataset.adsb
+
+
+def test_the_solution_does_not_depend_on_thinning_the_initial_values(demo_runs,
+                                                                     monkeypatch) -> None:
+    import graphcal.solvers.graph as graph_module
+
+    dataset = demo_runs[0].dataset
+    full = graph(dataset)
+    monkeypatch.setattr(graph_module, "INIT_MAX_PLOTS_PER_RADAR", 200)
+    monkeypatch.setattr(graph_module.thinned_for_initial_values, "__defaults__", (200,))
+    thin = graph(dataset)
+    sigma = np.sqrt(np.diag(full.covariance))
+    assert np.max(np.abs(thin.estimate - full.estimate) / sigma) < 0.01
