@@ -290,6 +290,17 @@ def load_sensor_model(name: str) -> SensorModel:
         raise SensorModelError(
             f"unknown sensor model {name!r}; available: {available}", path=models_dir()
         )
+    try:
+        stat = path.stat()
+    except OSError:
+        return _load_radar_model(name, path, -1, -1)
+    return _load_radar_model(name, path, stat.st_mtime_ns, stat.st_size)
+
+
+@lru_cache(maxsize=64)
+def _load_radar_model(name: str, path: Path, mtime_ns: int, size: int) -> SensorModel:
+    """The model in ``path``, parsed once per version of the file (its time and size:
+    calibrating in windows asks for the same models again and again)."""
     data = _read_toml(path)
     if data.get("kind") != RADAR_KIND:
         available = ", ".join(list_sensor_models()) or "none"

@@ -164,6 +164,7 @@ def calibrate_windows(
             if statistic is not None:
                 span = _span_around(windows, when, window_s)
                 if span is not None:
+                    span = _radar_only(span, rid, options)
                     others = [t for t, r, _ in changes if r != rid
                               and span.t_start_s < t < span.t_end_s]
                     when = _snap(_locate_step(span, others, options), window_s)
@@ -236,6 +237,31 @@ def _folder_source(folder: Path, window_s: float, clean: bool, force: bool) -> _
 
     total = len(dataset_span(folder).window_indices(window_s))
     return _Source(sites, windows, total, [], info, warnings)
+
+
+def _radar_only(window: Window, radar_id: str, options: WindowOptions) -> Window:
+    """``window`` reduced to ``radar_id``'s plots and the ADS-B of the aircraft it saw,
+    for locating that radar's step.
+
+    Against ADS-B a radar's biases are determined by its own plots: the cost of a cut
+    then only weighs the data that can see the step, and a step of one radar in a
+    network of twenty is located in a twentieth of the time and memory.  Without
+    ADS-B the radar needs its neighbours, and the window is kept whole.
+    """
+    dataset = window.dataset
+    adsb = dataset.adsb
+    if not options.use_adsb or adsb is None or adsb.empty:
+        return window
+    plots = dataset.plots[dataset.plots["radar_id"] == radar_id]
+    if plots.empty:
+        return window
+    seen = adsb["target_id"].isin(plots["target_id"].unique())
+    if not seen.any():  # it saw no aircraft with ADS-B: its neighbours are needed
+        return window
+    reduced = replace(dataset, plots=plots.reset_index(drop=True),
+                      adsb=adsb[seen.to_numpy()].reset_index(drop=True),
+                      sites={radar_id: dataset.sites[radar_id]})
+    return replace(window, dataset=reduced)
 
 
 def _split_cost(window: Window, times: Sequence[float], options: WindowOptions) -> float:

@@ -60,6 +60,8 @@ def test_the_result_is_the_last_window_with_series_and_events(stepping, windowed
     (event,) = [e for e in document["events"] if e["radar_id"] == "SUD"]
     assert event["kind"] == "step" and "range_offset_m" in event["parameters"]
     assert 900.0 <= event["time_s"] <= 2700.0
+    # Located inside its window from SUD's own plots against ADS-B (to about 30 s).
+    assert abs(event["time_s"] - 2000.0) < 60.0
     assert abs(event["size"]["range_offset_m"] - 60.0) < 3 * event["sigma"]["range_offset_m"]
     # The last window's SUD range offset is the stepped one.
     truth = scenario.radars[1].schedule.mean(2700.0, 3600.0)
