@@ -153,7 +153,7 @@ def corrected_ecef(
     if height_model is not None and not site.is_3d:
         offset_m, scale = (float(v) for v in height_model)
         plots = replace(plots, altitude_m=(1.0 + scale) * pressure_m + offset_m)
-    geometry = _plot_geometry(site, r, az, plots, el_bias, refraction)
+    geometry = _plot_geometry(site, r, az, plots, el_bias, refraction, covariance=False)
     d_polar = np.zeros((len(r), 3, 4 if eccentricity is None else 6))
     d_polar[:, 0, 0] = -1.0 / (1.0 + gain)
     d_polar[:, 0, 1] = -r / (1.0 + gain)
@@ -178,14 +178,14 @@ def corrected_ecef(
 class _Geometry:
     ecef_m: FloatArray  # (n, 3)
     ecef_jacobian: FloatArray  # (n, 3, 3) d ecef / d (r, az, el); 2-D: el follows r
-    cov_m2: FloatArray  # (n, 3, 3) measurement noise in ECEF
+    cov_m2: FloatArray | None  # (n, 3, 3) measurement noise in ECEF (None: not asked)
     usable: NDArray[np.bool_]
     height_jacobian: FloatArray  # (n, 3) d ecef / d reported height (2-D; 0 for 3-D)
 
 
 def _plot_geometry(
     site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float = 0.0,
-    refraction: RayExcess | None = None,
+    refraction: RayExcess | None = None, covariance: bool = True,
 ) -> _Geometry:
     """ECEF position, d ecef / d polar and converted noise of plots at ``(r, az)``.
 
@@ -196,10 +196,12 @@ def _plot_geometry(
     (:func:`graphcal.core.refraction.apparent_elevation_from_height_jacobian`).
     Given ``refraction`` (:func:`ray_excess` of these plots), the rays are not traced
     again: the straight-line placement plus the refracted ray's excess over it,
-    linearised about the measured plots.
+    linearised about the measured plots.  ``covariance=False`` leaves the converted
+    noise out (``cov_m2`` is then ``None``): an iterative solver's residuals do not
+    need it, and it is a third of the work.
     """
     if site.atmosphere is not None and refraction is None:
-        return _refracted_plot_geometry(site, r, az, plots, elevation_bias)
+        return _refracted_plot_geometry(site, r, az, plots, elevation_bias, covariance)
     n = len(r)
     cov_polar = np.zeros((n, 3, 3))
     cov_polar[:, 0, 0] = site.sigma_range_m**2
@@ -240,7 +242,7 @@ def _plot_geometry(
     ecef_jac = rot @ enu_jac
     ecef = (site.ecef_from_polar(r, az, el) if refraction is None
             else site.ecef_from_enu(np.where(usable[:, None], enu, 0.0)))
-    cov = convert_covariance(cov_polar, ecef_jac)
+    cov = convert_covariance(cov_polar, ecef_jac) if covariance else None
     # A reported height moves the plot in elevation, at fixed range and azimuth.
     d_ecef_d_h = ecef_jac[:, :, 2] * np.nan_to_num(d_el_d_h)[:, None]
     return _Geometry(ecef, ecef_jac, cov, usable, np.where(usable[:, None], d_ecef_d_h, 0.0))
@@ -479,7 +481,8 @@ def _add_ray_excess(refraction: RayExcess, r: FloatArray, az: FloatArray, el: Fl
 
 
 def _refracted_plot_geometry(
-    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float
+    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float,
+    covariance: bool = True,
 ) -> _Geometry:
     """:func:`_plot_geometry` along refracted rays (contract v2)."""
     atmosphere = site.atmosphere
@@ -513,7 +516,7 @@ def _refracted_plot_geometry(
         enu_jac[:, :, 0] += enu_jac[:, :, 2] * np.nan_to_num(d_el_d_r)[:, None]
     ecef_jac = site.ecef_to_enu.T @ enu_jac
     ecef = site.ecef_from_enu(enu)
-    cov = convert_covariance(cov_polar, ecef_jac)
+    cov = convert_covariance(cov_polar, ecef_jac) if covariance else None
     # A reported height moves the plot in elevation, at fixed range and azimuth.
     d_ecef_d_h = ecef_jac[:, :, 2] * np.nan_to_num(d_el_d_h)[:, None]
     return _Geometry(ecef, ecef_jac, cov, usable, np.where(usable[:, None], d_ecef_d_h, 0.0))
