@@ -458,6 +458,68 @@ class RayExcessCache:
         return self._latest
 
 
+class CorrectedPlotsCache:
+    """One radar's plots corrected by its biases (:func:`corrected_ecef`), computed once
+    per bias value for every pairwise factor that uses them.
+
+    In a network each radar pairs with several partners, and a solver evaluates every
+    factor at the same values before it moves: without this each factor would convert
+    its share of the radar's plots again.  The cache holds the union of the plots its
+    factors use and the last result; a factor takes its rows (:meth:`rows`).  The
+    result is the same as converting each factor's plots on its own (the conversion
+    is plot by plot).
+
+    Parameters
+    ----------
+    site : Site
+        The radar.
+    plots : PlotArrays
+        Every plot of it that a factor uses, any order, each once.
+    rays : RayExcessCache, optional
+        The radar's refracted rays (a radar with an atmosphere), holding every plot
+        of ``plots``.
+    """
+
+    def __init__(self, site: Site, plots: PlotArrays, rays: RayExcessCache | None = None
+                 ) -> None:
+        self.site = site
+        self.plots = plots
+        self.rays = rays
+        self._order = np.argsort(plots.index, kind="stable")
+        self._ray_rows = None if rays is None else rays.rows(plots.index)
+        self._key: tuple | None = None
+        self._value: tuple[FloatArray, FloatArray, NDArray[np.bool_]] | None = None
+
+    def rows(self, index: NDArray[np.int64]) -> NDArray[np.int64]:
+        """Positions in the cache of the plots with these dataset row labels.
+
+        Raises
+        ------
+        ValueError
+            If a label is not in the cache.
+        """
+        found = np.searchsorted(self.plots.index, index, sorter=self._order)
+        rows = self._order[np.minimum(found, len(self._order) - 1)] if len(self._order) else found
+        if len(index) and (not len(self._order) or np.any(self.plots.index[rows] != index)):
+            raise ValueError("plots missing from the radar's corrected-plot cache")
+        return rows
+
+    def corrected(self, bias: FloatArray, eccentricity: tuple[float, float] | None = None,
+                  height_model: tuple[float, float] | None = None
+                  ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+        """:func:`corrected_ecef` of every plot of the cache (the same arguments)."""
+        key = (np.asarray(bias, dtype=float).tobytes(),
+               None if eccentricity is None else tuple(float(v) for v in eccentricity),
+               None if height_model is None else tuple(float(v) for v in height_model))
+        if key != self._key or self._value is None:
+            rays = (None if self.rays is None
+                    else self.rays.near(bias, height_model).subset(self._ray_rows))
+            self._value = corrected_ecef(self.site, self.plots, bias, eccentricity,
+                                         height_model, rays)
+            self._key = key
+        return self._value
+
+
 def _add_ray_excess(refraction: RayExcess, r: FloatArray, az: FloatArray, el: FloatArray,
                     straight_jac: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Straight-line ENU of ``(r, az, el)`` plus the linearised ray excess, and

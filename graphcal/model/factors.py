@@ -34,6 +34,7 @@ from graphcal.core.batched import cholesky_inverse
 from graphcal.data.align import PlotArrays
 from graphcal.data.dataset import Site
 from graphcal.model.cross_radar import (
+    CorrectedPlotsCache,
     RayExcessCache,
     convert_plots,
     corrected_ecef,
@@ -303,6 +304,10 @@ class PairwiseFactor:
     b_rows: NDArray[np.int64] | None = None
     i2: NDArray[np.int64] | None = None  # third plot of a (quadratic), a valid index
     blend: FloatArray | None = None  # (n, 3) weights of a's plots i0, i0 + 1, i2
+    a_shared: CorrectedPlotsCache | None = None  # the radar's plots, corrected once
+    b_shared: CorrectedPlotsCache | None = None  # for all its factors (share_corrections)
+    a_shared_rows: NDArray[np.int64] | None = None  # rows of a_plots in a_shared
+    b_shared_rows: NDArray[np.int64] | None = None
 
     def _a_weights(self) -> tuple[list[NDArray[np.int64]], FloatArray]:
         """a's plots behind each pair and their weights ``(n, 3)`` (linear: third 0)."""
@@ -337,14 +342,8 @@ class PairwiseFactor:
         then has two more columns, the residual's dependence on ``(d, k)`` through
         that radar's plots (their sum is ``d e / d (d, k)``).
         """
-        rays_a = (None if self.a_rays is None
-                  else self.a_rays.near(bias_a, height).subset(self.a_rows))
-        rays_b = (None if self.b_rays is None
-                  else self.b_rays.near(bias_b, height).subset(self.b_rows))
-        ecef_a, jac_a, _ = corrected_ecef(self.site_a, self.a_plots, bias_a, ecc_a, height,
-                                          rays_a)
-        ecef_b, jac_b, _ = corrected_ecef(self.site_b, self.b_plots, bias_b, ecc_b, height,
-                                          rays_b)
+        ecef_a, jac_a = self._corrected("a", bias_a, ecc_a, height)
+        ecef_b, jac_b = self._corrected("b", bias_b, ecc_b, height)
         rows, c = self._a_weights()
         i0, i1 = self.i0, self.i0 + 1
         res = ecef_b[self.ib] - sum(c[:, j, None] * ecef_a[r] for j, r in enumerate(rows))
@@ -365,6 +364,22 @@ class PairwiseFactor:
         d_a[:, :, 4] = -velocity
         d_b[:, :, 4] = velocity
         return res, d_a, d_b
+
+    def _corrected(self, side: str, bias: FloatArray, eccentricity: tuple[float, float],
+                   height: tuple[float, float] | None) -> tuple[FloatArray, FloatArray]:
+        """Side ``a`` or ``b``'s plots corrected by ``bias``, in ECEF, and the Jacobian."""
+        shared = getattr(self, f"{side}_shared")
+        if shared is not None:
+            ecef, jacobian, _ = shared.corrected(bias, eccentricity, height)
+            rows = getattr(self, f"{side}_shared_rows")
+            return ecef[rows], jacobian[rows]
+        rays_cache = getattr(self, f"{side}_rays")
+        rays = (None if rays_cache is None
+                else rays_cache.near(bias, height).subset(getattr(self, f"{side}_rows")))
+        ecef, jacobian, _ = corrected_ecef(getattr(self, f"site_{side}"),
+                                           getattr(self, f"{side}_plots"), bias, eccentricity,
+                                           height, rays)
+        return ecef, jacobian
 
     def whitened(self, values: list[FloatArray]) -> tuple[FloatArray, list[FloatArray]]:
         ta, tb = self.terms_a, self.terms_b
@@ -480,6 +495,38 @@ def pairwise_factor(
         float(tau0_b), height_key, a_rays, b_rays, a_rows, b_rows,
         i2 if quadratic else None, blend if quadratic else None,
     )
+
+
+def share_corrections(factors: list[PairwiseFactor]) -> None:
+    """Give the factors of each radar that enters two or more of them one
+    :class:`~graphcal.model.cross_radar.CorrectedPlotsCache` of its plots.
+
+    A radar's plots are then corrected once per bias value for all its pairs instead
+    of once per pair; the residuals are the same.  A radar whose factors place its
+    plots through different ray caches is left as it is.
+    """
+    sides: dict[str, list[tuple[PairwiseFactor, str]]] = {}
+    for factor in factors:
+        sides.setdefault(factor.terms_a.radar_id, []).append((factor, "a"))
+        sides.setdefault(factor.terms_b.radar_id, []).append((factor, "b"))
+    for entries in sides.values():
+        if len(entries) < 2:
+            continue
+        rays = {id(getattr(f, f"{side}_rays")) for f, side in entries}
+        if len(rays) > 1:
+            continue
+        parts = [getattr(f, f"{side}_plots") for f, side in entries]
+        union = PlotArrays(*(np.concatenate([getattr(p, name) for p in parts])
+                             for name in PlotArrays.__dataclass_fields__))
+        _, first = np.unique(union.index, return_index=True)
+        first_factor, first_side = entries[0]
+        cache = CorrectedPlotsCache(getattr(first_factor, f"site_{first_side}"),
+                                    union.subset(first),
+                                    getattr(first_factor, f"{first_side}_rays"))
+        for factor, side in entries:
+            setattr(factor, f"{side}_shared", cache)
+            setattr(factor, f"{side}_shared_rows",
+                    cache.rows(getattr(factor, f"{side}_plots").index))
 
 
 def _rays_for(site: Site, plots: PlotArrays, rays: RayExcessCache | None

@@ -33,7 +33,13 @@ from graphcal.data.align import (
 )
 from graphcal.data.dataset import Dataset, Site
 from graphcal.model.cross_radar import RayExcessCache
-from graphcal.model.factors import AdsbFactor, PairwiseFactor, adsb_factor, pairwise_factor
+from graphcal.model.factors import (
+    AdsbFactor,
+    PairwiseFactor,
+    adsb_factor,
+    pairwise_factor,
+    share_corrections,
+)
 from graphcal.model.height import AdsbHeightFactor, adsb_height_factor
 from graphcal.model.measurement import measurement_model, reference_polar_covariance
 from graphcal.model.parameters import RadarTerms
@@ -157,6 +163,7 @@ def build_factors(
         )
         if factor is not None:
             problem.pairs.append(factor)
+    share_corrections(problem.pairs)
 
 
 def _share_rays(rest: Dataset, problem: Problem) -> None:

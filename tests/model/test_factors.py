@@ -368,3 +368,53 @@ def test_kernel_thresholds_are_the_chi_quantiles() -> None:
     for dimension in [1, 2, 3, 4, 7, 9]:
         assert default_threshold(dimension) == pytest.approx(
             float(np.sqrt(stats.chi2.ppf(0.95, dimension))), rel=1e-12)
+
+
+def test_shared_corrections_give_the_same_residuals_with_one_conversion_per_radar(
+        monkeypatch) -> None:
+    import graphcal.model.cross_radar as cross_radar
+    from graphcal.model.factors import share_corrections
+
+    rng = np.random.default_rng(11)
+    radars = [
+        (site_at("A", -40e3, 0.0), BIAS_2D),
+        (site_at("B", 40e3, 10e3, sigma_elevation_mrad=2.0), BIAS_3D),
+        (site_at("C", 0.0, -50e3), RadarBias(30.0, 0.0005, -0.002)),
+    ]
+    tracks = [
+        Track("aa0001", (-60e3, 50e3, 8000.0), (180.0, -20.0, 0.0), 0.0, 120.0),
+        Track("aa0002", (30e3, -70e3, 5000.0), (-30.0, 200.0, 3.0), 0.0, 120.0),
+    ]
+    ds = make_dataset(rng, radars, tracks)
+    keys = {"A": 0, "B": 1, "C": 2}
+
+    def factors():
+        out = []
+        for a, b in (("A", "B"), ("A", "C"), ("B", "C")):
+            pairs = pair_plots(ds, a, b)
+            sa, sb = ds.sites[a], ds.sites[b]
+            out.append(pairwise_factor(sa, sb, _terms(sa), _terms(sb), keys[a], keys[b],
+                                       pairs.a_plots, pairs.b_plots, pairs.a_index0,
+                                       pairs.weight, pairs.b_index, RobustKernel("none")))
+        assert all(f is not None and len(f) > 20 for f in out)
+        return out
+
+    plain, shared = factors(), factors()
+    share_corrections(shared)
+    assert all(f.a_shared is not None and f.b_shared is not None for f in shared)
+    assert shared[0].a_shared is shared[1].a_shared  # A's one cache
+    values = {"A": np.array([100.0, 0.0015, 0.003]),
+              "B": np.array([-60.0, -0.0008, -0.002, 0.0015]),
+              "C": np.array([20.0, 0.0004, -0.001])}
+    calls = []
+    real = cross_radar.corrected_ecef
+    monkeypatch.setattr(cross_radar, "corrected_ecef",
+                        lambda *a, **k: calls.append(a[0].id) or real(*a, **k))
+    for f_plain, f_shared in zip(plain, shared, strict=True):
+        ids = (f_plain.terms_a.radar_id, f_plain.terms_b.radar_id)
+        e0, j0 = f_plain.whitened([values[ids[0]], values[ids[1]]])
+        e1, j1 = f_shared.whitened([values[ids[0]], values[ids[1]]])
+        np.testing.assert_array_equal(e1, e0)
+        for a, b in zip(j1, j0, strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert sorted(calls) == ["A", "B", "C"]  # each radar converted once for three pairs
