@@ -70,7 +70,8 @@ def calibrate_windows(folder: Path, window_s: float) -> dict:
     from graphcal.pipeline.calibrate import calibrate
 
     cal = calibrate(folder, window=window_s)
-    return {"windows": cal.info["windows"]["n_windows"], "events": len(cal.events or []),
+    events = [f"{e['radar_id']}@{e['time_s']:.0f}s" for e in cal.events or []]
+    return {"windows": cal.info["windows"]["n_windows"], "events": events,
             "radars": len(cal.radar_ids),
             "summaries_s": round(cal.info["timing_s"].get("summaries_s", 0.0), 1)}
 
