@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 
 from graphcal.analysis.binned_test import segment_codes
 from graphcal.core import frames
+from graphcal.core.outliers import OUTLIER_SIGMAS, outlier_rows
 from graphcal.data.align import (
     DEFAULT_ADSB_MAX_GAP_S,
     PlotArrays,
@@ -68,9 +69,6 @@ FloatArray = NDArray[np.float64]
 
 #: Length [s] of the track segments that count as independent units.
 SEGMENT_S = 60.0
-#: Plots whose standardised residual lies further than this many robust sigmas
-#: (1.4826 median absolute deviations) from the median, in any coordinate, are left out.
-OUTLIER_SIGMAS = 8.0
 
 
 @dataclass
@@ -467,18 +465,12 @@ def _joined(site: Site, bias: RadarBias, parts: list[dict[str, Any]], pressure: 
 
 
 def without_outliers(res: RadarResiduals) -> RadarResiduals:
-    """``res`` without the plots beyond :data:`OUTLIER_SIGMAS` robust sigmas in any coordinate."""
-    bad = np.zeros(len(res), dtype=bool)
-    for key, e in res.residuals.items():
-        with np.errstate(invalid="ignore", divide="ignore"):
-            z = e / np.sqrt(res.variances[key])
-        finite = np.isfinite(z)
-        if finite.sum() < 10:
-            continue
-        centre = np.median(z[finite])
-        scale = 1.4826 * np.median(np.abs(z[finite] - centre))
-        if scale > 0:
-            bad |= finite & (np.abs(z - centre) > OUTLIER_SIGMAS * scale)
+    """``res`` without the plots beyond :data:`OUTLIER_SIGMAS` robust sigmas in any coordinate
+    (:func:`graphcal.core.outliers.outlier_rows`)."""
+    if len(res) == 0 or not res.residuals:
+        return res
+    with np.errstate(invalid="ignore", divide="ignore"):
+        bad = outlier_rows(e / np.sqrt(res.variances[key]) for key, e in res.residuals.items())
     if not bad.any():
         return res
     out = res.subset(~bad)

@@ -38,6 +38,12 @@ Verdict
 Without ADS-B each residual compares two radars, so a radar's misfit also shows
 in its partners': the radars are listed worst first.
 
+Over time windows (``calibrate --window``) each window's own fit is judged so, from
+the numbers its summary carries (:class:`graphcal.solvers.window_fit.WindowFit`:
+residuals against ADS-B only; a window without them is judged on its range gains
+and negative ranges alone), and a radar fails the run when it fails in any window
+(:func:`windows_verdict`); the verdict names those windows.
+
 :func:`fit_verdict` computes it (from the model checks when they ran, else from
 the residuals); :class:`FitVerdict` holds it, and ``graphcal calibrate`` turns a
 failed verdict into exit status 3 (:class:`ModelMisfitError`).
@@ -46,7 +52,7 @@ failed verdict into exit status 3 (:class:`ModelMisfitError`).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,6 +63,7 @@ from graphcal.analysis.model_checks import ModelChecks, calibrated_residuals, no
 from graphcal.core.errors import EstimationError
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
+from graphcal.solvers.window_fit import WindowFit
 
 #: Chance that a correct model with the stated noise exceeds the limit (given its dof).
 P = 1e-6
@@ -66,6 +73,8 @@ FLOOR = 4.0
 MAX_RANGE_GAIN = 0.01
 #: The coordinates judged (their bias terms are estimated; altitude is not judged).
 JUDGED: tuple[str, ...] = ("range", "azimuth", "elevation")
+#: At most this many windows are named per radar in the message (all in the JSON).
+MESSAGE_WINDOWS = 4
 
 
 def chi2_limit(dof: float, p: float = P, floor: float = FLOOR) -> float:
@@ -146,6 +155,20 @@ def _fmt(value: float) -> str:
     return f"{value:,.0f}" if abs(value) >= 100 else f"{value:.3g}"
 
 
+@dataclass(frozen=True)
+class WindowJudgement:
+    """The verdict on one time window's own fit (``calibrate --window``)."""
+
+    t_start_s: float
+    t_end_s: float
+    verdict: FitVerdict
+
+    @property
+    def span(self) -> str:
+        """``0-3600 s``."""
+        return f"{self.t_start_s:.0f}-{self.t_end_s:.0f} s"
+
+
 @dataclass
 class FitVerdict:
     """The fit verdict of a calibration (module docstring).
@@ -153,27 +176,38 @@ class FitVerdict:
     Attributes
     ----------
     reference : {"adsb", "cross", "none"}
-        What the residuals were measured against.
+        What the residuals were measured against (over windows: ``"adsb"`` when
+        any window's were).
     radars : dict of str to RadarFit
+        Over windows: each radar's fit in its worst window (a failing one when it
+        failed anywhere).
     p, floor : float
         The limit's probability and floor.
+    windows : list of WindowJudgement, optional
+        Over windows: every window's own verdict, in time order.
     """
 
     reference: str
     radars: dict[str, RadarFit]
     p: float = P
     floor: float = FLOOR
+    windows: list[WindowJudgement] | None = None
 
     @property
     def failed(self) -> list[str]:
         """The radars that failed, worst first."""
         bad = [r for r in self.radars.values() if r.failed]
-        return [r.radar_id for r in sorted(bad, key=lambda r: (not r.gain_implausible, -r.worst))]
+        return [r.radar_id for r in sorted(bad, key=_badness)]
 
     @property
     def passed(self) -> bool:
         """No radar failed."""
         return not self.failed
+
+    def failed_windows(self, radar_id: str) -> list[WindowJudgement]:
+        """Over windows: those in which ``radar_id`` failed, in time order."""
+        return [w for w in self.windows or ()
+                if radar_id in w.verdict.radars and w.verdict.radars[radar_id].failed]
 
     def message(self) -> str:
         """One line: the radars that failed, what, and the likely causes."""
@@ -181,7 +215,7 @@ class FitVerdict:
             return "the residuals are within their sigmas"
         text = ("the residuals are far beyond their sigmas (limit chi2/dof "
                 f"{self.floor:g}, or the 1e-6 quantile for few residuals): "
-                + "; ".join(self.radars[rid].describe() for rid in self.failed)
+                + "; ".join(self._describe(rid) for rid in self.failed)
                 + ". The biases would be meaningless: check the data's units and frames "
                 "(azimuth in degrees, range and heights in metres, ADS-B latitude and "
                 "longitude, the sites' positions and heights; a range gain of -0.999 is "
@@ -191,9 +225,28 @@ class FitVerdict:
                      "misfit shows in its partners' too; the worst is named first)")
         return text
 
+    def _describe(self, radar_id: str) -> str:
+        """One failed radar in words; over windows, with the windows it failed in."""
+        fit = self.radars[radar_id]
+        if self.windows is None:
+            return fit.describe()
+        bad = self.failed_windows(radar_id)
+        judged = sum(1 for w in self.windows if radar_id in w.verdict.radars)
+        spans = ", ".join(w.span for w in bad[:MESSAGE_WINDOWS])
+        if len(bad) > MESSAGE_WINDOWS:
+            spans += f" and {len(bad) - MESSAGE_WINDOWS} more"
+        worst = fit.describe().partition(": ")[2]
+        return (f"{radar_id}: in {len(bad)} of {judged} windows ({spans}); "
+                f"worst: {worst}")
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready (``Calibration.info["fit_verdict"]``)."""
-        return {
+        """JSON-ready (``Calibration.info["fit_verdict"]``).
+
+        Over windows, each radar's entry is its worst window's, with that window
+        (``window``: ``[t_start_s, t_end_s]``) and ``failed_windows``; ``windows``
+        lists every window's span, reference and failed radars.
+        """
+        out = {
             "reference": self.reference,
             "passed": self.passed,
             "failed": self.failed,
@@ -202,6 +255,26 @@ class FitVerdict:
             "max_range_gain": MAX_RANGE_GAIN,
             "radars": {rid: r.to_dict() for rid, r in self.radars.items()},
         }
+        if self.windows is not None:
+            for rid, entry in out["radars"].items():
+                worst = _worst_window(self.windows, rid)
+                entry["window"] = None if worst is None else [worst.t_start_s, worst.t_end_s]
+                entry["failed_windows"] = [[w.t_start_s, w.t_end_s]
+                                           for w in self.failed_windows(rid)]
+            out["windows"] = [{"t_start_s": w.t_start_s, "t_end_s": w.t_end_s,
+                               "reference": w.verdict.reference, "failed": w.verdict.failed}
+                              for w in self.windows]
+        return out
+
+
+def _badness(fit: RadarFit) -> tuple[bool, bool, float]:
+    """Sort key, worst first: failed, then an implausible gain, then the largest chi2/dof."""
+    return (not fit.failed, not fit.gain_implausible, -fit.worst)
+
+
+def _worst_window(windows: list[WindowJudgement], radar_id: str) -> WindowJudgement | None:
+    judged = [w for w in windows if radar_id in w.verdict.radars]
+    return min(judged, key=lambda w: _badness(w.verdict.radars[radar_id]), default=None)
 
 
 class ModelMisfitError(EstimationError):
@@ -236,6 +309,24 @@ def negative_ranges(dataset: Dataset, cal: Calibration) -> dict[str, int]:
     return out
 
 
+def radar_fit(radar_id: str, sums: Mapping[str, tuple[float, int]], n_terms: int,
+              range_gain: float | None, negative: int = 0, *, p: float = P,
+              floor: float = FLOOR) -> RadarFit:
+    """One radar's :class:`RadarFit` from its ``{coordinate: (sum e^2/v, count)}``.
+
+    ``dof`` = count less ``n_terms`` (the radar's estimated terms; at least 1);
+    coordinates other than :data:`JUDGED`, empty or non-finite are left out.
+    """
+    fit = RadarFit(radar_id, range_gain=range_gain, negative_ranges=negative)
+    for coordinate, (chi2, n) in sums.items():
+        if coordinate not in JUDGED or n <= 0 or not math.isfinite(chi2):
+            continue
+        dof = max(n - n_terms, 1)
+        fit.coordinates.append(CoordinateFit(coordinate, float(chi2), float(dof),
+                                             chi2_limit(dof, p, floor)))
+    return fit
+
+
 def verdict_from_sums(cal: Calibration, reference: str,
                       sums: Mapping[str, Mapping[str, tuple[float, int]]], *,
                       p: float = P, floor: float = FLOOR,
@@ -245,19 +336,51 @@ def verdict_from_sums(cal: Calibration, reference: str,
     ``dof`` = count less the radar's estimated terms (at least 1).  ``negative``:
     per radar, the plots corrected to a non-positive range (:func:`negative_ranges`).
     """
-    radars: dict[str, RadarFit] = {}
-    for rid in cal.radar_ids:
-        fit = RadarFit(rid, range_gain=cal.value(rid, "range_gain"),
-                       negative_ranges=(negative or {}).get(rid, 0))
-        k = _n_terms(cal, rid)
-        for coordinate, (chi2, n) in (sums.get(rid) or {}).items():
-            if coordinate not in JUDGED or n <= 0 or not math.isfinite(chi2):
-                continue
-            dof = max(n - k, 1)
-            fit.coordinates.append(CoordinateFit(coordinate, float(chi2), float(dof),
-                                                 chi2_limit(dof, p, floor)))
-        radars[rid] = fit
+    radars = {rid: radar_fit(rid, sums.get(rid) or {}, _n_terms(cal, rid),
+                             cal.value(rid, "range_gain"), (negative or {}).get(rid, 0),
+                             p=p, floor=floor)
+              for rid in cal.radar_ids}
     return FitVerdict(reference, radars, p, floor)
+
+
+def window_verdict(fit: WindowFit, *, p: float = P, floor: float = FLOOR) -> FitVerdict:
+    """The verdict on one window's own fit, from the numbers its summary carries."""
+    radars = {rid: radar_fit(rid, fit.sums.get(rid) or {}, n_terms,
+                             fit.range_gain.get(rid), fit.negative_ranges.get(rid, 0),
+                             p=p, floor=floor)
+              for rid, n_terms in fit.n_terms.items()}
+    return FitVerdict(fit.reference, radars, p, floor)
+
+
+def windows_verdict(windows: Iterable[tuple[float, float, WindowFit]], *, p: float = P,
+                    floor: float = FLOOR) -> FitVerdict:
+    """The verdict of a calibration over time windows (module docstring).
+
+    Parameters
+    ----------
+    windows : iterable of (t_start_s, t_end_s, WindowFit)
+        Each window's span [s] and fit numbers
+        (:attr:`graphcal.solvers.windows.WindowSummary.fit`).
+    p, floor : float
+        The limit's probability and floor (:func:`chi2_limit`).
+
+    Returns
+    -------
+    FitVerdict
+        With ``windows``; each radar's entry is its fit in its worst window, so
+        that it fails exactly when it failed in some window.  ``reference`` is
+        ``"adsb"`` when any window's residuals were formed, else ``"none"``.
+    """
+    judged = sorted((WindowJudgement(float(t0), float(t1), window_verdict(fit, p=p, floor=floor))
+                     for t0, t1, fit in windows), key=lambda w: (w.t_start_s, w.t_end_s))
+    radars: dict[str, RadarFit] = {}
+    for rid in dict.fromkeys(rid for w in judged for rid in w.verdict.radars):
+        worst = _worst_window(judged, rid)
+        if worst is not None:
+            radars[rid] = worst.verdict.radars[rid]
+    references = {w.verdict.reference for w in judged}
+    reference = "adsb" if "adsb" in references else "none"
+    return FitVerdict(reference, radars, p, floor, judged)
 
 
 def fit_verdict(
@@ -307,6 +430,7 @@ def fit_verdict(
     return verdict_from_sums(cal, reference, sums, p=p, floor=floor, negative=negative)
 
 
-__all__ = ["FLOOR", "JUDGED", "MAX_RANGE_GAIN", "P", "CoordinateFit", "FitVerdict",
-           "ModelMisfitError", "RadarFit", "chi2_limit", "fit_verdict", "negative_ranges",
-           "verdict_from_sums"]
+__all__ = ["FLOOR", "JUDGED", "MAX_RANGE_GAIN", "MESSAGE_WINDOWS", "P", "CoordinateFit",
+           "FitVerdict", "ModelMisfitError", "RadarFit", "WindowJudgement", "chi2_limit",
+           "fit_verdict", "negative_ranges", "radar_fit", "verdict_from_sums", "window_verdict",
+           "windows_verdict"]

@@ -558,7 +558,7 @@ def select_dataset(dataset: Dataset, selection: Selection) -> Dataset:
     rows = selection.plot_rows()
     plots = dataset.plots.loc[dataset.plots.index.isin(rows)]
     return Dataset(dataset.sites, plots, dataset.adsb, dataset.path, dataset.cleaning,
-                   dataset.plot_altitude)
+                   dataset.plot_altitude, dataset.epoch_utc)
 
 
 def select_for_calibration(

@@ -223,7 +223,7 @@ def calibrate_command(
 
     check_calibrate_options(ctx)
     _check_paths(dataset_dir, truth, out, report, cat063, history, overwrite)
-    from graphcal.io.folder import SITES_FILE, load_dataset, load_sites
+    from graphcal.io.folder import SITES_FILE, load_dataset, load_epoch_utc, load_sites
     from graphcal.pipeline.calibrate import calibrate as run_calibration
     from graphcal.reporting.tables import calibration_tables
 
@@ -237,10 +237,12 @@ def calibrate_command(
             # Read window by window (bounded memory) by the pipeline: the sites only here.
             dataset = None
             sites = load_sites(dataset_dir / SITES_FILE)
+            epoch_utc = load_epoch_utc(dataset_dir / SITES_FILE)  # checked before the work
         else:
             with progress_bar("loading"):
                 dataset = load_dataset(dataset_dir, clean=clean, force=force)
             sites = dataset.sites
+            epoch_utc = dataset.epoch_utc
         load_s = time.perf_counter() - start
         codes = cat063_codes(cat063, sac_sic, sites, sites if dataset is None
                              else dataset.plots["radar_id"].astype(str).unique())
@@ -286,7 +288,7 @@ def calibrate_command(
                 fail(f"--cat063 {cat063}: {exc}", EXIT_BAD_INPUT)
             err_console.print(f"wrote {cat063}", highlight=False)
         if history is not None:
-            _append_history(history, cal, sites, dataset, dataset_dir, {
+            _append_history(history, cal, sites, dataset, dataset_dir, epoch_utc, {
                 "method": method, "window": window, "cross": cross, "robust": robust,
                 "adsb": adsb, "fix": fix or [], "drift": drift or [], "break": breaks or [],
                 "steps": steps, "clean": clean})
@@ -354,18 +356,22 @@ def _print_warnings(cal, dataset, method: str) -> None:
         console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False, soft_wrap=True)
 
 
-def _append_history(path: Path, cal, sites, dataset, dataset_dir: Path, options: dict) -> None:
-    """``--history``: the run appended to the calibration history database."""
+def _append_history(path: Path, cal, sites, dataset, dataset_dir: Path, epoch_utc,
+                    options: dict) -> None:
+    """``--history``: the run appended to the calibration history database, with the
+    dataset's ``epoch_utc`` (``[dataset] epoch_utc`` of its ``sites.toml``) when known."""
     from graphcal.pipeline.history import append_run
 
     span = {}
     if cal.series is None:  # with windows the span is that of the series
         times = dataset.plots["time_s"]
         span = {"t_start_s": float(times.min()), "t_end_s": float(times.max())}
+    epoch = {} if epoch_utc is None else {"epoch_utc": epoch_utc}
     run_id = append_run(path, cal.to_dict(), provenance={
         "dataset": str(dataset_dir.resolve()),
         "options": options,
         **span,
+        **epoch,
         "sensor_models": {rid: site.model for rid, site in sites.items()
                           if getattr(site, "model", None)},
     })

@@ -36,6 +36,7 @@ def compare_command(
         Path | None,
         typer.Option("--out", help="Also write the summary: .md, .csv or .json by the suffix."),
     ] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
 ) -> None:
     """Monte-Carlo comparison: simulate a scenario RUNS times, run every method on each."""
     from graphcal.pipeline.compare import compare
@@ -56,7 +57,7 @@ def compare_command(
     if out is not None and out.suffix.lower() not in OUT_SUFFIXES:
         fail(f"--out {out}: the format comes from the suffix: .md, .csv or .json",
               EXIT_BAD_INPUT)
-    check_output_file(out, "--out", inputs=[scenario])
+    check_output_file(out, "--out", overwrite=overwrite, inputs=[scenario])
 
     with errors_to_exit():
         spec = load_scenario(scenario)

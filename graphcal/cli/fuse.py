@@ -39,6 +39,7 @@ def fuse_command(
                      "(default 100: manoeuvring civil traffic)."),
     ] = None,
     grid_s: Annotated[float, typer.Option(help="Fusion time step \\[s].")] = 1.0,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
     force: Annotated[bool, typer.Option("--force", help=FORCE_HELP)] = False,
 ) -> None:
     """Track every aircraft with every radar, fuse the tracks, score them against ADS-B."""
@@ -53,7 +54,7 @@ def fuse_command(
     if out is not None and out.suffix not in (".csv", ".parquet"):
         fail(f"--out {out}: the suffix must be .csv or .parquet", EXIT_BAD_INPUT)
     check_input_path(calibration, "--calibration")
-    check_output_file(out, "--out", inputs=[dataset_dir, calibration])
+    check_output_file(out, "--out", overwrite=overwrite, inputs=[dataset_dir, calibration])
     with errors_to_exit():
         with progress_bar("loading"):
             dataset = load_dataset(dataset_dir, force=force)

@@ -217,14 +217,14 @@ def _print_csv(flagged: pd.DataFrame) -> None:
     sys.stdout.write(frame.to_csv(index=False, na_rep=""))
 
 
-def _check_plot_path(plot: Path | None, db: Path) -> None:
+def _check_plot_path(plot: Path | None, db: Path, overwrite: bool) -> None:
     from graphcal.reporting.history_plot import PLOT_FORMATS
 
     if plot is None:
         return
     if plot.suffix.lower() not in PLOT_FORMATS:
         fail(f"--plot {plot}: use a {', '.join(PLOT_FORMATS)} suffix", EXIT_BAD_INPUT)
-    check_output_file(plot, "--plot", inputs=[db])
+    check_output_file(plot, "--plot", overwrite=overwrite, inputs=[db])
 
 
 def _check_tolerance_keys(tolerances: dict[str, float], series: pd.DataFrame) -> None:
@@ -255,6 +255,7 @@ def history_command(
     csv: Annotated[
         bool, typer.Option("--csv", help="Print the windows as CSV instead of tables.")
     ] = False,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --plot file.")] = False,
     tolerance: Annotated[
         list[str] | None,
         typer.Option("--tolerance", metavar="KEY=VALUE", help="Tolerance of a bias in "
@@ -275,7 +276,7 @@ def history_command(
         when = None if since is None else parse_since(since)
     except ValueError as exc:
         fail(str(exc), EXIT_BAD_INPUT)
-    _check_plot_path(plot, db)
+    _check_plot_path(plot, db, overwrite)
     with errors_to_exit():
         runs = read_runs(db)
         series = read_series(db, radar=radar, since=when)

@@ -24,6 +24,19 @@ def _format_span(span: tuple[float, float] | None) -> str:
     return f"{first:.1f} s .. {last:.1f} s ({last - first:.1f} s)"
 
 
+def _parse_date(text: str | None) -> float | None:
+    """``--date YYYY-MM-DD`` -> unix time [s] of that day's 00:00 UTC (exit 2 if not a date)."""
+    if text is None:
+        return None
+    from datetime import UTC, datetime
+
+    try:
+        day = datetime.strptime(text, "%Y-%m-%d").replace(tzinfo=UTC)
+    except ValueError:
+        fail(f"--date {text}: not a date YYYY-MM-DD (the recording's UTC day)", EXIT_BAD_INPUT)
+    return day.timestamp()
+
+
 def _check_template_target(path: Path, overwrite: bool) -> None:
     """Refuse, before any decoding, a template path that cannot be written."""
     if path.is_dir():
@@ -74,6 +87,15 @@ def import_asterix_command(
     ] = "asterix",
     fmt: Annotated[str, typer.Option("--format", metavar="csv|parquet",
                                      help="Table format: csv or parquet.")] = "csv",
+    date: Annotated[
+        str | None,
+        typer.Option(
+            "--date", metavar="YYYY-MM-DD",
+            help="The recording's UTC day: time_s is the ASTERIX time of day, counted from "
+            "its 00:00 UTC, which the dataset records as epoch_utc. For a recording without "
+            "capture times (raw .ast); with them (pcap) it must be their first day.",
+        ),
+    ] = None,
     overwrite: Annotated[
         bool, typer.Option(help="Replace an existing output folder (or sites template).")
     ] = False,
@@ -112,6 +134,7 @@ def import_asterix_command(
              EXIT_BAD_INPUT)
     if sites_template is not None:
         _check_template_target(sites_template, overwrite)
+    given_epoch = _parse_date(date)
     for path in [*files, *([adsb] if adsb is not None else [])]:
         if not path.is_file():
             fail(f"{path}: no such file", EXIT_BAD_INPUT)
@@ -122,6 +145,14 @@ def import_asterix_command(
             decoded = decode_files(files, progress=callback)
         adsb_table = None
         epoch = recording_epoch(decoded)
+        if given_epoch is not None:
+            if epoch is not None and epoch != given_epoch:
+                from graphcal.io.asterix.tables import TimeBase
+
+                fail(f"--date {date}: the recording's capture times begin on "
+                     f"{TimeBase(epoch).date} UTC; give that day or leave --date out",
+                     EXIT_BAD_INPUT)
+            epoch = given_epoch
         if adsb is not None:
             if adsb_format == "opensky":
                 adsb_table = read_opensky_adsb(adsb, epoch_unix_s=epoch)
@@ -151,9 +182,10 @@ def import_asterix_command(
         sac, sic = stats.sources[radar_id]
         table.add_row(radar_id, str(sac), str(sic), stats.site_origin[radar_id], str(n_plots))
     console.print(table)
-    date = tables.time_base.date
+    day = tables.time_base.date
     lines = [
-        f"time base: seconds since 00:00 UTC of {date or 'the first report day (date unknown)'}"
+        f"time base: seconds since 00:00 UTC of "
+        f"{day or 'the first report day (date unknown: give it with --date)'}"
         f"; span {_format_span(time_span([dataset.plots, dataset.adsb]))}",
         f"ADS-B: {stats.adsb_reports} reports of {stats.aircraft} aircraft"
         + (f" (from {adsb}, {adsb_format})" if adsb is not None else ""),

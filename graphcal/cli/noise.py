@@ -84,7 +84,8 @@ def noise_command(
         sites = sites_with_estimated_sigmas(dataset.sites, rounded, only_missing=only_missing)
         still = [f"{rid} ({', '.join(site.missing_sigmas)})"
                  for rid, site in sites.items() if site.missing_sigmas]
-        write_sites(sites, sites_out)
+        write_sites(sites, sites_out, plot_altitude=dataset.plot_altitude,
+                    epoch_utc=dataset.epoch_utc)  # the [dataset] table kept
         err_console.print(f"wrote {sites_out}", highlight=False)
         if still:
             console.print(f"[yellow]warning:[/yellow] still missing in {sites_out}: "

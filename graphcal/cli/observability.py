@@ -53,6 +53,9 @@ def observability_command(
         int, typer.Option(help="--budget: random subsets drawn for the baseline.")
     ] = 20,
     seed: Annotated[int, typer.Option(help="--budget: seed of the random subsets.")] = 0,
+    overwrite: Annotated[
+        bool, typer.Option(help="Replace existing --out and --plot files.")
+    ] = False,
     force: Annotated[bool, typer.Option("--force", help=FORCE_HELP)] = False,
 ) -> None:
     """How well the traffic determines each bias: rank, condition, Deg, weak directions."""
@@ -75,8 +78,8 @@ def observability_command(
     if method == "wls" and not adsb:
         fail("--no-adsb: the wls observations are the radars' common ones; it never uses "
              "ADS-B", EXIT_BAD_INPUT)
-    check_output_file(out, "--out", inputs=[dataset_dir])
-    check_output_file(plot, "--plot", inputs=[dataset_dir])
+    check_output_file(out, "--out", overwrite=overwrite, inputs=[dataset_dir])
+    check_output_file(plot, "--plot", overwrite=overwrite, inputs=[dataset_dir])
     check_distinct_outputs(("--out", out), ("--plot", plot))
     with errors_to_exit():
         with progress_bar("loading"):

@@ -28,6 +28,7 @@ def report_command(
         Path | None,
         typer.Option(help="Truth JSON to compare with (default: DIR/truth.json if present)."),
     ] = None,
+    overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
     force: Annotated[bool, typer.Option("--force", help=FORCE_HELP)] = False,
 ) -> None:
     """Write a self-contained HTML report (estimates, residuals, map, correlations)."""
@@ -38,7 +39,7 @@ def report_command(
     if out.suffix.lower() not in (".html", ".htm"):
         fail(f"--out {out}: the report is HTML; use a .html suffix", EXIT_BAD_INPUT)
     check_input_path(truth, "--truth")
-    check_output_file(out, "--out", inputs=[result, dataset_dir, truth])
+    check_output_file(out, "--out", overwrite=overwrite, inputs=[result, dataset_dir, truth])
     with errors_to_exit():
         cal = Calibration.read_json(result)
         with progress_bar("loading"):

@@ -92,4 +92,5 @@ def correct_dataset(dataset: Dataset, calibration: Biases) -> Dataset:
     biases = biases_of(calibration)
     plots = correct_plots(dataset.plots, dataset.sites, biases)
     adsb = None if dataset.adsb is None else dataset.adsb.copy()
-    return Dataset(dict(dataset.sites), plots, adsb, None, plot_altitude=dataset.plot_altitude)
+    return Dataset(dict(dataset.sites), plots, adsb, None, plot_altitude=dataset.plot_altitude,
+                   epoch_utc=dataset.epoch_utc)

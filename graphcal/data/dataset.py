@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from datetime import datetime
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -206,6 +207,8 @@ class Dataset:
     ``plot_altitude`` says what the plots' ``altitude_m`` is (``sites.toml``
     ``[dataset] plot_altitude``, :mod:`graphcal.data.height`): ``"geometric"``, a
     height above the ellipsoid (version 1), or ``"pressure"``, a pressure altitude.
+    ``epoch_utc`` is the UTC time of 0 s on the tables' time base (``sites.toml``
+    ``[dataset] epoch_utc``, :mod:`graphcal.data.epoch`), ``None`` when not known.
     """
 
     sites: dict[str, Site]
@@ -214,6 +217,7 @@ class Dataset:
     path: Path | None = None
     cleaning: CleaningReport | None = None
     plot_altitude: str = "geometric"
+    epoch_utc: datetime | None = None
 
     @property
     def pressure_altitudes(self) -> bool:

@@ -38,7 +38,9 @@ Normalisation of the tables read (:mod:`graphcal.io.table_checks`):
 * ``sites.toml`` may hold a top-level ``[dataset]`` table (contract v2) whose
   ``plot_altitude`` (``"geometric"``, the default, or ``"pressure"``) says what the
   plots' ``altitude_m`` is; it becomes :attr:`Dataset.plot_altitude`
-  (:func:`load_plot_altitude`).
+  (:func:`load_plot_altitude`).  Its ``epoch_utc`` (extension v1.6, optional) is the
+  UTC time of 0 s on the tables' time base (:mod:`graphcal.data.epoch`); it becomes
+  :attr:`Dataset.epoch_utc` (:func:`load_epoch_utc`).
 * Columns beyond the contract's are kept unchanged after the contract columns.
 
 :func:`load_dataset` holds the whole recording in memory;
@@ -60,6 +62,7 @@ import tomllib
 import uuid
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
+from datetime import datetime
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -83,6 +86,7 @@ from graphcal.data.dataset import (
     Dataset,
     Site,
 )
+from graphcal.data.epoch import format_epoch_utc, parse_epoch_utc
 from graphcal.data.height import GEOMETRIC, PLOT_ALTITUDE_CHOICES
 from graphcal.data.plausibility import check_tables, raise_if_implausible
 from graphcal.data.sensor_models import SensorModel, load_sensor_model
@@ -344,35 +348,45 @@ def _read_toml(path: Path) -> dict[str, Any]:
         raise DatasetError(f"cannot read TOML: {exc}", path=path) from None
 
 
-#: Keys of the top-level ``[dataset]`` table of ``sites.toml`` (contract v2).
-DATASET_KEYS: tuple[str, ...] = ("plot_altitude",)
+#: Keys of the top-level ``[dataset]`` table of ``sites.toml`` (contract v2, v1.6).
+DATASET_KEYS: tuple[str, ...] = ("plot_altitude", "epoch_utc")
 
 
-def load_plot_altitude(path: str | Path) -> str:
-    """What the plots' ``altitude_m`` is, from ``sites.toml``'s ``[dataset]`` table.
+@dataclass(frozen=True)
+class DatasetSettings:
+    """The top-level ``[dataset]`` table of ``sites.toml``, validated.
+
+    Attributes
+    ----------
+    plot_altitude : {"geometric", "pressure"}
+        What the plots' ``altitude_m`` is (:mod:`graphcal.data.height`).
+    epoch_utc : datetime or None
+        The UTC time of 0 s on the tables' time base (:mod:`graphcal.data.epoch`).
+    """
+
+    plot_altitude: str = GEOMETRIC
+    epoch_utc: datetime | None = None
+
+
+def load_dataset_settings(path: str | Path) -> DatasetSettings:
+    """``sites.toml``'s ``[dataset]`` table (the defaults without one).
 
     Parameters
     ----------
     path : str or Path
         The ``sites.toml`` file.
 
-    Returns
-    -------
-    str
-        ``"geometric"`` (a height above the ellipsoid; the default, also without a
-        ``[dataset]`` table) or ``"pressure"`` (a pressure altitude, see
-        :mod:`graphcal.data.height`).
-
     Raises
     ------
     DatasetError
-        If ``[dataset]`` is not a table, has an unknown key, or ``plot_altitude`` is
-        not one of the choices; the message names the file, the table and the field.
+        If ``[dataset]`` is not a table, has an unknown key, ``plot_altitude`` is
+        not one of the choices, or ``epoch_utc`` is not an ISO 8601 date and time
+        with a UTC designator; the message names the file, the table and the field.
     """
     path = Path(path)
     table = _read_toml(path).get("dataset")
     if table is None:
-        return GEOMETRIC
+        return DatasetSettings()
     if not isinstance(table, dict):
         raise DatasetError("[dataset] must be a table", path=path, field="dataset")
     for key in table:
@@ -384,7 +398,32 @@ def load_plot_altitude(path: str | Path) -> str:
         choices = " or ".join(f'"{c}"' for c in PLOT_ALTITUDE_CHOICES)
         raise DatasetError(f"[dataset]: plot_altitude must be {choices}, got {value!r}",
                            path=path, field="dataset.plot_altitude")
-    return value
+    epoch = None
+    if "epoch_utc" in table:
+        try:
+            epoch = parse_epoch_utc(table["epoch_utc"])
+        except ValueError as exc:
+            raise DatasetError(f"[dataset]: epoch_utc {exc}", path=path,
+                               field="dataset.epoch_utc") from None
+    return DatasetSettings(value, epoch)
+
+
+def load_plot_altitude(path: str | Path) -> str:
+    """What the plots' ``altitude_m`` is, from ``sites.toml``'s ``[dataset]`` table.
+
+    ``"geometric"`` (a height above the ellipsoid; the default, also without a
+    ``[dataset]`` table) or ``"pressure"`` (a pressure altitude, see
+    :mod:`graphcal.data.height`).  The whole table is validated
+    (:func:`load_dataset_settings`, whose errors it raises).
+    """
+    return load_dataset_settings(path).plot_altitude
+
+
+def load_epoch_utc(path: str | Path) -> datetime | None:
+    """The UTC time of 0 s on the dataset's time base, from ``sites.toml``'s
+    ``[dataset] epoch_utc`` (``None`` without it); validated as
+    :func:`load_dataset_settings` does."""
+    return load_dataset_settings(path).epoch_utc
 
 
 def _to_file_units(value: float, to_file: Callable[[float], float],
@@ -455,7 +494,8 @@ def _site_to_toml(site: Site) -> dict[str, Any]:
 
 
 def write_sites(
-    sites: Mapping[str, Site], path: str | Path, *, plot_altitude: str = GEOMETRIC
+    sites: Mapping[str, Site], path: str | Path, *, plot_altitude: str = GEOMETRIC,
+    epoch_utc: datetime | None = None,
 ) -> None:
     """Write ``sites.toml`` atomically; :func:`load_sites` reads it back.
 
@@ -470,13 +510,21 @@ def write_sites(
     plot_altitude : {"geometric", "pressure"}, optional
         Written as ``[dataset] plot_altitude`` when not the default, so that a
         version-1 file is written exactly as before (:func:`load_plot_altitude`).
+    epoch_utc : datetime, optional
+        Written as ``[dataset] epoch_utc = "2021-10-07T00:00:00Z"`` when given
+        (:func:`load_epoch_utc`); must be an aware UTC time.
     """
     if plot_altitude not in PLOT_ALTITUDE_CHOICES:
         raise ValueError(f"plot_altitude must be one of {', '.join(PLOT_ALTITUDE_CHOICES)}, "
                          f"got {plot_altitude!r}")
     document: dict[str, Any] = {}
+    settings: dict[str, Any] = {}
     if plot_altitude != GEOMETRIC:
-        document["dataset"] = {"plot_altitude": plot_altitude}
+        settings["plot_altitude"] = plot_altitude
+    if epoch_utc is not None:
+        settings["epoch_utc"] = format_epoch_utc(parse_epoch_utc(epoch_utc))
+    if settings:
+        document["dataset"] = settings
     document["radar"] = [_site_to_toml(site) for site in sites.values()]
     atomic_write_text(path, _SITES_HEADER + tomli_w.dumps(document))
 
@@ -579,12 +627,12 @@ def load_dataset(folder: str | Path, *, clean: bool = True, force: bool = False)
     if needs_elevation_scan(sites):
         sites = three_d_without_sigmas(sites, elevation_complete(plots), folder / SITES_FILE)
     adsb = None if adsb_files is None else _load_table(adsb_files, ADSB_COLUMNS, validate_adsb)
-    plot_altitude = load_plot_altitude(folder / SITES_FILE)
+    settings = load_dataset_settings(folder / SITES_FILE)
     if not force:
         raise_if_implausible(check_tables(sites, plots, adsb),
                              table_paths(folder, plot_files, adsb_files))
     dataset = Dataset(sites=sites, plots=plots, adsb=adsb, path=folder,
-                      plot_altitude=plot_altitude)
+                      plot_altitude=settings.plot_altitude, epoch_utc=settings.epoch_utc)
     if clean:
         from graphcal.data.cleaning import clean_dataset
 
@@ -720,6 +768,8 @@ class DatasetWriter:
         Replace an existing non-empty ``folder`` (as :func:`write_dataset`).
     plot_altitude : {"geometric", "pressure"}, optional
         Written to ``sites.toml`` (:func:`write_sites`).
+    epoch_utc : datetime, optional
+        Written to ``sites.toml`` when given (:func:`write_sites`).
     row_group_rows : int, optional
         Largest Parquet row group [rows] (:class:`~graphcal.io.table_writer.TableWriter`).
 
@@ -734,6 +784,7 @@ class DatasetWriter:
 
     def __init__(self, sites: Mapping[str, Site], folder: str | Path, *, fmt: str = "csv",
                  overwrite: bool = False, plot_altitude: str = GEOMETRIC,
+                 epoch_utc: datetime | None = None,
                  row_group_rows: int | None = None) -> None:
         if fmt not in TABLE_FORMATS:
             raise ValueError(f"fmt must be one of {', '.join(TABLE_FORMATS)}, got {fmt!r}")
@@ -748,7 +799,8 @@ class DatasetWriter:
         self._tables: dict[str, TableWriter] = {}
         try:
             os.chmod(self._staging, 0o755)
-            write_sites(sites, self._staging / SITES_FILE, plot_altitude=plot_altitude)
+            write_sites(sites, self._staging / SITES_FILE, plot_altitude=plot_altitude,
+                        epoch_utc=epoch_utc)
         except BaseException:
             self.abort()
             raise
@@ -851,7 +903,8 @@ def write_dataset(
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
     try:
         os.chmod(staging, 0o755)
-        write_sites(dataset.sites, staging / SITES_FILE, plot_altitude=dataset.plot_altitude)
+        write_sites(dataset.sites, staging / SITES_FILE, plot_altitude=dataset.plot_altitude,
+                    epoch_utc=dataset.epoch_utc)
         write_table(dataset.plots, staging / f"plots.{fmt}")
         if dataset.adsb is not None:
             write_table(dataset.adsb, staging / f"adsb.{fmt}")

@@ -201,8 +201,9 @@ def calibrate(
     check_fit : bool
         Raise :class:`~graphcal.analysis.fit_verdict.ModelMisfitError` when the
         fit verdict fails: a radar's residuals far beyond their sigmas, or a range
-        gain beyond 1 % (:mod:`graphcal.analysis.fit_verdict`).  The verdict is
-        recorded in ``info["fit_verdict"]`` either way (not with ``window``).
+        gain beyond 1 % (:mod:`graphcal.analysis.fit_verdict`); with ``window``,
+        in any window's own fit (against ADS-B).  The verdict is recorded in
+        ``info["fit_verdict"]`` either way, and becomes a warning when not raised.
 
     Returns
     -------
@@ -247,7 +248,7 @@ def calibrate(
                                   options, clean=clean, select=select,
                                   bound=bound, scheduler=scheduler, drift=drift,
                                   breaks=breaks, detect_steps=detect_steps, progress=progress,
-                                  force=force)
+                                  force=force, check_fit=check_fit)
     windowed_only = {"scheduler": scheduler, "drift": drift, "breaks": breaks}
     for name, value in windowed_only.items():
         if value:
@@ -331,7 +332,8 @@ def _judge_fit(cal: Calibration, dataset: Dataset, checks: Any, *, use_adsb: boo
 def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,
                        window: float | str, options: dict[str, Any], *, clean: bool,
                        select: str | None, bound: bool | None, progress: Progress | None,
-                       force: bool = False, **chain: Any) -> Calibration:
+                       force: bool = False, check_fit: bool = True, **chain: Any
+                       ) -> Calibration:
     """``calibrate(window=...)``: the graph per window, chained (pipeline.windowed)."""
     from graphcal.core.durations import parse_duration
     from graphcal.pipeline.windowed import calibrate_windows
@@ -355,7 +357,8 @@ def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,
         max_iterations=options["max_iterations"],
         **({"max_gap_s": options["max_gap_s"]} if "max_gap_s" in options else {}))
     return calibrate_windows(dataset, parse_duration(window), clean=clean,
-                             options=window_options, progress=progress, force=force, **chain)
+                             options=window_options, progress=progress, force=force,
+                             check_fit=check_fit, **chain)
 
 
 def _check_model(cal: Calibration, dataset: Dataset, *, use_adsb: bool,

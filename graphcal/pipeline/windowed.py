@@ -18,7 +18,7 @@ from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 import pandas as pd
@@ -37,9 +37,13 @@ from graphcal.solvers.windows import (
     WindowedCalibration,
     WindowEstimate,
     WindowOptions,
+    WindowSummary,
     smooth_windows,
     summarise_window,
 )
+
+if TYPE_CHECKING:
+    from graphcal.analysis.fit_verdict import FitVerdict
 
 Progress = Callable[..., None]
 
@@ -94,6 +98,7 @@ def calibrate_windows(
     options: WindowOptions | None = None,
     progress: Progress | None = None,
     force: bool = False,
+    check_fit: bool = True,
 ) -> Calibration:
     """Calibrate ``dataset`` in windows of ``window_s`` seconds (module docstring).
 
@@ -126,6 +131,10 @@ def calibrate_windows(
     force : bool
         With a folder: skip the unit and frame heuristics on the rows read
         (:mod:`graphcal.data.plausibility`).
+    check_fit : bool
+        Raise :class:`~graphcal.analysis.fit_verdict.ModelMisfitError` when the fit
+        verdict over the windows fails (:func:`_judge`); else it becomes a warning.
+        The verdict is recorded in ``info["fit_verdict"]`` either way.
 
     Raises
     ------
@@ -133,6 +142,10 @@ def calibrate_windows(
         Bad option (unknown radar in ``breaks``, unknown drift key, bad scheduler).
     EstimationError
         No window has anything to calibrate.
+    ModelMisfitError
+        (an :class:`EstimationError`) With ``check_fit``: a radar's residuals are far
+        beyond their sigmas in some window (or its range gain beyond reason); the
+        exception's ``calibration`` holds the result.
     """
     start = time.perf_counter()
     scheduler = check_scheduler(scheduler)
@@ -164,6 +177,13 @@ def calibrate_windows(
         # Read again only the windows around the changes.
         needed = {i for when, _, _ in changes
                   for i in (int(np.floor(when / window_s)), int(np.ceil(when / window_s)) - 1)}
+        # A misfit in a window away from the changes is not cured by cutting windows:
+        # judged now, before locating steps in data that do not fit the model.
+        early = _judge(summaries)
+        if check_fit and early is not None and _misfit_away_from(early, summaries, needed):
+            cal = to_calibration(result, source.sites, source.cleaning_warnings)
+            _finish(cal, source, scheduler, dataset)
+            _stop(early, cal)
         windows = {w.index: w for w in source.windows() if w.index in needed}
         located = []
         for when, rid, statistic in changes:
@@ -199,12 +219,60 @@ def calibrate_windows(
     result.timing_s["summaries_s"] = elapsed
     result.timing_s["total_s"] = time.perf_counter() - start
     cal = to_calibration(result, source.sites, source.cleaning_warnings)
+    _finish(cal, source, scheduler, dataset)
+    verdict = _judge(summaries)
+    if verdict is not None:
+        if not verdict.passed and check_fit:
+            _stop(verdict, cal)
+        _record_verdict(cal, verdict)
+    return cal
+
+
+def _finish(cal: Calibration, source: _Source, scheduler: str,
+            dataset: Dataset | str | os.PathLike[str]) -> None:
+    """The run's estimated sigmas and the scheduler, in ``cal``."""
     if source.sigma_info is not None:
         cal.info["estimated_sigmas"] = source.sigma_info
         cal.warnings.extend(source.sigma_warnings)
     cal.info["windows"]["scheduler"] = scheduler
     cal.info["windows"]["streamed"] = not isinstance(dataset, Dataset)
-    return cal
+
+
+def _judge(summaries: Sequence[WindowSummary]) -> FitVerdict | None:
+    """The fit verdict over the windows' own fits (None when no summary carries one)."""
+    from graphcal.analysis.fit_verdict import windows_verdict
+
+    fits = [(s.t_start_s, s.t_end_s, s.fit) for s in summaries if s.fit is not None]
+    return windows_verdict(fits) if fits else None
+
+
+def _misfit_away_from(verdict: FitVerdict, summaries: Sequence[WindowSummary],
+                      indices: set[int]) -> bool:
+    """Whether a radar failed in a window whose index is not in ``indices``."""
+    spans = {(s.t_start_s, s.t_end_s) for s in summaries if s.index not in indices}
+    return any((w.t_start_s, w.t_end_s) in spans
+               for rid in verdict.failed for w in verdict.failed_windows(rid))
+
+
+def _record_verdict(cal: Calibration, verdict: FitVerdict) -> None:
+    """``info["fit_verdict"]``; a failed verdict as a warning, a run judged on no
+    window's residuals (without ADS-B) said so."""
+    cal.info["fit_verdict"] = verdict.to_dict()
+    if not verdict.passed:
+        cal.warnings.append(verdict.message())
+    elif verdict.reference == "none":
+        cal.warnings.append(
+            "fit verdict: no window's residuals were judged (without ADS-B a window carries "
+            "only its range gains and negative ranges); see docs/model-checks.md")
+
+
+def _stop(verdict: FitVerdict, cal: Calibration) -> NoReturn:
+    """Raise :class:`~graphcal.analysis.fit_verdict.ModelMisfitError` for ``cal``, the
+    verdict recorded in its ``info["fit_verdict"]``."""
+    from graphcal.analysis.fit_verdict import ModelMisfitError
+
+    cal.info["fit_verdict"] = verdict.to_dict()
+    raise ModelMisfitError(verdict, cal)
 
 
 @dataclass
@@ -296,7 +364,7 @@ def _split_cost(window: Window, times: Sequence[float], options: WindowOptions) 
     """The window's total cost when cut at ``times`` and each part calibrated alone."""
     total = 0.0
     for part in split_window(window, list(times)):
-        summary = summarise_window(part, options)
+        summary = summarise_window(part, options, judge=False)
         total += summary.cost if summary is not None else 0.0
     return total
 

@@ -5,13 +5,17 @@ a range gain in ppm and a time offset in ms.  :data:`DISPLAY` maps each
 contract key to a readable name, a display unit and the factor from the
 contract unit; :func:`value_text` writes a value with as many decimals as its
 sigma warrants (two significant digits of the sigma); :func:`clock_text`
-writes a dataset time as a UTC time of day.
+writes a dataset time as a UTC time of day, and :func:`span_text` a time span, with
+its UTC date when the dataset's epoch is known (:mod:`graphcal.data.epoch`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from datetime import datetime
+
+from graphcal.data.epoch import utc_at
 
 
 @dataclass(frozen=True)
@@ -93,6 +97,21 @@ def clock_text(time_s: float) -> str:
     return text if day == 0 else f"{text} {day:+d}d"
 
 
+def span_text(t0_s: float, t1_s: float, epoch_utc: datetime | None = None) -> str:
+    """A time span of the dataset in UTC, e.g. ``2021-10-07 08:00:00 – 10:30:00``.
+
+    With the dataset's epoch (the UTC time of 0 s) the first time has its date, and
+    the last one too when it falls on another day; without it, both are times of day
+    read as counted from 00:00 UTC of the first day (:func:`clock_text`).
+    """
+    if epoch_utc is None or not (math.isfinite(t0_s) and math.isfinite(t1_s)):
+        return f"{clock_text(t0_s)} – {clock_text(t1_s)}"
+    first, last = utc_at(epoch_utc, round(t0_s)), utc_at(epoch_utc, round(t1_s))
+    end = (last.strftime("%H:%M:%S") if last.date() == first.date()
+           else last.strftime("%Y-%m-%d %H:%M:%S"))
+    return f"{first.strftime('%Y-%m-%d %H:%M:%S')} – {end}"
+
+
 def duration_text(seconds: float) -> str:
     """A duration as ``1 h 05 min``, ``12 min 30 s`` or ``45 s``."""
     seconds = max(0.0, float(seconds))
@@ -106,4 +125,5 @@ def duration_text(seconds: float) -> str:
 
 
 __all__ = ["DISPLAY", "Z_FLAG", "DisplayUnit", "clock_text", "decimals_for", "display_unit",
+           "span_text",
            "duration_text", "value_text"]

@@ -3,9 +3,10 @@
 :func:`build_report` returns one HTML page (inline CSS, figures embedded as
 base64 PNG made with matplotlib's Agg backend, no external assets).  It opens
 with a header (``<header id="header">``: graphcal version, when the report was
-written in UTC, the command line, the dataset, the recording's time span read
-as UTC, the counts of plots and ADS-B reports) followed by these sections, each
-an ``<h2>`` with a stable ``id``:
+written in UTC, the command line, the dataset, the recording's time span in UTC,
+with its date when the dataset has an epoch, ``[dataset] epoch_utc``, else as
+times of day from 00:00 UTC of its first day, the counts of plots and ADS-B
+reports) followed by these sections, each an ``<h2>`` with a stable ``id``:
 
 ``estimates``      per radar and parameter, value ± sigma in display units (range
                    offset m, gain ppm, azimuth and elevation mrad, time offset
@@ -51,12 +52,13 @@ import numpy as np
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY_NAMES, PARAMETER_NAMES, RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
+from graphcal.data.epoch import format_epoch_utc
 from graphcal.reporting.display import (
     Z_FLAG,
-    clock_text,
     decimals_for,
     display_unit,
     duration_text,
+    span_text,
     value_text,
 )
 from graphcal.reporting.report_figures import (
@@ -180,9 +182,12 @@ def _header(cal: Calibration, dataset: Dataset, command: str | None, title: str)
     ]
     if len(plots):
         t0, t1 = float(plots["time_s"].min()), float(plots["time_s"].max())
-        rows.append(("recording", f"{clock_text(t0)} – {clock_text(t1)} UTC "
+        epoch = dataset.epoch_utc
+        origin = ("00:00 UTC of the recording's first day" if epoch is None
+                  else f"epoch_utc {format_epoch_utc(epoch)}")
+        rows.append(("recording", f"{span_text(t0, t1, epoch)} UTC "
                      f"({duration_text(t1 - t0)}; time_s {t0:.1f} – {t1:.1f}, counted from "
-                     "00:00 UTC of the recording's first day)"))
+                     f"{origin})"))
     counts = f"{len(plots):,} plots of {plots['radar_id'].nunique()} radars"
     if dataset.adsb is not None and len(dataset.adsb):
         counts += (f"; {len(dataset.adsb):,} ADS-B reports of "
@@ -596,11 +601,11 @@ def _observability_section(cal: Calibration) -> str:
     return "".join(parts)
 
 
-def _span_text(times) -> str:
+def _span_text(times, epoch_utc: datetime | None = None) -> str:
     if len(times) == 0:
         return "–"
     t0, t1 = float(times.min()), float(times.max())
-    return f"{clock_text(t0)} – {clock_text(t1)} ({duration_text(t1 - t0)})"
+    return f"{span_text(t0, t1, epoch_utc)} ({duration_text(t1 - t0)})"
 
 
 def _data_section(cal: Calibration, dataset: Dataset, views: Mapping[str, ResidualView]
@@ -616,19 +621,21 @@ def _data_section(cal: Calibration, dataset: Dataset, views: Mapping[str, Residu
             f"{cal.n_plots[rid]:,}" if rid in cal.radar_ids and rid in cal.n_plots
             else ("–" if rid in cal.radar_ids else "not calibrated"),
             f"{len(views[rid].after):,}" if rid in views else "–",
-            str(sel["target_id"].nunique()), _span_text(sel["time_s"]),
+            str(sel["target_id"].nunique()), _span_text(sel["time_s"], dataset.epoch_utc),
         ])
     compared = "aligned with ADS-B" if reference == "adsb" else "cross-radar residuals"
     table = _table(["radar", "type", "plots", "plots used", compared, "aircraft",
                     "time span (UTC)"], rows, left=2)
     lines = [f"<p>{len(plots):,} plots from {len(dataset.sites)} radars, "
-             f"{_span_text(plots['time_s'])} UTC.</p>" if len(plots) else "<p>No plots.</p>"]
+             f"{_span_text(plots['time_s'], dataset.epoch_utc)} UTC.</p>" if len(plots)
+             else "<p>No plots.</p>"]
     if dataset.adsb is None:
         lines.append("<p>No ADS-B table.</p>")
     else:
         a = dataset.adsb
         lines.append(f"<p>{len(a):,} ADS-B reports of {a['target_id'].nunique()} aircraft"
-                     + (f", {_span_text(a['time_s'])} UTC" if len(a) else "") + ".</p>")
+                     + (f", {_span_text(a['time_s'], dataset.epoch_utc)} UTC" if len(a) else "")
+                     + ".</p>")
     return "".join(lines) + table
 
 

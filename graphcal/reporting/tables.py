@@ -41,32 +41,45 @@ def format_value(key: str, value: float | None, sigma: float | None = None) -> s
 OPTIONAL_ROWS: tuple[str, ...] = ("time_offset", *ECCENTRICITY_NAMES)
 
 
+def _value_row(cal: Calibration, label: str, key: str, value: float, sigma: float | None,
+               efficiency: dict[str, Any], truth: bool, true: float | None) -> list[str]:
+    """One parameter's row: key, estimate ± 1 sigma (or "not determined"), [σ/CRLB],
+    [truth, error/σ].
+
+    ``label`` names the parameter in ``info`` (``"NORD.range_offset_m"``,
+    ``"atmosphere.height_scale"``); ``truth``: whether the truth columns are shown,
+    ``true`` the true value (``None``: unknown).  error/σ is left empty without a
+    finite, non-zero sigma.
+    """
+    shown = format_value(key, value, sigma)
+    if label in cal.info.get("undetermined", []):
+        shown = f"not determined (prior ± {_FORMATS.get(key, '{:.4g}').format(sigma)})"
+    row = [key, shown]
+    if efficiency:
+        ratio = efficiency.get(label)
+        row.append("" if ratio is None else f"{ratio:.2f}")
+    if truth:
+        row.append(format_value(key, true))
+        finite = sigma is not None and sigma == sigma and sigma not in (0.0, float("inf"))
+        row.append(f"{(value - true) / sigma:+.1f}" if true is not None and finite else "")
+    return row
+
+
 def _radar_rows(cal: Calibration, rid: str, efficiency: dict[str, Any],
                 truth: dict[str, Any] | None) -> list[list[str]]:
     """One radar's rows: parameter, estimate ± 1 sigma, [σ/CRLB], [truth, error/σ]."""
     rows = []
+    true_radars = (truth or {}).get("radars", {})
     for name in (*PARAMETER_NAMES, *ECCENTRICITY_NAMES, "time_offset"):
         key = CONTRACT_KEYS[name][0]
         value, sigma = cal.value(rid, key), cal.sigma(rid, key)
         if value is None or (name in OPTIONAL_ROWS and not sigma):
             continue
-        shown = format_value(key, value, sigma)
-        if f"{rid}.{key}" in cal.info.get("undetermined", []):
-            shown = f"not determined (prior ± {_FORMATS.get(key, '{:.4g}').format(sigma)})"
-        row = [key, shown]
-        if efficiency:
-            ratio = efficiency.get(f"{rid}.{key}")
-            row.append("" if ratio is None else f"{ratio:.2f}")
-        if truth is not None:
-            true = truth.get("radars", {}).get(rid, {}).get(key)
-            if true is None and name in OPTIONAL_ROWS and rid in truth.get("radars", {}):
-                true = 0.0  # truth.json leaves out a zero time offset or eccentricity
-            row.append(format_value(key, true))
-            if true is not None and sigma and sigma == sigma and sigma != float("inf"):
-                row.append(f"{(value - true) / sigma:+.1f}")
-            else:
-                row.append("")
-        rows.append(row)
+        true = true_radars.get(rid, {}).get(key)
+        if true is None and name in OPTIONAL_ROWS and rid in true_radars:
+            true = 0.0  # truth.json leaves out a zero time offset or eccentricity
+        rows.append(_value_row(cal, f"{rid}.{key}", key, value, sigma, efficiency,
+                               truth is not None, true))
     return rows
 
 
@@ -164,22 +177,9 @@ def _atmosphere_value_rows(cal: Calibration, efficiency: dict[str, Any],
     atmosphere = cal.atmosphere
     assert atmosphere is not None
     true_block = (truth or {}).get("atmosphere") or {}
-    rows = []
-    for key in ("height_offset_m", "height_scale"):
-        value, sigma = getattr(atmosphere, key), atmosphere.sigma[key]
-        shown = format_value(key, value, sigma)
-        if f"atmosphere.{key}" in cal.info.get("undetermined", []):
-            shown = f"not determined (prior ± {_FORMATS[key].format(sigma)})"
-        row = [key, shown]
-        if efficiency:
-            ratio = efficiency.get(f"atmosphere.{key}")
-            row.append("" if ratio is None else f"{ratio:.2f}")
-        if truth is not None:
-            true = true_block.get(key)
-            row.append(format_value(key, true))
-            row.append(f"{(value - true) / sigma:+.1f}" if true is not None and sigma else "")
-        rows.append(row)
-    return rows
+    return [_value_row(cal, f"atmosphere.{key}", key, getattr(atmosphere, key),
+                       atmosphere.sigma[key], efficiency, truth is not None, true_block.get(key))
+            for key in ("height_offset_m", "height_scale")]
 
 
 # ------------------------------------------------------------------ marginals

@@ -17,7 +17,9 @@ The format is documented in ``scenarios/README.md``.  In short::
     [opensky]    replay of an OpenSky-style state-vector table
     [adsb]       ADS-B reports of every equipped aircraft (equipped_fraction,
                  baro_altitude)
-    [dataset]    plot_altitude: "geometric" (default) or "pressure" (contract v2)
+    [dataset]    plot_altitude: "geometric" (default) or "pressure" (contract v2);
+                 epoch_utc: the UTC time of 0 s, written to the dataset (v1.6;
+                 default: an [opensky] replay's start, else none)
     [atmosphere] the true height model of pressure altitudes: height_offset_m,
                  height_scale (refraction is per radar)
 
@@ -47,6 +49,7 @@ from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosp
 from graphcal.data.bias import ESTIMATE_NAMES, RadarBias
 from graphcal.data.bias_schedule import BiasSchedule, BiasStep
 from graphcal.data.dataset import REFRACTION_MODELS, REFRACTIVITY_N_S_RANGE, Site
+from graphcal.data.epoch import parse_epoch_utc
 from graphcal.data.height import GEOMETRIC, PLOT_ALTITUDE_CHOICES, PRESSURE, HeightModel
 from graphcal.data.sensor_models import SensorModel, adsb_sigma_from_nacp, load_sensor_model
 from graphcal.simulation.trajectories import (
@@ -291,6 +294,10 @@ class Scenario:
         The true height model ``h = (1 + height_scale) p + height_offset_m``
         (``[atmosphere]``); ``None``: none given (the standard atmosphere,
         pressure altitude = height).
+    epoch_utc : datetime or None
+        The UTC time of scenario time 0, written to the simulated dataset's
+        ``sites.toml`` (``[dataset] epoch_utc``; default: an ``[opensky]``
+        replay's ``start``, else ``None``: no epoch).
     """
 
     name: str
@@ -305,6 +312,7 @@ class Scenario:
     path: Path | None = None
     plot_altitude: str = GEOMETRIC
     true_height_model: HeightModel | None = None
+    epoch_utc: dt.datetime | None = None
 
     @property
     def height_model(self) -> HeightModel:
@@ -896,16 +904,23 @@ def _parse_adsb(t: _Table | None) -> AdsbSpec:
     return spec
 
 
-def _parse_plot_altitude(t: _Table | None) -> str:
-    """``[dataset] plot_altitude``: ``"geometric"`` (default) or ``"pressure"``."""
+def _parse_dataset(t: _Table | None) -> tuple[str, dt.datetime | None]:
+    """``[dataset]``: ``plot_altitude`` (``"geometric"``, the default, or ``"pressure"``)
+    and ``epoch_utc`` (:func:`graphcal.data.epoch.parse_epoch_utc`; ``None`` when absent)."""
     if t is None:
-        return GEOMETRIC
+        return GEOMETRIC, None
     value = t.string("plot_altitude", GEOMETRIC)
     if value not in PLOT_ALTITUDE_CHOICES:
         choices = " or ".join(f'"{c}"' for c in PLOT_ALTITUDE_CHOICES)
         raise t.error("plot_altitude", f"must be {choices}, got {value!r}")
+    epoch = None
+    if t.has("epoch_utc"):
+        try:
+            epoch = parse_epoch_utc(t.raw("epoch_utc"))
+        except ValueError as exc:
+            raise t.error("epoch_utc", str(exc)) from None
     t.finish()
-    return value
+    return value, epoch
 
 
 def _parse_atmosphere(t: _Table | None) -> HeightModel | None:
@@ -977,7 +992,9 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
     opensky_table = root.table("opensky")
     opensky = None if opensky_table is None else _parse_opensky(opensky_table, duration)
     adsb = _parse_adsb(root.table("adsb"))
-    plot_altitude = _parse_plot_altitude(root.table("dataset"))
+    plot_altitude, epoch_utc = _parse_dataset(root.table("dataset"))
+    if epoch_utc is None and opensky is not None:
+        epoch_utc = opensky.start.to_pydatetime()  # the replay's time 0 is real UTC
     true_height_model = _parse_atmosphere(root.table("atmosphere"))
     root.finish()
     if not aircraft and traffic is None and opensky is None:
@@ -995,6 +1012,7 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
         path=path,
         plot_altitude=plot_altitude,
         true_height_model=true_height_model,
+        epoch_utc=epoch_utc,
     )
 
 

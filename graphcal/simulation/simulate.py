@@ -732,7 +732,7 @@ def simulate(
     candidates = {r.id: sum(c.n_candidates[r.id] for c in chunks) for r in scenario.radars}
     sites = {r.id: r.site() for r in scenario.radars}
     dataset = Dataset(sites=sites, plots=plots, adsb=adsb,
-                      plot_altitude=scenario.plot_altitude)
+                      plot_altitude=scenario.plot_altitude, epoch_utc=scenario.epoch_utc)
     return SimulationResult(
         scenario=scenario,
         dataset=dataset,

@@ -114,7 +114,8 @@ def simulate_to_folder(
     """
     sites = {radar.id: radar.site() for radar in scenario.radars}
     with DatasetWriter(sites, out_dir, fmt=fmt, overwrite=overwrite,
-                       plot_altitude=scenario.plot_altitude) as writer:
+                       plot_altitude=scenario.plot_altitude,
+                       epoch_utc=scenario.epoch_utc) as writer:
         run = ChunkedSimulation(scenario, rng, chunk_s=chunk_s, progress=progress)
         n_plots = dict.fromkeys(sites, 0)
         candidates = dict.fromkeys(sites, 0)

@@ -52,10 +52,12 @@ from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import CONTRACT_KEYS, RadarBias
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.height import HeightModelEstimate
+from graphcal.data.memo import sharing
 from graphcal.data.windows import Window, split_windows
 from graphcal.model.parameters import TERM_NAMES, RadarTerms, prior_sigmas
 from graphcal.solvers.drift import DEFAULT_STEP_FALSE_ALARM, ChainAnalysis, analyse_chain
 from graphcal.solvers.gtsam_adapter import FactorGraph, symbol
+from graphcal.solvers.window_fit import WindowFit, window_fit
 
 FloatArray = NDArray[np.float64]
 
@@ -133,6 +135,9 @@ class WindowSummary:
         Time the summary took.
     cost : float
         The window's final robust cost ``1/2 sum e^2`` (whitened errors, priors included).
+    fit : WindowFit or None
+        What the fit verdict needs of the window's own fit
+        (:func:`graphcal.solvers.window_fit.window_fit`); ``None`` when not asked for.
     """
 
     index: int
@@ -147,6 +152,7 @@ class WindowSummary:
     atmosphere: HeightModelEstimate | None = None
     elapsed_s: float = 0.0
     cost: float = 0.0
+    fit: WindowFit | None = None
 
     @property
     def middle_s(self) -> float:
@@ -161,13 +167,21 @@ class WindowSummary:
         return information, prior_information * self.estimate
 
 
-def summarise_window(window: Window, options: WindowOptions = WindowOptions()
-                     ) -> WindowSummary | None:
+def summarise_window(window: Window, options: WindowOptions = WindowOptions(), *,
+                     judge: bool = True) -> WindowSummary | None:
     """Calibrate one window on its own and keep its Gaussian summary.
 
+    With ``judge``, the summary also carries what the fit verdict needs of the
+    window's fit (:attr:`WindowSummary.fit`, :mod:`graphcal.solvers.window_fit`).
     Returns ``None`` when the window has nothing to calibrate (no plot matched
     ADS-B and no two radars saw the same aircraft).
     """
+    with sharing():  # the fit numbers reuse the estimator's alignments with ADS-B
+        return _summarise_window(window, options, judge)
+
+
+def _summarise_window(window: Window, options: WindowOptions, judge: bool
+                      ) -> WindowSummary | None:
     from graphcal.solvers.graph import graph
 
     start = time.perf_counter()
@@ -192,12 +206,14 @@ def summarise_window(window: Window, options: WindowOptions = WindowOptions()
     prior = np.concatenate([
         prior_sigmas(dataset.sites[rid], RadarTerms(rid, (name,), {})) for rid, name in labels
     ]) if labels else np.zeros(0)
+    fit = (window_fit(dataset, cal, use_adsb=options.use_adsb, max_gap_s=options.max_gap_s)
+           if judge else None)
     return WindowSummary(
         window.index, window.t_start_s, window.t_end_s, labels,
         np.asarray(cal.estimate, dtype=float), np.asarray(cal.covariance, dtype=float),
         prior, {rid: int(cal.n_plots.get(rid, 0)) for rid in cal.radar_ids},
         list(cal.warnings), cal.atmosphere, time.perf_counter() - start,
-        float(cal.info.get("final_error", 0.0)))
+        float(cal.info.get("final_error", 0.0)), fit)
 
 
 # --------------------------------------------------------------------------- the chain

@@ -16,8 +16,10 @@ from graphcal.analysis.fit_verdict import (
     ModelMisfitError,
     chi2_limit,
     verdict_from_sums,
+    windows_verdict,
 )
 from graphcal.core.errors import EstimationError
+from graphcal.solvers.window_fit import WindowFit
 from tests.paths import SCENARIOS
 
 
@@ -97,3 +99,59 @@ def test_check_fit_off_records_the_verdict_as_a_warning(demo) -> None:
     assert cal.info["fit_verdict"]["failed"] == ["NORD"]
     assert any("far beyond their sigmas" in w for w in cal.warnings)
     assert np.isfinite(cal.value("NORD", "azimuth_bias_mrad"))
+
+
+# --------------------------------------------------------------------------- over windows
+def _window_fit(chi2_per_dof: dict[str, float], n: int = 1000, gain: float = 1e-4,
+                reference: str = "adsb") -> WindowFit:
+    """Fit numbers of a window: each radar's range and azimuth at ``chi2_per_dof`` over
+    ``n - 3`` dof (3 terms)."""
+    return WindowFit(
+        reference,
+        sums={rid: {"range": (ratio * (n - 3), n), "azimuth": ((n - 3) * 1.0, n),
+                    "altitude": (1e9, n)} for rid, ratio in chi2_per_dof.items()}
+        if reference == "adsb" else {},
+        n_terms={rid: 3 for rid in chi2_per_dof},
+        range_gain={rid: gain for rid in chi2_per_dof},
+        negative_ranges={rid: 0 for rid in chi2_per_dof})
+
+
+def test_over_windows_a_radar_fails_in_the_windows_where_it_fails() -> None:
+    windows = [(0.0, 900.0, _window_fit({"A": 1.0, "B": 1.1})),
+               (1800.0, 2700.0, _window_fit({"A": 900.0, "B": 1.2})),
+               (900.0, 1800.0, _window_fit({"A": 5.0, "B": 3.9}))]
+    verdict = windows_verdict(windows)
+    assert verdict.failed == ["A"] and verdict.reference == "adsb"
+    # the windows in time order, A's worst one as its entry
+    assert [w.t_start_s for w in verdict.windows] == [0.0, 900.0, 1800.0]
+    assert [w.span for w in verdict.failed_windows("A")] == ["900-1800 s", "1800-2700 s"]
+    assert verdict.radars["A"].worst == pytest.approx(900.0)
+    assert verdict.radars["B"].worst == pytest.approx(3.9) and not verdict.radars["B"].failed
+    text = verdict.message()
+    assert "A: in 2 of 3 windows (900-1800 s, 1800-2700 s); worst: range chi2/dof 900" in text
+    assert "B:" not in text
+    document = verdict.to_dict()
+    assert document["failed"] == ["A"] and not document["passed"]
+    assert document["radars"]["A"]["window"] == [1800.0, 2700.0]
+    assert document["radars"]["A"]["failed_windows"] == [[900.0, 1800.0], [1800.0, 2700.0]]
+    assert document["radars"]["B"]["failed_windows"] == []
+    assert [w["failed"] for w in document["windows"]] == [[], ["A"], ["A"]]
+    assert "altitude" not in document["radars"]["A"]["coordinates"]
+
+
+def test_over_windows_the_gain_is_judged_without_residuals() -> None:
+    """Windows without ADS-B carry no residuals: a range gain of -0.999 (ranges in km)
+    still fails, a plausible one passes with reference "none"."""
+    km = windows_verdict([(0.0, 600.0, _window_fit({"A": 1.0}, gain=-0.999, reference="none"))])
+    assert km.failed == ["A"] and km.reference == "none"
+    assert "range gain -0.999" in km.message()
+    fine = windows_verdict([(0.0, 600.0, _window_fit({"A": 1.0}, reference="none"))])
+    assert fine.passed and fine.radars["A"].coordinates == []
+
+
+def test_over_windows_few_residuals_get_the_quantile_limit() -> None:
+    """A window with 13 residuals (10 dof) of a radar: its limit is the 1e-6 quantile."""
+    verdict = windows_verdict([(0.0, 600.0, _window_fit({"A": 4.5}, n=13))])
+    [range_fit, _] = verdict.radars["A"].coordinates
+    assert range_fit.dof == 10 and range_fit.limit == pytest.approx(chi2_limit(10))
+    assert chi2_limit(10) > 4.5 and verdict.passed

@@ -187,3 +187,42 @@ def test_option_parsers() -> None:
     assert parse_since("32400") == 32400.0
     assert parse_since("2024-05-01T09:00").isoformat() == "2024-05-01T09:00:00+00:00"
     assert parse_since("2024-05-01T11:00+02:00").utcoffset().total_seconds() == 7200
+
+
+def test_calibrate_history_records_the_datasets_epoch(tmp_path: Path) -> None:
+    """``calibrate --history`` passes ``[dataset] epoch_utc`` as the run's provenance, with
+    and without windows; a dataset without one records none. The history then shows UTC."""
+    import numpy as np
+
+    from graphcal.data.bias import RadarBias
+    from graphcal.io.folder import write_dataset
+    from graphcal.pipeline.history import read_runs, read_series
+    from tests.synthetic import Track, make_dataset, site_at
+
+    tracks = [Track(f"4ca{i:03x}", (-30e3 + 20e3 * i, 10e3, 9e3), (200.0, 40.0, 0.0), 0.0, 600.0)
+              for i in range(3)]
+    dataset = make_dataset(np.random.default_rng(2), [
+        (site_at("RA", 0.0, 0.0), RadarBias(50.0, 1e-4, 1e-3)),
+        (site_at("RB", 60e3, 0.0), RadarBias(-30.0, 0.0, -1e-3))], tracks)
+    plain = write_dataset(dataset, tmp_path / "plain")
+    dated = tmp_path / "dated"
+    dated.mkdir()
+    for name in ("plots.csv", "adsb.csv"):
+        (dated / name).write_bytes((plain / name).read_bytes())
+    (dated / "sites.toml").write_text('[dataset]\nepoch_utc = "2021-10-07T09:00:00Z"\n\n'
+                                      + (plain / "sites.toml").read_text())
+    path = tmp_path / "calib.db"
+    for folder, options in ((dated, ["--method", "ls"]), (dated, ["--window", "5min"]),
+                            (plain, ["--method", "ls"])):
+        result = runner.invoke(app, ["calibrate", str(folder), *options, "--history",
+                                     str(path)])
+        assert result.exit_code == 0, result.output
+    runs = read_runs(path)
+    epoch = pd.Timestamp("2021-10-07T09:00:00Z")
+    assert runs["epoch_utc"].tolist()[:2] == [epoch, epoch] and pd.isna(runs["epoch_utc"][2])
+    series = read_series(path, radar="RA")
+    first = series[series["run_id"] == 1].iloc[0]
+    assert first["t_start_utc"] == epoch + pd.to_timedelta(first["t_start_s"], unit="s")
+    shown = runner.invoke(app, ["history", str(path), "--radar", "RA", "--since",
+                                "2021-10-07T09:00:00Z"])
+    assert shown.exit_code == 0 and "2021-10-07" in shown.output

@@ -3,7 +3,8 @@ written, and the inputs untouched.
 
 The cases: a missing input; an output in a missing folder; an output onto a folder (or,
 for a dataset folder, onto a file or a non-empty folder); an output inside an input
-dataset folder (or a dataset folder holding an input).  Every check runs before any work,
+dataset folder (or a dataset folder holding an input); an output file that exists, without
+``--overwrite``.  Every check runs before any work,
 so the cases take no time.
 """
 
@@ -81,6 +82,8 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> Files:
     (root / "dir.json").mkdir()  # a folder named like each output file
     for suffix in ("csv", "png", "html", "md", "toml"):
         (root / f"dir.{suffix}").mkdir()
+    for suffix in ("json", "csv", "png", "html", "md", "toml"):
+        (root / f"old.{suffix}").write_text("an earlier output\n")
     return Files(root, folder, result, scenario_dir, scenario, recording, db, plain_file)
 
 
@@ -147,6 +150,9 @@ def _cases(f: Files) -> list[tuple[str, list[str]]]:
     cases += [("output inside the input", argv)  # compare reads a file, not a dataset
               for argv in _outputs(f, lambda s: str(f.ds / f"plots{s}"))
               if argv[0] != "compare"]
+    cases += [("existing output without --overwrite", argv)  # a history is appended to
+              for argv in _outputs(f, lambda s: str(f.root / f"old{s}"))
+              if not argv[-1].endswith(".db")]
     # dataset folders: parents are created, but not below a file
     cases += [("output in a missing folder", argv)
               for argv in _folder_outputs(f, f.plain_file / "sub" / "ds")]
@@ -212,6 +218,38 @@ def test_calibrate_out_needs_overwrite(inputs: Files, tmp_path: Path) -> None:
                                  "--out", str(out), "--overwrite"])
     assert result.exit_code == 0, result.output
     assert set(json.loads(out.read_text())["radars"]) == {"RA", "RB"}
+
+
+@pytest.mark.parametrize(("command", "option", "suffix"), [
+    ("report", "--out", ".html"),
+    ("fuse", "--out", ".csv"),
+    ("observability", "--out", ".json"),
+    ("observability", "--plot", ".png"),
+    ("history", "--plot", ".png"),
+])
+def test_outputs_need_overwrite(inputs: Files, tmp_path: Path, command: str, option: str,
+                                suffix: str) -> None:
+    """An existing output file: refused (exit 2, one line, untouched), replaced with
+    ``--overwrite``, as ``calibrate --out``."""
+    if command == "history":
+        db = tmp_path / "calib.db"
+        made = runner.invoke(app, ["calibrate", str(inputs.ds), "--method", "ls",
+                                   "--history", str(db)])
+        assert made.exit_code == 0, made.output
+        argv = ["history", str(db)]
+    else:
+        argv = {"report": ["report", str(inputs.result), str(inputs.ds)],
+                "fuse": ["fuse", str(inputs.ds)],
+                "observability": ["observability", str(inputs.ds)]}[command]
+    out = tmp_path / f"old{suffix}"
+    out.write_text("an earlier output\n")
+    refused = runner.invoke(app, [*argv, option, str(out)])
+    assert refused.exit_code == 2, refused.output
+    assert refused.output == f"error: {option} {out}: exists; pass --overwrite to replace it\n"
+    assert out.read_text() == "an earlier output\n"
+    replaced = runner.invoke(app, [*argv, option, str(out), "--overwrite"])
+    assert replaced.exit_code == 0, replaced.output
+    assert out.read_bytes() != b"an earlier output\n" and out.stat().st_size > 100
 
 
 def test_two_outputs_on_one_file_are_refused(inputs: Files, tmp_path: Path) -> None:

@@ -11,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 import graphcal
+from graphcal.analysis.fit_verdict import ModelMisfitError
 from graphcal.cli.app import app
 from graphcal.io.folder import write_dataset
 from tests.paths import SCENARIOS
@@ -73,3 +74,60 @@ def test_other_commands_stop_on_the_mistake(folders, tmp_path: Path, command: st
     assert result.exit_code == 2, result.output
     assert "azimuth_deg" in result.output
     assert "--force" in runner.invoke(app, [command, "--help"]).output
+
+
+# --------------------------------------------------------------------------- over windows
+@pytest.fixture(scope="module")
+def seed1(tmp_path_factory) -> dict[str, Path]:
+    """The tour's demo network (seed 1) and the same with NORD's azimuths in radians."""
+    root = tmp_path_factory.mktemp("cli-window-verdict")
+    ds = graphcal.simulate(SCENARIOS / "demo_network.toml", seed=1).dataset
+    plots = ds.plots.copy()
+    rows = plots["radar_id"] == "NORD"
+    plots.loc[rows, "azimuth_deg"] = plots.loc[rows, "azimuth_deg"] * (math.pi / 180)
+    return {"demo": write_dataset(ds, root / "demo"),
+            "az_rad": write_dataset(replace(ds, plots=plots), root / "az_rad")}
+
+
+@pytest.mark.parametrize(("window", "spans"), [
+    ("1h", "in 1 of 1 windows (0-3600 s)"),
+    # 10 minutes: the misfit makes steps appear; it is judged before they are located
+    ("10min", "in 3 of 3 windows (0-600 s, 600-1200 s, 1200-1800 s)"),
+])
+def test_with_windows_the_unit_mistake_exits_3(seed1, tmp_path: Path, window: str,
+                                               spans: str) -> None:
+    out = tmp_path / "result.json"
+    forced = runner.invoke(app, ["calibrate", str(seed1["az_rad"]), "--force", "--window",
+                                 window, "--out", str(out)])
+    assert forced.exit_code == 3, forced.output
+    text = " ".join(forced.output.split())
+    assert text.startswith("error: the residuals are far beyond their sigmas")
+    assert f"NORD: {spans}; worst: azimuth chi2/dof" in text
+    assert "SUD:" not in text and not out.exists()
+
+
+def test_with_windows_the_demo_passes_and_records_the_verdict(seed1, tmp_path: Path) -> None:
+    out = tmp_path / "result.json"
+    result = runner.invoke(app, ["calibrate", str(seed1["demo"]), "--window", "15min",
+                                 "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    verdict = json.loads(out.read_text())["info"]["fit_verdict"]
+    assert verdict["passed"] and verdict["failed"] == [] and verdict["reference"] == "adsb"
+    assert [(w["t_start_s"], w["t_end_s"], w["failed"]) for w in verdict["windows"]] == [
+        (0.0, 900.0, []), (900.0, 1800.0, [])]
+    assert set(verdict["radars"]) == {"NORD", "SUD", "EST3D", "OUEST3D", "APP"}
+    ratios = [c["chi2_per_dof"] for r in verdict["radars"].values()
+              for c in r["coordinates"].values()]
+    assert len(ratios) == 12 and max(ratios) < 1.2  # each radar's worst window
+    assert all(r["failed_windows"] == [] for r in verdict["radars"].values())
+
+
+def test_with_windows_check_fit_off_records_the_verdict_as_a_warning(seed1) -> None:
+    cal = graphcal.calibrate(seed1["az_rad"], window="1h", force=True, check_fit=False)
+    assert cal.info["fit_verdict"]["failed"] == ["NORD"]
+    assert cal.info["fit_verdict"]["radars"]["NORD"]["failed_windows"] == [[0.0, 3600.0]]
+    assert any("far beyond their sigmas" in w and "NORD: in 1 of 1" in w for w in cal.warnings)
+    with pytest.raises(ModelMisfitError) as info:
+        graphcal.calibrate(seed1["az_rad"], window="1h", force=True)
+    assert info.value.calibration.info["fit_verdict"]["failed"] == ["NORD"]
+    assert info.value.calibration.series is not None

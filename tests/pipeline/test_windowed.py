@@ -63,6 +63,12 @@ def test_the_result_is_the_last_window_with_series_and_events(stepping, windowed
     # Located inside its window from SUD's own plots against ADS-B (to about 30 s).
     assert abs(event["time_s"] - 2000.0) < 60.0
     assert abs(event["size"]["range_offset_m"] - 60.0) < 3 * event["sigma"]["range_offset_m"]
+    # The fit verdict judged every window's own fit, the one holding the step in its parts.
+    verdict = document["info"]["fit_verdict"]
+    assert verdict["passed"] and verdict["reference"] == "adsb"
+    spans = [(w["t_start_s"], w["t_end_s"]) for w in verdict["windows"]]
+    assert spans[0] == (0.0, 900.0) and spans[-1][1] == 3600.0
+    assert any(t0 < event["time_s"] == t1 for t0, t1 in spans)  # cut at the step
     # The last window's SUD range offset is the stepped one.
     truth = scenario.radars[1].schedule.mean(2700.0, 3600.0)
     assert document["radars"]["SUD"]["range_offset_m"] == pytest.approx(

@@ -215,3 +215,33 @@ def test_report_estimates_show_the_height_model(tmp_path, scenario, determined) 
         assert ">21000<" in scale.replace("\u2009", "") and ">+1.0<" in scale
     else:
         assert "not determined" in offset and "not determined" in scale
+
+
+def _recording_row(page: str) -> str:
+    return re.search(r"<td>recording</td><td>([^<]*)</td>", page).group(1)
+
+
+def test_the_header_dates_the_recording_by_its_epoch(scenario, page) -> None:
+    """With ``[dataset] epoch_utc`` the header gives the UTC date and time span; across
+    midnight the end has its own date; without an epoch, times of day as before."""
+    from dataclasses import replace
+    from datetime import UTC, datetime, timedelta
+
+    dataset, cal = scenario
+    t0, t1 = float(dataset.plots["time_s"].min()), float(dataset.plots["time_s"].max())
+    assert 0.0 <= t0 < 10.0 and 590.0 < t1 <= 600.0  # the tracks fly 0-600 s
+    epoch = datetime(2021, 10, 7, 8, 0, tzinfo=UTC)
+    start, end = (epoch + timedelta(seconds=round(t)) for t in (t0, t1))
+    dated = _recording_row(build_report(cal, replace(dataset, epoch_utc=epoch), crlb=False))
+    assert dated.startswith(f"2021-10-07 {start:%H:%M:%S} – {end:%H:%M:%S} UTC (")
+    assert dated.endswith("counted from epoch_utc 2021-10-07T08:00:00Z)")
+    late = datetime(2021, 10, 7, 23, 55, tzinfo=UTC)
+    start, end = (late + timedelta(seconds=round(t)) for t in (t0, t1))
+    across = _recording_row(build_report(cal, replace(dataset, epoch_utc=late), crlb=False))
+    assert across.startswith(f"2021-10-07 {start:%H:%M:%S} – 2021-10-08 {end:%H:%M:%S} UTC")
+    # the data section's spans are dated too
+    assert f"2021-10-07 {start:%H:%M:%S} – 2021-10-08" in build_report(
+        cal, replace(dataset, epoch_utc=late), crlb=False).split('<h2 id="data">')[1]
+    undated = _recording_row(page)
+    assert undated.startswith("00:00:0") and "2021" not in undated
+    assert undated.endswith("counted from 00:00 UTC of the recording's first day)")

@@ -68,6 +68,7 @@ import pandas as pd
 
 from graphcal.core.errors import DatasetError
 from graphcal.data.dataset import Dataset, Site
+from graphcal.data.epoch import epoch_from_unix
 from graphcal.io.asterix.decode import (
     AsterixError,
     Cat034Message,
@@ -671,6 +672,8 @@ def build_tables(
     Returns
     -------
     AsterixTables
+        Its dataset's ``epoch_utc`` is day 0's midnight when known (capture times,
+        or ``epoch_unix_s``), else ``None``.
 
     Raises
     ------
@@ -740,8 +743,10 @@ def build_tables(
     if adsb is not None:
         stats.adsb_reports = len(adsb)
         stats.aircraft = int(adsb["target_id"].nunique())
+    epoch = None if time_base.epoch_unix_s is None else epoch_from_unix(time_base.epoch_unix_s)
     dataset = Dataset(sites=sites, plots=plots, adsb=_with_sigma(adsb),
-                      plot_altitude="geometric" if user_sites is None else user_sites.plot_altitude)
+                      plot_altitude="geometric" if user_sites is None else user_sites.plot_altitude,
+                      epoch_utc=epoch)
     return AsterixTables(dataset=dataset, time_base=time_base, stats=stats, decode=decoded)
 
 
