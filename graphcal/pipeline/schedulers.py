@@ -116,86 +116,6 @@ def read_ahead(items: Iterable[Any], depth: int = 1) -> Iterator[Any]:
                 thread.join(timeout=0.1)
 
 
-def read_in_process(function: Callable[..., Iterable[Any]], args: tuple[Any, ...] = (),
-                    depth: int = 1) -> Iterator[Any]:
-    """The items of ``function(*args)``, produced in a child process meanwhile.
-
-    Like :func:`read_ahead`, but the reading (CSV parsing, validation, cleaning)
-    runs in its own interpreter, so it does not wait for this one's GIL: on two
-    cores reading a window and calibrating the one before truly overlap.  The child
-    is started by ``spawn`` (a fresh interpreter: nothing of this process's threads
-    or libraries is inherited), ``function`` must be a module-level function and
-    ``args`` and the items picklable.  Order is kept; an exception of the producer
-    is raised here, at the item it stopped at; at most ``depth + 1`` items wait.
-    Abandoning the iterator stops the child.
-
-    Raises
-    ------
-    RuntimeError
-        If the child dies without a word (killed, out of memory).
-    """
-    import multiprocessing
-
-    context = multiprocessing.get_context("spawn")
-    out = context.Queue(maxsize=depth)
-    stop = context.Event()
-    child = context.Process(target=_produce_into, args=(function, args, out, stop),
-                            name="graphcal-reader", daemon=True)
-    child.start()
-    try:
-        while True:
-            try:
-                kind, payload = out.get(timeout=0.5)
-            except queue.Empty:
-                if not child.is_alive() and out.empty():
-                    raise RuntimeError(
-                        f"the reading process stopped (exit code {child.exitcode}) before "
-                        "the end of the data; out of memory?") from None
-                continue
-            if kind == "item":
-                yield payload
-            elif kind == "error":
-                raise payload
-            else:
-                return
-    finally:
-        stop.set()
-        while child.is_alive():
-            try:
-                out.get(timeout=0.1)
-            except queue.Empty:
-                child.join(timeout=0.1)
-        out.close()
-
-
-def _produce_into(function: Callable[..., Iterable[Any]], args: tuple[Any, ...],
-                  out: Any, stop: Any) -> None:
-    """:func:`read_in_process`'s child: every item, then the end or the error."""
-    def put(message: tuple[str, Any]) -> bool:
-        while not stop.is_set():
-            try:
-                out.put(message, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
-        return False
-
-    try:
-        for item in function(*args):
-            if not put(("item", item)):
-                return
-    except BaseException as exc:  # noqa: BLE001 - handed to the parent
-        try:
-            import pickle
-
-            pickle.dumps(exc)
-        except Exception:  # noqa: BLE001 - an exception that cannot travel as it is
-            exc = RuntimeError(f"{type(exc).__name__}: {exc}")
-        put(("error", exc))
-        return
-    put(("end", None))
-
-
 def map_windows(
     function: Callable[..., Any],
     items: Iterable[Any],
@@ -276,4 +196,4 @@ def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: 
             cluster.close()
 
 
-__all__ = ["SCHEDULERS", "check_scheduler", "map_windows", "read_ahead", "read_in_process"]
+__all__ = ["SCHEDULERS", "check_scheduler", "map_windows"]

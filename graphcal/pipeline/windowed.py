@@ -31,7 +31,7 @@ from graphcal.data.windows import Window, split_window, split_windows, window_in
 from graphcal.model.information import observability
 from graphcal.model.parameters import RadarTerms, prior_sigmas
 from graphcal.noise import filled_with_notes
-from graphcal.pipeline.schedulers import check_scheduler, map_windows, read_in_process
+from graphcal.pipeline.schedulers import check_scheduler, map_windows
 from graphcal.solvers.drift import DEFAULT_STEP_FALSE_ALARM
 from graphcal.solvers.windows import (
     WindowedCalibration,
@@ -46,12 +46,6 @@ if TYPE_CHECKING:
     from graphcal.analysis.fit_verdict import FitVerdict
 
 Progress = Callable[..., None]
-
-#: A folder whose tables hold at least this many bytes is read in a child process
-#: (:func:`graphcal.pipeline.schedulers.read_in_process`), which overlaps reading
-#: with calibrating on a second core; smaller ones by a thread, without the child's
-#: start-up (about a second).
-PROCESS_READER_MIN_BYTES = 64 * 1024 * 1024
 
 #: A step inside a window is located to within this [s] (_locate_step) ...
 STEP_TIME_TOLERANCE_S = 30.0
@@ -306,10 +300,8 @@ def _folder_source(folder: Path, window_s: float, clean: bool, force: bool) -> _
     sites = filled.sites
 
     def windows() -> Iterator[Window]:
-        recipe = (folder, window_s, clean, force, sites)
-        if _table_bytes(folder) >= PROCESS_READER_MIN_BYTES:
-            return read_in_process(_read_folder_windows, recipe)
-        return _read_folder_windows(*recipe)
+        for window in iter_windows(folder, window_s, clean=clean, force=force):
+            yield replace(window, dataset=replace(window.dataset, sites=sites))
 
     total = len(dataset_span(folder).window_indices(window_s))
     return _Source(sites, windows, total, [], info, warnings)
@@ -338,26 +330,6 @@ def _radar_only(window: Window, radar_id: str, options: WindowOptions) -> Window
                       adsb=adsb[seen.to_numpy()].reset_index(drop=True),
                       sites={radar_id: dataset.sites[radar_id]})
     return replace(window, dataset=reduced)
-
-
-def _read_folder_windows(folder: Path, window_s: float, clean: bool, force: bool,
-                         sites: dict[str, Site]) -> Iterator[Window]:
-    """The folder's windows, read and cleaned, with ``sites`` (sigmas filled in)."""
-    from graphcal.io.window_reader import iter_windows
-
-    for window in iter_windows(folder, window_s, clean=clean, force=force):
-        yield replace(window, dataset=replace(window.dataset, sites=sites))
-
-
-def _table_bytes(folder: Path) -> int:
-    """Bytes of the folder's tables (files and part folders), on disk."""
-    total = 0
-    for path in folder.iterdir():
-        if path.is_dir():
-            total += sum(part.stat().st_size for part in path.iterdir() if part.is_file())
-        elif path.suffix in (".csv", ".parquet"):
-            total += path.stat().st_size
-    return total
 
 
 def _split_cost(window: Window, times: Sequence[float], options: WindowOptions) -> float:
@@ -512,5 +484,5 @@ def to_calibration(result: WindowedCalibration, sites: Mapping[str, Site],
     return cal
 
 
-__all__ = ["LARGEST_MOVE_WARNING_SIGMA", "PROCESS_READER_MIN_BYTES", "calibrate_windows",
-           "parse_drift", "series_entry", "to_calibration"]
+__all__ = ["LARGEST_MOVE_WARNING_SIGMA", "calibrate_windows", "parse_drift", "series_entry",
+           "to_calibration"]

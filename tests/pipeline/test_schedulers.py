@@ -39,21 +39,3 @@ def test_read_ahead_stops_its_producer_when_abandoned() -> None:
     reader.close()
     assert not [t for t in threading.enumerate() if t.name == "graphcal-read-ahead"]
     assert len(taken) <= 3 + 2
-
-
-def test_read_in_process_keeps_the_order_raises_and_stops_its_child() -> None:
-    import multiprocessing
-
-    from graphcal.pipeline.schedulers import read_in_process
-    from tests.pipeline.process_reader_items import broken, numbers
-
-    assert list(read_in_process(numbers, (40,))) == list(range(40))
-    seen = []
-    with pytest.raises(ValueError, match="row 7"):
-        for item in read_in_process(broken, (3,)):
-            seen.append(item)
-    assert seen == [0, 1, 2]
-    reader = read_in_process(numbers, (10**9,))
-    assert [next(reader) for _ in range(3)] == [0, 1, 2]
-    reader.close()
-    assert not [p for p in multiprocessing.active_children() if p.name == "graphcal-reader"]

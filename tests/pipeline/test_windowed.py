@@ -181,19 +181,3 @@ def test_a_folder_is_read_window_by_window_with_the_same_result(stepping, window
         for mine, theirs in zip(entries, streamed.series["radars"][rid], strict=True):
             for key, sigma in mine["sigma"].items():
                 assert abs(mine[key] - theirs[key]) <= 0.01 * sigma, (rid, key)
-
-
-def test_a_large_folder_is_read_in_a_child_process_with_the_same_result(
-        stepping, windowed, tmp_path: Path, monkeypatch) -> None:
-    import graphcal.pipeline.windowed as windowed_module
-
-    _, sim = stepping
-    folder = tmp_path / "ds"
-    write_dataset(sim.dataset, folder, fmt="csv")
-    monkeypatch.setattr(windowed_module, "PROCESS_READER_MIN_BYTES", 0)
-    streamed = calibrate(folder, window="15min")
-    assert [e["radar_id"] for e in streamed.events] == [e["radar_id"] for e in windowed.events]
-    for rid, entries in windowed.series["radars"].items():
-        for mine, theirs in zip(entries, streamed.series["radars"][rid], strict=True):
-            for key, sigma in mine["sigma"].items():
-                assert abs(mine[key] - theirs[key]) <= 0.01 * sigma, (rid, key)
