@@ -56,11 +56,11 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 from scipy import special
 
 from graphcal.analysis.model_checks import ModelChecks, calibrated_residuals, normalised_sums
 from graphcal.core.errors import EstimationError
+from graphcal.data.bias import count_non_positive_ranges
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.solvers.window_fit import WindowFit
@@ -301,11 +301,8 @@ def negative_ranges(dataset: Dataset, cal: Calibration) -> dict[str, int]:
     for rid in cal.radar_ids:
         if rid not in dataset.sites:
             continue
-        bias = cal.bias(rid)
         r = dataset.plots_of(rid)["range_m"].to_numpy(dtype=float)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            corrected = (r - bias.range_offset_m) / (1.0 + bias.range_gain)
-        out[rid] = int(np.sum(~(corrected > 0)))
+        out[rid] = count_non_positive_ranges(r, cal.bias(rid))
     return out
 
 

@@ -189,6 +189,15 @@ def correct_bias(
     return r, az, el
 
 
+def count_non_positive_ranges(range_measured_m: ArrayLike, bias: RadarBias) -> int:
+    """How many plots ``bias`` corrects to a range ``(r - offset) / (1 + gain)`` that is not
+    positive (NaN counts too): an estimate no geometry allows."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corrected = ((np.asarray(range_measured_m, dtype=float) - bias.range_offset_m)
+                     / (1.0 + bias.range_gain))
+    return int(np.sum(~(corrected > 0)))
+
+
 def correct_time(time_reported_s: ArrayLike, bias: RadarBias) -> NDArray[np.float64]:
     """True plot time from the reported one: ``time_true = time_reported - time_offset_s``."""
     return np.asarray(time_reported_s, dtype=float) - bias.time_offset_s

@@ -100,7 +100,7 @@ from graphcal.io.dataset_span import (
 from graphcal.io.folder import (
     check_folder,
     dataset_tables,
-    load_plot_altitude,
+    load_dataset_settings,
     load_sites,
     needs_elevation_scan,
     table_paths,
@@ -260,8 +260,8 @@ def iter_windows(
     Window
         In time order; windows without plots (after cleaning) are left out.
         ``window.dataset`` has the folder's sites (made 3-D as
-        :func:`~graphcal.io.folder.load_dataset` makes them), ``path`` and
-        ``plot_altitude``, and ``cleaning`` the window's cleaning report (``None``
+        :func:`~graphcal.io.folder.load_dataset` makes them), ``path``,
+        ``plot_altitude`` and ``epoch_utc``, and ``cleaning`` the window's cleaning report (``None``
         when not cleaned).
 
     Raises
@@ -289,7 +289,7 @@ def iter_windows(
     check_folder(folder)
     file_sites = load_sites(folder / SITES_FILE)
     plot_files, adsb_files = dataset_tables(folder)
-    plot_altitude = load_plot_altitude(folder / SITES_FILE)
+    settings = load_dataset_settings(folder / SITES_FILE)
     sites = file_sites
     if needs_elevation_scan(file_sites):
         sites = three_d_without_sigmas(file_sites, _elevation_complete(plot_files, chunk_rows),
@@ -319,7 +319,8 @@ def iter_windows(
                 raise_if_implausible(check_tables(sites, window_plots, window_adsb,
                                                   time_overlap=False), paths)
             dataset = Dataset(sites=sites, plots=window_plots, adsb=window_adsb, path=folder,
-                              plot_altitude=plot_altitude)
+                              plot_altitude=settings.plot_altitude,
+                              epoch_utc=settings.epoch_utc)
             dataset = _window_dataset(dataset, start - adsb_margin_s, end + adsb_margin_s,
                                       clean)
             if len(dataset.plots):

@@ -404,6 +404,17 @@ def ray_excess_near(
     return ray_excess(site, corrected)
 
 
+def _rows_by_label(labels: NDArray[np.int64], order: NDArray[np.int64],
+                   wanted: NDArray[np.int64]) -> tuple[NDArray[np.int64], bool]:
+    """Positions in ``labels`` (sorted by ``order``) of the ``wanted`` labels, and whether
+    all of them are there."""
+    if not len(order):
+        return np.zeros(len(wanted), dtype=np.int64), not len(wanted)
+    found = np.searchsorted(labels, wanted, sorter=order)
+    rows = order[np.minimum(found, len(order) - 1)]
+    return rows, bool(np.all(labels[rows] == wanted))
+
+
 class RayExcessCache:
     """One radar's :class:`RayExcess`, shared by every factor that places its plots.
 
@@ -430,10 +441,8 @@ class RayExcessCache:
 
     def covers(self, plots: PlotArrays) -> bool:
         """Whether every plot of ``plots`` (by row label) is in the cache."""
-        rows = np.searchsorted(self.plots.index, plots.index, sorter=self._order)
-        rows = np.minimum(rows, len(self._order) - 1)
-        return bool(len(self._order)) and bool(
-            np.all(self.plots.index[self._order[rows]] == plots.index))
+        return bool(len(self._order)) and _rows_by_label(self.plots.index, self._order,
+                                                          plots.index)[1]
 
     def rows(self, index: NDArray[np.int64]) -> NDArray[np.int64]:
         """Positions in the cache of the plots with these dataset row labels."""
@@ -498,9 +507,8 @@ class CorrectedPlotsCache:
         ValueError
             If a label is not in the cache.
         """
-        found = np.searchsorted(self.plots.index, index, sorter=self._order)
-        rows = self._order[np.minimum(found, len(self._order) - 1)] if len(self._order) else found
-        if len(index) and (not len(self._order) or np.any(self.plots.index[rows] != index)):
+        rows, found = _rows_by_label(self.plots.index, self._order, index)
+        if not found:
             raise ValueError("plots missing from the radar's corrected-plot cache")
         return rows
 

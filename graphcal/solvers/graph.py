@@ -154,17 +154,12 @@ def thinned_for_initial_values(
     which a few thousand plots give as well as a million: the closed forms then
     cost a fixed time per radar instead of growing with the recording.
     """
-    radar_ids = dataset.plots["radar_id"].to_numpy()
-    names, codes = np.unique(radar_ids, return_inverse=True)
-    counts = np.bincount(codes, minlength=len(names))
-    if counts.max(initial=0) <= max_plots_per_radar:
+    by_radar = dataset.plots.groupby("radar_id", sort=False)["radar_id"]
+    count = by_radar.transform("size").to_numpy(dtype=np.int64)
+    if count.max(initial=0) <= max_plots_per_radar:
         return dataset
-    order = np.argsort(codes, kind="stable")
-    starts = np.concatenate([[0], np.cumsum(counts)])
-    keep = np.zeros(len(codes), dtype=bool)
-    for i, count in enumerate(counts):
-        stride = -(-int(count) // max_plots_per_radar)  # ceil
-        keep[order[starts[i]:starts[i + 1]:stride]] = True
+    stride = -(-count // max_plots_per_radar)  # ceil, per row: its radar's stride
+    keep = by_radar.cumcount().to_numpy() % stride == 0
     return dataclasses.replace(dataset, plots=dataset.plots.loc[keep].reset_index(drop=True))
 
 

@@ -40,6 +40,7 @@ import numpy as np
 from graphcal.core import frames
 from graphcal.core.outliers import outlier_rows
 from graphcal.data.align import align_adsb, plot_arrays
+from graphcal.data.bias import count_non_positive_ranges
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.model.measurement import (
@@ -126,9 +127,7 @@ def window_fit(dataset: Dataset, cal: Calibration, *, use_adsb: bool, max_gap_s:
         fit.n_terms[rid] = sum(1 for r, _ in cal.labels if r == rid)
         fit.range_gain[rid] = cal.value(rid, "range_gain")
         r = plot_arrays(dataset, rid).range_m  # shared with the estimator
-        with np.errstate(divide="ignore", invalid="ignore"):
-            corrected = (r - bias.range_offset_m) / (1.0 + bias.range_gain)
-        fit.negative_ranges[rid] = int(np.sum(~(corrected > 0)))
+        fit.negative_ranges[rid] = count_non_positive_ranges(r, bias)
         if have_adsb and not fit.negative_ranges[rid]:
             sums = _adsb_sums(dataset, rid, bias, max_gap_s)
             if sums is not None:
