@@ -383,6 +383,48 @@ def align_adsb(
                     lambda: _align_adsb(dataset, radar_id, max_gap_s, 0.0))
 
 
+def align_adsb_thinned(
+    dataset: Dataset,
+    thinned: Dataset,
+    keep: NDArray[np.bool_],
+    radar_id: str,
+    max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
+) -> AdsbAlignment:
+    """``thinned``'s zero-offset alignment of ``radar_id``, cut out of ``dataset``'s.
+
+    ``thinned`` is ``dataset`` with the plot rows ``keep`` only (renumbered from 0,
+    the same ADS-B table and sites).  A plot's alignment depends only on its own
+    time and aircraft and on the ADS-B, so the thinned alignment is the full one's
+    rows of the kept plots: this gives the same arrays as :func:`align_adsb` on
+    ``thinned``, without bracketing and converting the plots again.  ``dataset``'s
+    alignment is computed if it is not already shared; the result is shared for
+    ``thinned`` (:mod:`graphcal.data.memo`).
+    """
+    if thinned.adsb is not dataset.adsb:
+        raise ValueError("the thinned dataset must share the ADS-B table of the full one")
+    full = align_adsb(dataset, radar_id, max_gap_s)
+    new_row = np.cumsum(keep) - 1  # a kept row's number in the thinned table
+
+    def cut() -> AdsbAlignment:
+        mine = keep[full.plots.index]
+        plots = full.plots.subset(mine)
+        plots.index = new_row[plots.index]
+        optional = {
+            name: None if (value := getattr(full, name)) is None else value[mine]
+            for name in ("reference_velocity_ecef_m_s", "reference_polar_jacobian",
+                         "target_code")
+        }
+        radar_plots = int(np.count_nonzero(keep[plot_arrays(dataset, radar_id).index]))
+        return AdsbAlignment(
+            radar_id, plots, full.reference_ecef_m[mine], full.reference_polar[mine],
+            full.reference_enu_cov_m2[mine], radar_plots - len(plots),
+            time_offset_s=0.0, **optional,
+        )
+
+    return remember(("align_adsb", radar_id, float(max_gap_s)),
+                    (thinned.plots, thinned.adsb, thinned.sites[radar_id]), cut)
+
+
 def _align_adsb(
     dataset: Dataset, radar_id: str, max_gap_s: float, time_offset_s: float
 ) -> AdsbAlignment:

@@ -56,7 +56,7 @@ from numpy.typing import NDArray
 
 from graphcal.core import frames
 from graphcal.core.errors import EstimationError
-from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb
+from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb, align_adsb_thinned
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY, RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
@@ -104,13 +104,14 @@ TIME_OFFSET_MAX_REALIGNMENTS = 5
 # --------------------------------------------------------------------------- set-up
 # --------------------------------------------------------------------------- initial values
 def initial_biases(
-    dataset: Dataset, use_adsb: bool, cross: str, init: str
+    dataset: Dataset, use_adsb: bool, cross: str, init: str, *, aligned: bool = False
 ) -> tuple[dict[str, RadarBias], str, list[str]]:
     """Initial biases from the closed-form estimators, or zero.
 
     ``init``: ``auto`` (``fl-ls`` then ``ls`` with ADS-B; ``wls`` without),
-    a method name, or ``zero``.  Returns the biases, the method used and notes
-    on the methods that failed.
+    a method name, or ``zero``.  ``aligned``: the plots are already aligned with
+    ADS-B at the default gap (see :func:`thinned_for_initial_values`).  Returns the
+    biases, the method used and notes on the methods that failed.
     """
     from graphcal.solvers.registry import METHODS
 
@@ -126,7 +127,7 @@ def initial_biases(
         candidates = [init]
     notes = []
     if use_adsb and init == "auto":
-        dataset = thinned_for_initial_values(dataset)
+        dataset = thinned_for_initial_values(dataset, aligned=aligned)
     for method in candidates:
         try:
             cal = METHODS[method](dataset)
@@ -142,7 +143,8 @@ def initial_biases(
 
 
 def thinned_for_initial_values(
-    dataset: Dataset, max_plots_per_radar: int = INIT_MAX_PLOTS_PER_RADAR
+    dataset: Dataset, max_plots_per_radar: int = INIT_MAX_PLOTS_PER_RADAR,
+    *, aligned: bool = False,
 ) -> Dataset:
     """``dataset`` with at most ``max_plots_per_radar`` plots of each radar, for the
     closed-form initial values.
@@ -153,6 +155,11 @@ def thinned_for_initial_values(
     kept whole.  An initial value only has to fall in the basin of the solution,
     which a few thousand plots give as well as a million: the closed forms then
     cost a fixed time per radar instead of growing with the recording.
+
+    ``aligned``: the full dataset's plots are already aligned with ADS-B at the
+    default gap (:func:`~graphcal.data.align.align_adsb`, shared): the thinned
+    dataset's alignments are cut out of those
+    (:func:`~graphcal.data.align.align_adsb_thinned`).
     """
     by_radar = dataset.plots.groupby("radar_id", sort=False)["radar_id"]
     count = by_radar.transform("size").to_numpy(dtype=np.int64)
@@ -160,7 +167,14 @@ def thinned_for_initial_values(
         return dataset
     stride = -(-count // max_plots_per_radar)  # ceil, per row: its radar's stride
     keep = by_radar.cumcount().to_numpy() % stride == 0
-    return dataclasses.replace(dataset, plots=dataset.plots.loc[keep].reset_index(drop=True))
+    thinned = dataclasses.replace(dataset,
+                                  plots=dataset.plots.loc[keep].reset_index(drop=True))
+    if aligned and dataset.adsb is not None:
+        # The closed forms align at the default gap: cut those alignments out of the
+        # full dataset's (already made by the association) instead of aligning again.
+        for rid in dataset.radar_ids:
+            align_adsb_thinned(dataset, thinned, keep, rid)
+    return thinned
 
 
 def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) -> FloatArray:
@@ -511,7 +525,8 @@ def graph(
     if progress is not None:
         progress("initial values", 0, 1)
     init_biases, init_method, init_notes = initial_biases(
-        dataset, have_adsb, "none" if cross == "none" else cross, init
+        dataset, have_adsb, "none" if cross == "none" else cross, init,
+        aligned=have_adsb and cross != "target-state" and max_gap_s == DEFAULT_ADSB_MAX_GAP_S,
     )
     timing["initialisation_s"] = time.perf_counter() - t0
     settings = _Settings(have_adsb, cross, kernel, max_gap_s, pair_max_gap_s,

@@ -199,3 +199,36 @@ def test_only_radars_that_saw_a_common_aircraft_are_paired() -> None:
     order = ["D", "C", "B", "A", *(f"R{i:04d}" for i in range(1000))]
     assert overlapping_pairs(dataset, order) == [("C", "A"), ("B", "A")]
     assert overlapping_pairs(replace(dataset, plots=plots.iloc[:0])) == []
+
+
+def test_thinned_alignment_equals_aligning_the_thinned_plots_afresh() -> None:
+    from dataclasses import fields, replace
+
+    from graphcal.data.align import align_adsb_thinned
+    from graphcal.data.memo import sharing
+
+    rng = np.random.default_rng(5)
+    site = site_at("A", 0, 0)
+    tracks = [
+        Track("aaaaaa", (30e3, 40e3, 9e3), (200.0, 0.0, 0.0), 0.0, 300.0),
+        Track("bbbbbb", (-30e3, 40e3, 9e3), (0.0, 200.0, 0.0), 0.0, 300.0),
+        Track("cccccc", (10e3, -50e3, 7e3), (-150.0, 100.0, 0.0), 0.0, 300.0),
+    ]
+    ds = make_dataset(rng, [(site, RadarBias()), (site_at("B", 20e3, 0), RadarBias())], tracks)
+    ds.adsb = ds.adsb[ds.adsb["target_id"] != "cccccc"]  # some plots stay unmatched
+    keep = rng.uniform(size=len(ds.plots)) < 0.4
+    thinned = replace(ds, plots=ds.plots.loc[keep].reset_index(drop=True))
+    for rid in ("A", "B"):
+        with sharing():
+            cut = align_adsb_thinned(ds, thinned, keep, rid)
+            assert align_adsb(thinned, rid) is cut  # shared for the thinned dataset
+        afresh = align_adsb(thinned, rid)
+        assert 0 < len(cut) < len(align_adsb(ds, rid))
+        assert cut.n_unmatched == afresh.n_unmatched > 0
+        for field in fields(afresh.plots):
+            np.testing.assert_array_equal(getattr(cut.plots, field.name),
+                                          getattr(afresh.plots, field.name))
+        for field in fields(afresh):
+            if field.name != "plots":
+                np.testing.assert_array_equal(getattr(cut, field.name),
+                                              getattr(afresh, field.name), err_msg=field.name)
