@@ -404,17 +404,25 @@ def align_adsb_thinned(
         raise ValueError("the thinned dataset must share the ADS-B table of the full one")
     full = align_adsb(dataset, radar_id, max_gap_s)
     new_row = np.cumsum(keep) - 1  # a kept row's number in the thinned table
+    labels = dataset.plots.index
+
+    def position(index: NDArray[np.int64]) -> NDArray[np.int64]:
+        """Row positions in ``dataset.plots`` of the row labels ``index``."""
+        if isinstance(labels, pd.RangeIndex) and labels.start == 0 and labels.step == 1:
+            return index
+        return labels.get_indexer(index)
 
     def cut() -> AdsbAlignment:
-        mine = keep[full.plots.index]
+        rows = position(full.plots.index)
+        mine = keep[rows]
         plots = full.plots.subset(mine)
-        plots.index = new_row[plots.index]
+        plots.index = new_row[rows[mine]]
         optional = {
             name: None if (value := getattr(full, name)) is None else value[mine]
             for name in ("reference_velocity_ecef_m_s", "reference_polar_jacobian",
                          "target_code")
         }
-        radar_plots = int(np.count_nonzero(keep[plot_arrays(dataset, radar_id).index]))
+        radar_plots = int(np.count_nonzero(keep[position(plot_arrays(dataset, radar_id).index)]))
         return AdsbAlignment(
             radar_id, plots, full.reference_ecef_m[mine], full.reference_polar[mine],
             full.reference_enu_cov_m2[mine], radar_plots - len(plots),

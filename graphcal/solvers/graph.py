@@ -95,9 +95,15 @@ AUTO_TIME_OFFSET_MAX_SIGMA_S = 0.5
 #: ... and it inflates no other parameter's sigma by more than this factor.
 AUTO_TIME_OFFSET_MAX_INFLATION = 1.5
 #: The ADS-B alignment is redone at the latest time offsets until they move less than
-#: this [s] (the factors are first order in the change), at most
-#: :data:`TIME_OFFSET_MAX_REALIGNMENTS` times.
-TIME_OFFSET_REALIGN_TOLERANCE_S = 0.01
+#: this [s], at most :data:`TIME_OFFSET_MAX_REALIGNMENTS` times.  The factors are first
+#: order in the change ``d``: the reference they use is off by ``a d^2 / 2`` (0.01 m
+#: at 10 m/s^2 and 0.05 s) and by the difference between the ADS-B segment's slope and
+#: the velocity of the reports around it times ``d`` (with 40 m of ADS-B noise at
+#: 1 s spacing about 50 m/s, so 2.5 m at 0.05 s, independent from plot to plot: a tenth
+#: of a radar's range noise).  Measured on 36 one-hour windows of 1M plots, the
+#: estimates then differ from those realigned to 0.001 s by at most 0.09 sigma (0.01 s:
+#: the same 0.09 sigma), and no window needs a realignment, instead of half of them.
+TIME_OFFSET_REALIGN_TOLERANCE_S = 0.05
 TIME_OFFSET_MAX_REALIGNMENTS = 5
 
 

@@ -216,6 +216,7 @@ def test_thinned_alignment_equals_aligning_the_thinned_plots_afresh() -> None:
     ]
     ds = make_dataset(rng, [(site, RadarBias()), (site_at("B", 20e3, 0), RadarBias())], tracks)
     ds.adsb = ds.adsb[ds.adsb["target_id"] != "cccccc"]  # some plots stay unmatched
+    ds.plots.index = 1000 + 3 * np.arange(len(ds.plots))  # labels that are not positions
     keep = rng.uniform(size=len(ds.plots)) < 0.4
     thinned = replace(ds, plots=ds.plots.loc[keep].reset_index(drop=True))
     for rid in ("A", "B"):
