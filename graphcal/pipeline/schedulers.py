@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import queue
 import threading
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -116,6 +117,138 @@ def read_ahead(items: Iterable[Any], depth: int = 1) -> Iterator[Any]:
                 thread.join(timeout=0.1)
 
 
+def child_reading_available() -> bool:
+    """Whether :func:`read_in_child` can fork a reading process here (Linux)."""
+    import multiprocessing
+    import sys
+
+    return sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
+
+
+def read_in_child(function: Callable[..., Iterable[Any]], args: tuple[Any, ...] = ()
+                  ) -> Iterator[Any]:
+    """The items of ``function(*args)``, produced meanwhile in a forked child process.
+
+    Like :func:`read_ahead`, but the reading (CSV parsing, validation, cleaning) runs
+    in its own interpreter and so never waits for this one's GIL: on two cores
+    reading a window and calibrating the one before truly overlap.  The child is
+    forked, so it starts at once with this process's modules and caches (the
+    tables' time scan, for one); it takes none of this process's locks: its
+    standard streams are new objects, and the warnings it raises are sent here and
+    raised again in order.  Each item is pickled by the child's only thread and
+    written to a pipe, which this process reads when it asks for the item: the
+    child reads one item ahead and no thread of either process competes for a GIL
+    (a queue's feeder thread slowed the reading by a fifth).  ``args`` and the items
+    must be picklable.  The order is kept; an exception of the producer is raised
+    here at the item it stopped at.  Abandoning the iterator stops the child.
+    Where forking is not available (:func:`child_reading_available`), the items
+    come from :func:`read_ahead` instead.
+
+    Raises
+    ------
+    RuntimeError
+        If the child dies without a word (killed, out of memory).
+    """
+    if not child_reading_available():
+        yield from read_ahead(function(*args))
+        return
+    import multiprocessing
+    import pickle
+
+    context = multiprocessing.get_context("fork")
+    reader, writer = context.Pipe(duplex=False)
+    _widen_pipe(writer.fileno())
+    child = context.Process(target=_produce_into, args=(function, args, reader, writer),
+                            name="graphcal-reader", daemon=True)
+    with warnings.catch_warnings():
+        # Python 3.12+ warns that a child forked from a process with threads may wait
+        # forever on a lock one of them held: this child takes none (see above).
+        warnings.filterwarnings("ignore", message=r".*fork\(\) may lead to deadlocks",
+                                category=DeprecationWarning)
+        child.start()
+    writer.close()  # the child's end: end of file here when the child is gone
+    try:
+        while True:
+            try:
+                kind, payload = pickle.loads(reader.recv_bytes())
+            except EOFError:
+                child.join(timeout=5.0)
+                raise RuntimeError(
+                    f"the reading process stopped (exit code {child.exitcode}) before the "
+                    "end of the data; out of memory?") from None
+            if kind == "item":
+                yield payload
+            elif kind == "warning":
+                message, category, filename, lineno = payload
+                warnings.warn_explicit(message, category, filename, lineno)
+            elif kind == "error":
+                raise payload
+            else:
+                return
+    finally:
+        reader.close()  # a child still writing gets a broken pipe and stops
+        child.join(timeout=5.0)
+        if child.is_alive():
+            child.terminate()
+            child.join()
+
+
+def _widen_pipe(fd: int, size: int = 1 << 20) -> None:
+    """Ask Linux for a pipe buffer of ``size`` bytes (fewer, larger writes); best effort."""
+    import fcntl
+
+    set_size = getattr(fcntl, "F_SETPIPE_SZ", 1031)
+    try:
+        fcntl.fcntl(fd, set_size, size)
+    except OSError:
+        pass
+
+
+def _produce_into(function: Callable[..., Iterable[Any]], args: tuple[Any, ...],
+                  reader: Any, writer: Any) -> None:
+    """:func:`read_in_child`'s child: every item and warning, then the end or the error."""
+    import pickle
+    import sys
+
+    reader.close()
+    # New stream objects: the inherited ones' locks may be held by a thread that was
+    # not forked.
+    sys.stdout = open(os.dup(1), "w", closefd=True)  # noqa: SIM115 - for the child's life
+    sys.stderr = open(os.dup(2), "w", closefd=True)  # noqa: SIM115
+
+    def put(message: tuple[str, Any]) -> None:
+        writer.send_bytes(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def send_warnings(caught: list[warnings.WarningMessage]) -> None:
+        for w in caught:
+            put(("warning", (str(w.message), w.category, w.filename, w.lineno)))
+        caught.clear()
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            try:
+                for item in function(*args):
+                    send_warnings(caught)
+                    put(("item", item))
+            except (KeyboardInterrupt, BrokenPipeError):
+                return  # interrupted, or the parent stopped reading
+            except BaseException as exc:  # noqa: BLE001 - handed to the parent
+                try:
+                    pickle.loads(pickle.dumps(exc))
+                except Exception:  # noqa: BLE001 - an exception that cannot travel as it is
+                    exc = RuntimeError(f"{type(exc).__name__}: {exc}")
+                send_warnings(caught)
+                put(("error", exc))
+                return
+            send_warnings(caught)
+            put(("end", None))
+        except (BrokenPipeError, KeyboardInterrupt):
+            return
+        finally:
+            writer.close()
+
+
 def map_windows(
     function: Callable[..., Any],
     items: Iterable[Any],
@@ -125,6 +258,7 @@ def map_windows(
     progress: Progress | None = None,
     total: int | None = None,
     stage: str = "windows",
+    prefetch: bool = True,
 ) -> Iterator[Any]:
     """``function(item, *args)`` for every item, in item order.
 
@@ -144,10 +278,13 @@ def map_windows(
         Number of items, for the progress.
     stage : str
         The progress's stage name.
+    prefetch : bool
+        ``synchronous``: take the items through :func:`read_ahead`; ``False`` when
+        they are already produced ahead (:func:`read_in_child`).
     """
     scheduler = check_scheduler(scheduler)
     if scheduler == "synchronous":
-        for done, item in enumerate(read_ahead(items), start=1):
+        for done, item in enumerate(read_ahead(items) if prefetch else items, start=1):
             result = function(item, *args)
             if progress is not None:
                 progress(stage, done, total or done)
@@ -196,4 +333,5 @@ def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: 
             cluster.close()
 
 
-__all__ = ["SCHEDULERS", "check_scheduler", "map_windows"]
+__all__ = ["SCHEDULERS", "check_scheduler", "child_reading_available", "map_windows",
+           "read_ahead", "read_in_child"]

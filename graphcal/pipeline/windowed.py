@@ -31,7 +31,12 @@ from graphcal.data.windows import Window, split_window, split_windows, window_in
 from graphcal.model.information import observability
 from graphcal.model.parameters import RadarTerms, prior_sigmas
 from graphcal.noise import filled_with_notes
-from graphcal.pipeline.schedulers import check_scheduler, map_windows
+from graphcal.pipeline.schedulers import (
+    check_scheduler,
+    child_reading_available,
+    map_windows,
+    read_in_child,
+)
 from graphcal.solvers.drift import DEFAULT_STEP_FALSE_ALARM
 from graphcal.solvers.windows import (
     WindowedCalibration,
@@ -46,6 +51,11 @@ if TYPE_CHECKING:
     from graphcal.analysis.fit_verdict import FitVerdict
 
 Progress = Callable[..., None]
+
+#: A folder whose tables hold at least this many bytes is read in a forked child process
+#: (:func:`graphcal.pipeline.schedulers.read_in_child`), which reads and cleans the next
+#: windows on a second core while this process calibrates; smaller ones by a thread.
+CHILD_READER_MIN_BYTES = 32 * 1024 * 1024
 
 #: A step inside a window is located to within this [s] (_locate_step) ...
 STEP_TIME_TOLERANCE_S = 30.0
@@ -153,7 +163,8 @@ def calibrate_windows(
     options = options or WindowOptions()
     summaries = [s for s in map_windows(summarise_window, source.windows(),
                                         scheduler=scheduler, args=(options,),
-                                        progress=progress, total=source.total)
+                                        progress=progress, total=source.total,
+                                        prefetch=not source.read_ahead)
                  if s is not None]
     elapsed = time.perf_counter() - start
     if progress is not None:
@@ -279,6 +290,7 @@ class _Source:
     cleaning_warnings: list[str] = field(default_factory=list)
     sigma_info: Any = None
     sigma_warnings: list[str] = field(default_factory=list)
+    read_ahead: bool = False  # the first pass's windows are already read ahead (a child)
 
 
 def _memory_source(dataset: Dataset, window_s: float) -> _Source:
@@ -290,21 +302,57 @@ def _memory_source(dataset: Dataset, window_s: float) -> _Source:
 
 
 def _folder_source(folder: Path, window_s: float, clean: bool, force: bool) -> _Source:
-    from graphcal.io.dataset_span import dataset_span
-    from graphcal.io.window_reader import iter_windows
+    """The folder's windows, read as they are calibrated.
 
-    first = next(iter(iter_windows(folder, window_s, clean=clean, force=force)), None)
+    The first pass reads every window once, in a forked child process for a large
+    folder (:data:`CHILD_READER_MIN_BYTES`), whose first window also gives the
+    sigmas missing from ``sites.toml``; a later pass (the windows around a step)
+    reads the folder again in this process.
+    """
+    from graphcal.io.dataset_span import dataset_span
+
+    # The tables' time scan first: a forked reader inherits it.
+    total = len(dataset_span(folder).window_indices(window_s))
+    recipe = (folder, window_s, clean, force)
+    in_child = (_table_bytes(folder) >= CHILD_READER_MIN_BYTES
+                and child_reading_available())
+    stream = (read_in_child(_read_folder_windows, recipe) if in_child
+              else iter(_read_folder_windows(*recipe)))
+    first = next(stream, None)
     if first is None:
         raise EstimationError(f"{folder}: no plots to calibrate")
     filled, info, warnings = filled_with_notes(first.dataset)
     sites = filled.sites
+    unread: list[Iterator[Window]] = [iter([first]), stream]
 
     def windows() -> Iterator[Window]:
-        for window in iter_windows(folder, window_s, clean=clean, force=force):
+        parts = list(unread) if unread else [_read_folder_windows(*recipe)]
+        unread.clear()
+        source = (window for part in parts for window in part)
+        for window in source:
             yield replace(window, dataset=replace(window.dataset, sites=sites))
 
-    total = len(dataset_span(folder).window_indices(window_s))
-    return _Source(sites, windows, total, [], info, warnings)
+    return _Source(sites, windows, total, [], info, warnings, read_ahead=in_child)
+
+
+def _read_folder_windows(folder: Path, window_s: float, clean: bool,
+                         force: bool) -> Iterator[Window]:
+    """:func:`~graphcal.io.window_reader.iter_windows` of the folder (module-level, so a
+    child process can run it)."""
+    from graphcal.io.window_reader import iter_windows
+
+    yield from iter_windows(folder, window_s, clean=clean, force=force)
+
+
+def _table_bytes(folder: Path) -> int:
+    """Bytes of the folder's tables (files and part folders), on disk."""
+    total = 0
+    for path in folder.iterdir():
+        if path.is_dir():
+            total += sum(part.stat().st_size for part in path.iterdir() if part.is_file())
+        elif path.suffix in (".csv", ".parquet"):
+            total += path.stat().st_size
+    return total
 
 
 def _radar_only(window: Window, radar_id: str, options: WindowOptions) -> Window:
@@ -484,5 +532,5 @@ def to_calibration(result: WindowedCalibration, sites: Mapping[str, Site],
     return cal
 
 
-__all__ = ["LARGEST_MOVE_WARNING_SIGMA", "calibrate_windows", "parse_drift", "series_entry",
-           "to_calibration"]
+__all__ = ["CHILD_READER_MIN_BYTES", "LARGEST_MOVE_WARNING_SIGMA", "calibrate_windows",
+           "parse_drift", "series_entry", "to_calibration"]

@@ -39,3 +39,53 @@ def test_read_ahead_stops_its_producer_when_abandoned() -> None:
     reader.close()
     assert not [t for t in threading.enumerate() if t.name == "graphcal-read-ahead"]
     assert len(taken) <= 3 + 2
+
+
+def _numbers_then_trouble(n: int, fail_at: int | None, warn_at: int | None):
+    """A producer for the child-process tests (module level: the child runs it)."""
+    import warnings
+
+    from graphcal.core.errors import DatasetError
+
+    for i in range(n):
+        if i == warn_at:
+            warnings.warn(f"odd row {i}", UserWarning, stacklevel=1)
+        if i == fail_at:
+            raise DatasetError("not a number", path="plots.csv", row=i + 2, field="range_m")
+        yield {"i": i, "square": i * i}
+
+
+needs_fork = pytest.mark.skipif(
+    not __import__("graphcal.pipeline.schedulers", fromlist=["x"]).child_reading_available(),
+    reason="reading in a child process needs fork (Linux)")
+
+
+@needs_fork
+def test_read_in_child_keeps_the_order_warnings_and_the_error_of_the_producer() -> None:
+    from graphcal.core.errors import DatasetError
+    from graphcal.pipeline.schedulers import read_in_child
+
+    expected = [{"i": i, "square": i * i} for i in range(40)]
+    assert list(read_in_child(_numbers_then_trouble, (40, None, None))) == expected
+    seen = []
+    with pytest.warns(UserWarning, match="odd row 2"), \
+            pytest.raises(DatasetError) as caught:
+        for item in read_in_child(_numbers_then_trouble, (40, 5, 2)):
+            seen.append(item["i"])
+    assert seen == [0, 1, 2, 3, 4]
+    # The error arrives whole: its file, row and field, as the command line prints them.
+    assert (caught.value.row, caught.value.field, str(caught.value.path)) == (
+        7, "range_m", "plots.csv")
+
+
+@needs_fork
+def test_read_in_child_stops_the_child_when_abandoned() -> None:
+    import multiprocessing
+
+    from graphcal.pipeline.schedulers import read_in_child
+
+    reader = read_in_child(_numbers_then_trouble, (10_000, None, None))
+    assert [next(reader)["i"] for _ in range(3)] == [0, 1, 2]
+    assert [p.name for p in multiprocessing.active_children()] == ["graphcal-reader"]
+    reader.close()
+    assert not multiprocessing.active_children()

@@ -181,3 +181,24 @@ def test_a_folder_is_read_window_by_window_with_the_same_result(stepping, window
         for mine, theirs in zip(entries, streamed.series["radars"][rid], strict=True):
             for key, sigma in mine["sigma"].items():
                 assert abs(mine[key] - theirs[key]) <= 0.01 * sigma, (rid, key)
+
+
+def test_a_folder_read_in_a_child_process_gives_the_same_series(stepping, tmp_path: Path,
+                                                                monkeypatch) -> None:
+    """Large folders are read and cleaned by a forked child (schedulers.read_in_child),
+    small ones by a thread: the same windows, so the same series to the last bit."""
+    import graphcal.pipeline.windowed as windowed_module
+    from graphcal.pipeline.schedulers import child_reading_available
+
+    if not child_reading_available():
+        pytest.skip("reading in a child process needs fork (Linux)")
+    _, sim = stepping
+    folder = tmp_path / "ds"
+    write_dataset(sim.dataset, folder)
+    results = {}
+    for name, threshold in (("child", 0), ("thread", 1 << 60)):
+        monkeypatch.setattr(windowed_module, "CHILD_READER_MIN_BYTES", threshold)
+        results[name] = calibrate(folder, window="15min")
+    assert results["child"].series == results["thread"].series
+    assert results["child"].events == results["thread"].events
+    assert len(results["child"].events) == 1  # the step, re-read in this process
