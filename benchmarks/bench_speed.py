@@ -241,6 +241,8 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
     stages: dict[str, list[dict[str, float]]] = {name: [] for name in roots}
     for repeat in range(repeats):
         for name, (command, env) in commands.items():
+            if name in roots:  # calibrate refuses to replace its --out (it has --overwrite)
+                (work / f"{name}.json").unlink(missing_ok=True)
             wall, seconds, rss = run_timed(command, env, work)  # not the root: it would come first
             walls[name].append(wall)
             cpu[name].append(seconds)
