@@ -4,8 +4,11 @@
 #   make test   same set-up, then make lint and the whole test suite
 #   make lint   ruff, and import-linter's layer contracts (pyproject.toml)
 #   make docs   same set-up, then the manual and API reference into site/ (mkdocs --strict)
-#   make bench  same set-up, then benchmarks/bench_graph.py (graph vs scipy, 10-radar network)
-#               and benchmarks/bench_selection.py (selection on 131k observations)
+#   make bench  same set-up, then the benchmarks: bench_graph (graph vs scipy, 10-radar
+#               network), bench_selection (selection on 131k observations), bench_speed (the
+#               whole command against a plain scipy fit, 40k and 1M plots, and 1M with
+#               --window 1h), bench_memory (17 h against 2 h) and drift_steps (biases over
+#               time); about half an hour on 2 cores
 #   make papers same set-up, then the paper 000/002 reproductions (covariance, fusion, noise)
 PYTHON ?= python3
 VENV := .venv
@@ -32,6 +35,11 @@ test: lint
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.bench_graph
 	$(BIN)/python -m benchmarks.bench_selection
+	$(BIN)/python -m benchmarks.bench_speed
+	$(BIN)/python -m benchmarks.bench_speed --sizes 1M --window 1h --repeats 3 \
+		--json benchmarks/results/bench_speed_window.json
+	$(BIN)/python -m benchmarks.bench_memory
+	$(BIN)/python -m benchmarks.drift_steps
 
 papers: $(STAMP)
 	$(BIN)/python -m benchmarks.paper002_covariance
