@@ -231,20 +231,19 @@ def _produce_into(function: Callable[..., Iterable[Any]], args: tuple[Any, ...],
                 for item in function(*args):
                     send_warnings(caught)
                     put(("item", item))
+                ending: tuple[str, Any] = ("end", None)
             except (KeyboardInterrupt, BrokenPipeError):
-                return  # interrupted, or the parent stopped reading
+                raise
             except BaseException as exc:  # noqa: BLE001 - handed to the parent
                 try:
                     pickle.loads(pickle.dumps(exc))
                 except Exception:  # noqa: BLE001 - an exception that cannot travel as it is
                     exc = RuntimeError(f"{type(exc).__name__}: {exc}")
-                send_warnings(caught)
-                put(("error", exc))
-                return
+                ending = ("error", exc)
             send_warnings(caught)
-            put(("end", None))
-        except (BrokenPipeError, KeyboardInterrupt):
-            return
+            put(ending)
+        except (KeyboardInterrupt, BrokenPipeError):
+            return  # interrupted, or the parent stopped reading
         finally:
             writer.close()
 

@@ -17,6 +17,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from itertools import chain
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
@@ -323,12 +324,10 @@ def _folder_source(folder: Path, window_s: float, clean: bool, force: bool) -> _
         raise EstimationError(f"{folder}: no plots to calibrate")
     filled, info, warnings = filled_with_notes(first.dataset)
     sites = filled.sites
-    unread: list[Iterator[Window]] = [iter([first]), stream]
+    first_pass = [chain([first], stream)]  # taken by the first call of windows()
 
     def windows() -> Iterator[Window]:
-        parts = list(unread) if unread else [_read_folder_windows(*recipe)]
-        unread.clear()
-        source = (window for part in parts for window in part)
+        source = first_pass.pop() if first_pass else _read_folder_windows(*recipe)
         for window in source:
             yield replace(window, dataset=replace(window.dataset, sites=sites))
 
@@ -345,14 +344,11 @@ def _read_folder_windows(folder: Path, window_s: float, clean: bool,
 
 
 def _table_bytes(folder: Path) -> int:
-    """Bytes of the folder's tables (files and part folders), on disk."""
-    total = 0
-    for path in folder.iterdir():
-        if path.is_dir():
-            total += sum(part.stat().st_size for part in path.iterdir() if part.is_file())
-        elif path.suffix in (".csv", ".parquet"):
-            total += path.stat().st_size
-    return total
+    """Bytes of the folder's plots and ADS-B table files, on disk."""
+    from graphcal.io.folder import dataset_tables
+
+    plot_files, adsb_files = dataset_tables(folder)
+    return sum(path.stat().st_size for path in [*plot_files, *(adsb_files or [])])
 
 
 def _radar_only(window: Window, radar_id: str, options: WindowOptions) -> Window:
