@@ -15,8 +15,14 @@ and row N is line N + 1; blank lines are dropped but keep this numbering.  In a
 Parquet file row N is the N-th row.  So an error found in the millionth row of a
 file read in chunks names row 1000000, not a row of the chunk.
 
-CSV files are read with pandas' parser, in chunks of ``chunk_rows`` rows, with the
-same options as a whole file (numbers parse to the same floats either way).
+CSV files are read with pyarrow's parser when they can be (:func:`_iter_csv_arrow`: a
+file whose columns are all contract columns, without malformed lines), else with
+pandas' parser, which names a malformed line and infers the types of other
+columns.  Either way a file read in chunks comes in chunks of
+exactly ``chunk_rows`` rows (the last one shorter), with the same options as a whole
+file (numbers parse to the same floats either way).  When pyarrow stops at a line
+it cannot parse, pandas takes over from the chunk it stopped in, so the chunks are
+those of a pandas read.
 Parquet files are read record batch by record batch, without reading a whole row
 group at once (``pre_buffer`` off), so even a file written as one huge row group is
 read in bounded memory.
@@ -33,11 +39,18 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from graphcal.core.errors import DatasetError
-from graphcal.data.dataset import TABLE_FORMATS
+from graphcal.data.dataset import (
+    ADSB_COLUMNS,
+    ADSB_OPTIONAL_COLUMNS,
+    PLOT_COLUMNS,
+    PLOT_OPTIONAL_COLUMNS,
+    TABLE_FORMATS,
+)
 
 #: Text read as "no value" in a numeric column (compared after removing blanks).
 MISSING_TEXT: tuple[str, ...] = ("", "nan", "NaN", "NAN", "NA", "N/A", "n/a", "null", "NULL",
@@ -48,6 +61,12 @@ TEXT_COLUMNS: tuple[str, ...] = ("radar_id", "target_id")
 DEFAULT_CHUNK_ROWS = 100_000
 #: Read buffer of a Parquet file read in chunks [bytes].
 PARQUET_BUFFER_BYTES = 1 << 20
+#: Columns whose types pyarrow's CSV parser is told (text or float): a CSV file with
+#: any other column is read by pandas, which infers the types of extra columns.
+CONTRACT_COLUMNS: frozenset[str] = frozenset(
+    PLOT_COLUMNS + PLOT_OPTIONAL_COLUMNS + ADSB_COLUMNS + ADSB_OPTIONAL_COLUMNS)
+#: Bytes pyarrow's CSV parser reads at a time.
+ARROW_BLOCK_BYTES = 4 << 20
 
 
 @dataclass
@@ -204,28 +223,57 @@ def csv_parser_error(path: Path, exc: pd.errors.ParserError) -> DatasetError:
 
 
 def blank_rows(frame: pd.DataFrame) -> NDArray[np.bool_]:
-    """Rows in which every cell is empty (blank CSV lines)."""
+    """Rows in which every cell is empty (blank CSV lines).
+
+    Numeric columns are looked at first: text is stripped only in rows whose
+    numbers are all missing.
+    """
     blank = np.ones(len(frame), dtype=bool)
+    text_columns = []
     for column in frame.columns:
         values = frame[column]
-        empty = values.isna()
-        if not pd.api.types.is_numeric_dtype(values):
-            empty |= values.astype("string").str.strip().eq("").fillna(True)
-        blank &= empty.to_numpy(dtype=bool)
+        if pd.api.types.is_numeric_dtype(values):
+            blank &= values.isna().to_numpy(dtype=bool)
+        else:
+            text_columns.append(column)
+    for column in text_columns:
+        if not blank.any():
+            break
+        values = frame[column].iloc[np.flatnonzero(blank)]
+        empty = values.isna() | values.astype("string").str.strip().eq("").fillna(True)
+        blank[blank] = empty.to_numpy(dtype=bool)
     return blank
 
 
 def _csv_rows(path: Path, frame: pd.DataFrame, first_row: int) -> RawRows:
     """``frame`` (file rows ``first_row``, ...) without its blank lines."""
     keep = ~blank_rows(frame)
-    rows = np.arange(first_row, first_row + len(frame), dtype=np.int64)[keep]
-    return RawRows(path, frame.loc[keep].reset_index(drop=True), rows)
+    rows = np.arange(first_row, first_row + len(frame), dtype=np.int64)
+    if keep.all():
+        return RawRows(path, frame.reset_index(drop=True), rows)
+    return RawRows(path, frame.loc[keep].reset_index(drop=True), rows[keep])
 
 
 def _iter_csv(path: Path, chunk_rows: int | None,
               usecols: list[str] | None = None) -> Iterator[RawRows]:
-    """A CSV file whole (``chunk_rows`` None) or in chunks."""
+    """A CSV file whole (``chunk_rows`` None) or in chunks: pyarrow's parser, else pandas'."""
     header = csv_header(path)
+    done = 0
+    if _arrow_can_read(header, usecols):
+        arrow = _iter_csv_arrow(path, header, chunk_rows, usecols)
+        try:
+            for frame in arrow:
+                yield _csv_rows(path, frame, 1 + done * (chunk_rows or 0))
+                done += 1
+            return
+        except pa.ArrowException:
+            pass  # a line pyarrow cannot parse: pandas reads on, and names it if it is bad
+    yield from _iter_csv_pandas(path, header, chunk_rows, usecols, skip_chunks=done)
+
+
+def _iter_csv_pandas(path: Path, header: list[str], chunk_rows: int | None,
+                     usecols: list[str] | None, *, skip_chunks: int = 0) -> Iterator[RawRows]:
+    """A CSV file read by pandas, whole or in chunks, without its first ``skip_chunks``."""
     options = _csv_options(header, usecols)
     with _csv_errors(path):
         if chunk_rows is None:
@@ -233,9 +281,75 @@ def _iter_csv(path: Path, chunk_rows: int | None,
             return
         first_row = 1
         with pd.read_csv(path, chunksize=chunk_rows, **options) as reader:
-            for frame in reader:
-                yield _csv_rows(path, frame, first_row)
+            for chunk, frame in enumerate(reader):
+                if chunk >= skip_chunks:
+                    yield _csv_rows(path, frame, first_row)
                 first_row += len(frame)
+
+
+def _arrow_can_read(header: list[str], usecols: list[str] | None) -> bool:
+    """Whether pyarrow may parse a file with this header: distinct contract columns only."""
+    return len(set(header)) == len(header) and set(header) <= CONTRACT_COLUMNS and (
+        usecols is None or set(usecols) <= set(header))
+
+
+def _iter_csv_arrow(path: Path, header: list[str], chunk_rows: int | None,
+                    usecols: list[str] | None) -> Iterator[pd.DataFrame]:
+    """A CSV file parsed by pyarrow, as frames of exactly ``chunk_rows`` rows (or one frame).
+
+    The options give what :func:`_csv_options` gives pandas: text columns as text
+    (an empty cell ``""``), every other column as floats with the cells of
+    :data:`MISSING_TEXT` missing.  An empty line comes as a row of empty cells (a
+    blank row, dropped with its number kept).  A line with another number of fields
+    (blanks only, too), a cell that is not a number and text that is not UTF-8 raise
+    :class:`pyarrow.ArrowException` (the caller lets pandas read such a file), so the
+    N-th row read is the file's row N.
+
+    Raises
+    ------
+    pyarrow.ArrowException
+        At the first block pyarrow cannot parse (frames before it were yielded).
+    """
+    columns = header if usecols is None else [c for c in header if c in usecols]
+    types = {c: pa.string() if c in TEXT_COLUMNS else pa.float64() for c in columns}
+    read = pa_csv.ReadOptions(use_threads=chunk_rows is None, block_size=ARROW_BLOCK_BYTES,
+                              encoding="utf8")
+    parse = pa_csv.ParseOptions(ignore_empty_lines=False)
+    convert = pa_csv.ConvertOptions(column_types=types, include_columns=columns,
+                                    null_values=list(MISSING_TEXT),
+                                    strings_can_be_null=False,
+                                    quoted_strings_can_be_null=False)
+    try:
+        if chunk_rows is None:
+            table = pa_csv.read_csv(path, read_options=read, parse_options=parse,
+                                    convert_options=convert)
+            _check_arrow_header(table.schema.names, columns)
+            yield table.to_pandas()
+            return
+        reader = pa_csv.open_csv(path, read_options=read, parse_options=parse,
+                                 convert_options=convert)
+    except OSError:
+        raise pa.ArrowInvalid("unreadable") from None  # pandas names the error
+    _check_arrow_header(reader.schema.names, columns)
+    held: list[pa.RecordBatch] = []
+    n_held = 0
+    with reader:
+        for batch in reader:
+            held.append(batch)
+            n_held += batch.num_rows
+            while n_held >= chunk_rows:
+                table = pa.Table.from_batches(held, schema=reader.schema)
+                yield table.slice(0, chunk_rows).to_pandas()
+                rest = table.slice(chunk_rows)
+                held, n_held = rest.to_batches(), rest.num_rows
+    if n_held:
+        yield pa.Table.from_batches(held, schema=reader.schema).to_pandas()
+
+
+def _check_arrow_header(names: list[str], columns: list[str]) -> None:
+    """pyarrow read the columns pandas saw (a BOM or quoting read otherwise: pandas reads)."""
+    if list(names) != list(columns):
+        raise pa.ArrowInvalid(f"header read as {names}, not {columns}")
 
 
 # --------------------------------------------------------------------------- Parquet
@@ -326,6 +440,8 @@ def read_rows(path: Path, required: tuple[str, ...], *, chunk_rows: int | None =
 
 
 __all__ = [
+    "ARROW_BLOCK_BYTES",
+    "CONTRACT_COLUMNS",
     "DEFAULT_CHUNK_ROWS",
     "MISSING_TEXT",
     "TEXT_COLUMNS",
