@@ -223,6 +223,12 @@ def calibrate_command(
 
     check_calibrate_options(ctx)
     _check_paths(dataset_dir, truth, out, report, cat063, history, overwrite)
+    if window is not None and method in (None, "graph"):
+        # A head start: a large folder's first windows are read by a child process
+        # while the solvers are imported (pipeline.window_feed).
+        from graphcal.pipeline.window_feed import start_reading
+
+        start_reading(dataset_dir, window, clean=clean, force=force)
     from graphcal.io.folder import SITES_FILE, load_dataset, load_epoch_utc, load_sites
     from graphcal.pipeline.calibrate import calibrate as run_calibration
     from graphcal.reporting.tables import calibration_tables

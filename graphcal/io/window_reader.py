@@ -92,6 +92,7 @@ from graphcal.data.plausibility import check_tables, check_time_overlap, raise_i
 from graphcal.data.windows import DEFAULT_ADSB_MARGIN_S, Window, window_index
 from graphcal.io.dataset_span import (
     DEFAULT_MAX_LATENESS_S,
+    DatasetSpan,
     TableSpan,
     first_time,
     scan_times,
@@ -162,6 +163,18 @@ def _check_overlap(plots: TableSpan | None, adsb: TableSpan | None, plot_files: 
     raise_if_implausible([finding] if finding is not None else [], paths)
 
 
+def check_span_overlap(span: DatasetSpan) -> None:
+    """Raise :class:`~graphcal.data.plausibility.ImplausibleDataError` when a folder's
+    ADS-B table does not overlap its plots in time (another time base), from the
+    spans :func:`graphcal.io.dataset_span.dataset_span` measured."""
+    if span.adsb is None:
+        return
+    plot_files = [f.path for f in span.plots.files]
+    adsb_files = [f.path for f in span.adsb.files]
+    _check_overlap(span.plots, span.adsb, plot_files, adsb_files,
+                   table_paths(span.folder, plot_files, adsb_files))
+
+
 def _elevation_complete(files: Sequence[Path], chunk_rows: int) -> dict[str, bool]:
     """Per radar with plots: whether all its plots carry an elevation (one pass, two columns)."""
     complete: dict[str, bool] = {}
@@ -221,6 +234,7 @@ def iter_windows(
     spill_dir: str | Path | None = None,
     spill_rows: int = DEFAULT_SPILL_ROWS,
     force: bool = False,
+    time_overlap: bool = True,
 ) -> Iterator[Window]:
     """The time windows of a dataset folder, read window by window (module docstring).
 
@@ -254,6 +268,13 @@ def iter_windows(
         which otherwise run on each window's validated rows before cleaning, and
         on the whole tables' time spans (ADS-B on another time base) before the
         first window.
+
+    time_overlap : bool, optional
+        Check that the ADS-B overlaps the plots in time before the first window
+        (unless ``force``).  It needs the tables' spans: the first pass of
+        ``order="auto"`` measures them; otherwise they are measured for it (Parquet
+        statistics, or a pass over a CSV table's times).  ``False`` leaves the check
+        to the caller (:func:`check_span_overlap`).
 
     Yields
     ------
@@ -306,7 +327,7 @@ def iter_windows(
         if adsb_files is not None:
             adsb, adsb_span = _open_table(adsb_files, ADSB_COLUMNS, _adsb_validator, **options)
             stack.callback(adsb.close)
-            if not force:
+            if not force and time_overlap:
                 _check_overlap(plots_span, adsb_span, plot_files, adsb_files, paths)
         read = 0
         while (k := plots.next_window(window_s)) is not None:
@@ -332,5 +353,6 @@ __all__ = [
     "DEFAULT_MAX_LATENESS_S",
     "ORDERS",
     "PLAUSIBILITY_EVERY_WINDOWS",
+    "check_span_overlap",
     "iter_windows",
 ]

@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import os
 import queue
+import signal
 import threading
 import warnings
+import weakref
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -132,28 +134,31 @@ def read_in_child(function: Callable[..., Iterable[Any]], args: tuple[Any, ...] 
     Like :func:`read_ahead`, but the reading (CSV parsing, validation, cleaning) runs
     in its own interpreter and so never waits for this one's GIL: on two cores
     reading a window and calibrating the one before truly overlap.  The child is
-    forked, so it starts at once with this process's modules and caches (the
-    tables' time scan, for one); it takes none of this process's locks: its
-    standard streams are new objects, and the warnings it raises are sent here and
-    raised again in order.  Each item is pickled by the child's only thread and
-    written to a pipe, which this process reads when it asks for the item: the
-    child reads one item ahead and no thread of either process competes for a GIL
-    (a queue's feeder thread slowed the reading by a fifth).  ``args`` and the items
-    must be picklable.  The order is kept; an exception of the producer is raised
-    here at the item it stopped at.  Abandoning the iterator stops the child.
-    Where forking is not available (:func:`child_reading_available`), the items
-    come from :func:`read_ahead` instead.
+    forked at once, before the first item is asked for, with this process's modules
+    and caches; it takes none of this process's locks: its standard streams are new
+    objects, and the warnings it raises are sent here and raised again in order.
+    Each item is pickled by the child's only thread and written to a pipe, which
+    this process reads when it asks for the item: the child reads one item ahead
+    and no thread of either process competes for a GIL (a queue's feeder thread
+    slowed the reading by a fifth).  ``args`` and the items must be picklable.  The
+    order is kept; an exception of the producer is raised here at the item it
+    stopped at.  Closing or abandoning the iterator stops the child.  Where forking
+    is not available (:func:`child_reading_available`), the items come from
+    :func:`read_ahead` instead.
+
+    Returns
+    -------
+    iterator
+        With a ``close()`` method.
 
     Raises
     ------
     RuntimeError
-        If the child dies without a word (killed, out of memory).
+        While iterating: if the child dies without a word (killed, out of memory).
     """
     if not child_reading_available():
-        yield from read_ahead(function(*args))
-        return
+        return read_ahead(function(*args))
     import multiprocessing
-    import pickle
 
     context = multiprocessing.get_context("fork")
     reader, writer = context.Pipe(duplex=False)
@@ -167,30 +172,71 @@ def read_in_child(function: Callable[..., Iterable[Any]], args: tuple[Any, ...] 
                                 category=DeprecationWarning)
         child.start()
     writer.close()  # the child's end: end of file here when the child is gone
-    try:
-        while True:
-            try:
-                kind, payload = pickle.loads(reader.recv_bytes())
-            except EOFError:
-                child.join(timeout=5.0)
-                raise RuntimeError(
-                    f"the reading process stopped (exit code {child.exitcode}) before the "
-                    "end of the data; out of memory?") from None
-            if kind == "item":
-                yield payload
-            elif kind == "warning":
-                message, category, filename, lineno = payload
-                warnings.warn_explicit(message, category, filename, lineno)
-            elif kind == "error":
-                raise payload
-            else:
-                return
-    finally:
-        reader.close()  # a child still writing gets a broken pipe and stops
-        child.join(timeout=5.0)
-        if child.is_alive():
-            child.terminate()
-            child.join()
+    return ChildItems(child, reader)
+
+
+class ChildItems(Iterator[Any]):
+    """The items a forked child sends over a pipe (:func:`read_in_child`).
+
+    Parameters
+    ----------
+    child : multiprocessing.Process
+        The started child.
+    reader : multiprocessing.connection.Connection
+        This process's end of the pipe.
+    """
+
+    def __init__(self, child: Any, reader: Any) -> None:
+        self._child = child
+        self._reader = reader
+        self._items = self._receive()
+        # Stops the child when this object is closed, collected, or the process ends.
+        self._stop = weakref.finalize(self, _stop_child, child, reader)
+
+    def __iter__(self) -> ChildItems:
+        return self
+
+    def __next__(self) -> Any:
+        return next(self._items)
+
+    def close(self) -> None:
+        """Stop the child (the items not yet read are lost)."""
+        self._items.close()
+        self._stop()
+
+    def _receive(self) -> Iterator[Any]:
+        import pickle
+
+        try:
+            while True:
+                try:
+                    kind, payload = pickle.loads(self._reader.recv_bytes())
+                except EOFError:
+                    self._child.join(timeout=5.0)
+                    raise RuntimeError(
+                        f"the reading process stopped (exit code {self._child.exitcode}) "
+                        "before the end of the data; out of memory?") from None
+                if kind == "item":
+                    yield payload
+                elif kind == "warning":
+                    message, category, filename, lineno = payload
+                    warnings.warn_explicit(message, category, filename, lineno)
+                elif kind == "error":
+                    raise payload
+                else:
+                    return
+        finally:
+            self._stop()
+
+
+def _stop_child(child: Any, reader: Any) -> None:
+    """Close this end of the pipe (a child still writing gets a broken pipe and stops),
+    then wait for the child, terminating it if it does not stop."""
+    reader.close()
+    child.join(timeout=1.0)
+    if child.is_alive():
+        child.terminate()
+        child.join()
 
 
 def _widen_pipe(fd: int, size: int = 1 << 20) -> None:
@@ -204,6 +250,10 @@ def _widen_pipe(fd: int, size: int = 1 << 20) -> None:
         pass
 
 
+def _exit_on_signal(signum: int, frame: Any) -> None:
+    raise SystemExit(128 + signum)
+
+
 def _produce_into(function: Callable[..., Iterable[Any]], args: tuple[Any, ...],
                   reader: Any, writer: Any) -> None:
     """:func:`read_in_child`'s child: every item and warning, then the end or the error."""
@@ -211,6 +261,9 @@ def _produce_into(function: Callable[..., Iterable[Any]], args: tuple[Any, ...],
     import sys
 
     reader.close()
+    # Stopped from the parent (terminate): unwind, so that the reader's temporary
+    # files are removed.
+    signal.signal(signal.SIGTERM, _exit_on_signal)
     # New stream objects: the inherited ones' locks may be held by a thread that was
     # not forked.
     sys.stdout = open(os.dup(1), "w", closefd=True)  # noqa: SIM115 - for the child's life
@@ -332,5 +385,5 @@ def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: 
             cluster.close()
 
 
-__all__ = ["SCHEDULERS", "check_scheduler", "child_reading_available", "map_windows",
+__all__ = ["SCHEDULERS", "ChildItems", "check_scheduler", "child_reading_available", "map_windows",
            "read_ahead", "read_in_child"]

@@ -32,12 +32,8 @@ from graphcal.data.windows import Window, split_window, split_windows, window_in
 from graphcal.model.information import observability
 from graphcal.model.parameters import RadarTerms, prior_sigmas
 from graphcal.noise import filled_with_notes
-from graphcal.pipeline.schedulers import (
-    check_scheduler,
-    child_reading_available,
-    map_windows,
-    read_in_child,
-)
+from graphcal.pipeline.schedulers import check_scheduler, map_windows
+from graphcal.pipeline.window_feed import open_folder_windows, read_folder_windows
 from graphcal.solvers.drift import DEFAULT_STEP_FALSE_ALARM
 from graphcal.solvers.windows import (
     WindowedCalibration,
@@ -52,11 +48,6 @@ if TYPE_CHECKING:
     from graphcal.analysis.fit_verdict import FitVerdict
 
 Progress = Callable[..., None]
-
-#: A folder whose tables hold at least this many bytes is read in a forked child process
-#: (:func:`graphcal.pipeline.schedulers.read_in_child`), which reads and cleans the next
-#: windows on a second core while this process calibrates; smaller ones by a thread.
-CHILD_READER_MIN_BYTES = 32 * 1024 * 1024
 
 #: A step inside a window is located to within this [s] (_locate_step) ...
 STEP_TIME_TOLERANCE_S = 30.0
@@ -306,19 +297,25 @@ def _folder_source(folder: Path, window_s: float, clean: bool, force: bool) -> _
     """The folder's windows, read as they are calibrated.
 
     The first pass reads every window once, in a forked child process for a large
-    folder (:data:`CHILD_READER_MIN_BYTES`), whose first window also gives the
-    sigmas missing from ``sites.toml``; a later pass (the windows around a step)
-    reads the folder again in this process.
+    folder (:mod:`graphcal.pipeline.window_feed`; the command line starts it before
+    this is called), whose first window also gives the sigmas missing from
+    ``sites.toml``; a later pass (the windows around a step) reads the folder again
+    in this process.
     """
     from graphcal.io.dataset_span import dataset_span
+    from graphcal.io.window_reader import check_span_overlap
 
-    # The tables' time scan first: a forked reader inherits it.
-    total = len(dataset_span(folder).window_indices(window_s))
-    recipe = (folder, window_s, clean, force)
-    in_child = (_table_bytes(folder) >= CHILD_READER_MIN_BYTES
-                and child_reading_available())
-    stream = (read_in_child(_read_folder_windows, recipe) if in_child
-              else iter(_read_folder_windows(*recipe)))
+    stream, in_child, order = open_folder_windows(folder, window_s, clean, force)
+    # Measured while the first window is read: for the progress, the time-overlap
+    # check the reader leaves to us, and the time order it may have taken for granted.
+    span = dataset_span(folder)
+    if not force:
+        check_span_overlap(span)
+    in_order = span.plots.files_in_order and (span.adsb is None or span.adsb.files_in_order)
+    if order == "sorted" and not in_order:
+        getattr(stream, "close", lambda: None)()
+        stream, in_child, order = open_folder_windows(folder, window_s, clean, force, "auto")
+    total = len(span.window_indices(window_s))
     first = next(stream, None)
     if first is None:
         raise EstimationError(f"{folder}: no plots to calibrate")
@@ -327,28 +324,12 @@ def _folder_source(folder: Path, window_s: float, clean: bool, force: bool) -> _
     first_pass = [chain([first], stream)]  # taken by the first call of windows()
 
     def windows() -> Iterator[Window]:
-        source = first_pass.pop() if first_pass else _read_folder_windows(*recipe)
+        recipe = (folder, window_s, clean, force, order)
+        source = first_pass.pop() if first_pass else read_folder_windows(*recipe)
         for window in source:
             yield replace(window, dataset=replace(window.dataset, sites=sites))
 
     return _Source(sites, windows, total, [], info, warnings, read_ahead=in_child)
-
-
-def _read_folder_windows(folder: Path, window_s: float, clean: bool,
-                         force: bool) -> Iterator[Window]:
-    """:func:`~graphcal.io.window_reader.iter_windows` of the folder (module-level, so a
-    child process can run it)."""
-    from graphcal.io.window_reader import iter_windows
-
-    yield from iter_windows(folder, window_s, clean=clean, force=force)
-
-
-def _table_bytes(folder: Path) -> int:
-    """Bytes of the folder's plots and ADS-B table files, on disk."""
-    from graphcal.io.folder import dataset_tables
-
-    plot_files, adsb_files = dataset_tables(folder)
-    return sum(path.stat().st_size for path in [*plot_files, *(adsb_files or [])])
 
 
 def _radar_only(window: Window, radar_id: str, options: WindowOptions) -> Window:
@@ -528,5 +509,5 @@ def to_calibration(result: WindowedCalibration, sites: Mapping[str, Site],
     return cal
 
 
-__all__ = ["CHILD_READER_MIN_BYTES", "LARGEST_MOVE_WARNING_SIGMA", "calibrate_windows",
+__all__ = ["LARGEST_MOVE_WARNING_SIGMA", "calibrate_windows",
            "parse_drift", "series_entry", "to_calibration"]

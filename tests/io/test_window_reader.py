@@ -128,6 +128,26 @@ def test_rows_out_of_order_are_sorted_by_window_through_a_temporary_folder(
     assert list(spill.iterdir()) == []
 
 
+def test_the_time_overlap_is_checked_here_or_left_to_the_caller(folders, tmp_path) -> None:
+    """ADS-B on another time base (UNIX time against seconds of the day)."""
+    from graphcal.data.plausibility import ImplausibleDataError
+    from graphcal.io.window_reader import check_span_overlap
+
+    folder = tmp_path / "unix"
+    shutil.copytree(folders["csv"], folder)
+    adsb = pd.read_csv(folder / "adsb.csv", dtype={"target_id": str})
+    adsb["time_s"] += 1.6e9
+    adsb.to_csv(folder / "adsb.csv", index=False)
+    for order in ("auto", "sorted"):
+        with pytest.raises(ImplausibleDataError, match="do not overlap"):
+            next(iter_windows(folder, WINDOW_S, order=order))
+        window = next(iter_windows(folder, WINDOW_S, order=order, time_overlap=False))
+        assert window.index == 0 and len(window.dataset.adsb) == 0
+    with pytest.raises(ImplausibleDataError, match="UNIX time"):
+        check_span_overlap(dataset_span(folder))
+    check_span_overlap(dataset_span(folders["csv"]))
+
+
 def test_parts_that_overlap_in_time_are_read_side_by_side(folders, tmp_path) -> None:
     """One Parquet part per radar (each in time order), ADS-B in hourly CSV parts."""
     folder = tmp_path / "parts"

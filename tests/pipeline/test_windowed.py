@@ -187,7 +187,7 @@ def test_a_folder_read_in_a_child_process_gives_the_same_series(stepping, tmp_pa
                                                                 monkeypatch) -> None:
     """Large folders are read and cleaned by a forked child (schedulers.read_in_child),
     small ones by a thread: the same windows, so the same series to the last bit."""
-    import graphcal.pipeline.windowed as windowed_module
+    import graphcal.pipeline.window_feed as window_feed
     from graphcal.pipeline.schedulers import child_reading_available
 
     if not child_reading_available():
@@ -196,9 +196,67 @@ def test_a_folder_read_in_a_child_process_gives_the_same_series(stepping, tmp_pa
     folder = tmp_path / "ds"
     write_dataset(sim.dataset, folder)
     results = {}
-    for name, threshold in (("child", 0), ("thread", 1 << 60)):
-        monkeypatch.setattr(windowed_module, "CHILD_READER_MIN_BYTES", threshold)
+    for name, threshold in (("child", 0), ("thread", 1 << 60), ("started", 0)):
+        monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", threshold)
+        if name == "started":  # as the command line does, before importing the solvers
+            assert window_feed.start_reading(folder, "15min")
+            assert len(window_feed._STARTED) == 1
         results[name] = calibrate(folder, window="15min")
-    assert results["child"].series == results["thread"].series
-    assert results["child"].events == results["thread"].events
+        assert not window_feed._STARTED  # taken
+    for name in ("child", "started"):
+        assert results[name].series == results["thread"].series
+        assert results[name].events == results["thread"].events
     assert len(results["child"].events) == 1  # the step, re-read in this process
+
+
+def test_a_head_start_is_only_a_head_start(stepping, tmp_path: Path, monkeypatch) -> None:
+    """start_reading starts nothing for a bad folder or duration (the calibration then
+    reports it), and a reader started for other options is not taken, and stopped."""
+    import multiprocessing
+
+    import graphcal.pipeline.window_feed as window_feed
+    from graphcal.pipeline.schedulers import child_reading_available
+
+    if not child_reading_available():
+        pytest.skip("reading in a child process needs fork (Linux)")
+    monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", 0)
+    assert not window_feed.start_reading(tmp_path / "missing", "1h")
+    _, sim = stepping
+    folder = tmp_path / "ds"
+    write_dataset(sim.dataset, folder)
+    assert not window_feed.start_reading(folder, "1 fortnight")
+    assert not window_feed._STARTED and not multiprocessing.active_children()
+    assert window_feed.start_reading(folder, "1h", clean=False)
+    stream, in_child, _ = window_feed.open_folder_windows(folder, 3600.0, True, False)
+    assert in_child and len(window_feed._STARTED) == 1  # other options: a reader of its own
+    stream.close()
+    window_feed.stop_started()
+    assert not window_feed._STARTED and not multiprocessing.active_children()
+
+
+@pytest.mark.parametrize("threshold", [0, 1 << 60], ids=["child", "here"])
+def test_a_csv_folder_out_of_time_order_is_read_sorted_by_window(stepping, tmp_path: Path,
+                                                                 monkeypatch, threshold) -> None:
+    """A CSV folder is read as if in time order while its spans are measured; a file
+    found out of order sends the reader back to sorting by window: the same series."""
+    import pandas as pd
+
+    import graphcal.pipeline.window_feed as window_feed
+
+    monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", threshold)
+    _, sim = stepping
+    ordered = tmp_path / "ordered"
+    write_dataset(sim.dataset, ordered)
+    shuffled = tmp_path / "shuffled"
+    write_dataset(sim.dataset, shuffled)
+    plots = pd.read_csv(shuffled / "plots.csv", dtype={"target_id": str, "radar_id": str})
+    plots.sample(frac=1.0, random_state=2).to_csv(shuffled / "plots.csv", index=False)
+    assert window_feed.reading_order(shuffled) == "sorted"
+    expected = calibrate(ordered, window="15min")
+    got = calibrate(shuffled, window="15min")
+    assert got.events == expected.events
+    for rid, entries in expected.series["radars"].items():
+        for mine, theirs in zip(entries, got.series["radars"][rid], strict=True):
+            assert mine["n_plots"] == theirs["n_plots"]
+            for key, sigma in mine["sigma"].items():
+                assert abs(mine[key] - theirs[key]) <= 1e-6 * sigma, (rid, key)

@@ -1,0 +1,154 @@
+"""A dataset folder's windows, read ahead: by a forked child for a large folder.
+
+:func:`open_folder_windows` gives the windows of a folder as
+:func:`graphcal.io.window_reader.iter_windows` reads them.  A folder whose tables
+hold at least :data:`CHILD_READER_MIN_BYTES` is read and cleaned by a forked child
+process (:func:`graphcal.pipeline.schedulers.read_in_child`) while this process
+calibrates; a smaller one in this process.
+
+:func:`start_reading` forks that child early: the command line calls it as soon as
+its options say a folder will be read in windows, before it imports the solvers,
+so the child scans the tables and reads the first window while this process
+imports and prepares (on 1 M plots it saves about half a second of a seven-second
+run).  The next :func:`open_folder_windows` of the same folder and options takes
+that child's windows; a child never taken is stopped when the process ends.  This
+module imports no solver, so starting costs the caller nothing.
+
+A folder of CSV tables is read as if its rows were in time order
+(``order="sorted"``), without the reader's first pass over their times: the
+caller measures the spans meanwhile anyway (for its progress and the time-overlap
+check, :func:`graphcal.io.window_reader.check_span_overlap`), and if they show a
+file out of order, it drops that reader before taking a window and opens the
+folder again with ``order="auto"`` (:func:`open_folder_windows`).  A folder with
+Parquet tables is read with ``order="auto"``, whose first pass is cheap there.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from graphcal.pipeline.schedulers import child_reading_available, read_in_child
+
+#: Tables (plots and ADS-B files together) at least this large [bytes] are read by a
+#: forked child (:func:`graphcal.pipeline.schedulers.read_in_child`), which reads
+#: and cleans the next windows on a second core while this process calibrates;
+#: smaller ones in this process.
+CHILD_READER_MIN_BYTES = 32 * 1024 * 1024
+
+#: Readers started by :func:`start_reading`, not yet taken.
+_STARTED: dict[tuple[str, float, bool, bool, str], Iterator[Any]] = {}
+
+
+def read_folder_windows(folder: Path, window_s: float, clean: bool, force: bool,
+                        order: str = "auto") -> Iterator[Any]:
+    """:func:`~graphcal.io.window_reader.iter_windows` of the folder (module-level, so a
+    child process can run it), without the time-overlap check, which is the
+    caller's (module docstring)."""
+    from graphcal.io.window_reader import iter_windows
+
+    yield from iter_windows(folder, window_s, clean=clean, force=force, order=order,
+                            time_overlap=False)
+
+
+def reading_order(folder: Path) -> str:
+    """``"sorted"`` for a folder whose tables are all CSV files, else ``"auto"``
+    (module docstring)."""
+    from graphcal.io.folder import dataset_tables
+
+    plot_files, adsb_files = dataset_tables(folder)
+    csv = all(path.suffix == ".csv" for path in [*plot_files, *(adsb_files or [])])
+    return "sorted" if csv else "auto"
+
+
+def table_bytes(folder: Path) -> int:
+    """Bytes of the folder's plots and ADS-B table files, on disk."""
+    from graphcal.io.folder import dataset_tables
+
+    plot_files, adsb_files = dataset_tables(folder)
+    return sum(path.stat().st_size for path in [*plot_files, *(adsb_files or [])])
+
+
+def _key(folder: Path, window_s: float, clean: bool, force: bool, order: str
+         ) -> tuple[str, float, bool, bool, str]:
+    return str(Path(folder).resolve()), float(window_s), bool(clean), bool(force), order
+
+
+def _reads_in_child(folder: Path) -> bool:
+    return table_bytes(folder) >= CHILD_READER_MIN_BYTES and child_reading_available()
+
+
+def start_reading(folder: str | Path, window: str | float, *, clean: bool = True,
+                  force: bool = False) -> bool:
+    """Start reading a large folder's windows in a child process now (module docstring).
+
+    A head start only: when anything is wrong (no such folder, a bad duration, a
+    table missing) nothing is started and ``False`` is returned, so that the
+    calibration itself reports the problem as it would have.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The dataset folder.
+    window : str or float
+        The window length (``"1h"``, ``900``; :func:`graphcal.core.durations.parse_duration`).
+    clean, force : bool
+        As the calibration will read the folder
+        (:func:`graphcal.io.window_reader.iter_windows`).
+
+    Returns
+    -------
+    bool
+        Whether a child was started (or had been, for the same folder and options).
+    """
+    from graphcal.core.durations import parse_duration
+    from graphcal.core.errors import DatasetError
+
+    try:
+        window_s = parse_duration(window)
+        folder = Path(folder)
+        order = reading_order(folder)
+        key = _key(folder, window_s, clean, force, order)
+        if key in _STARTED:
+            return True
+        if not _reads_in_child(folder):
+            return False
+        # Imported before the fork, which the child would otherwise do on its own.
+        import graphcal.io.window_reader  # noqa: F401
+    except (DatasetError, OSError, ValueError):
+        return False
+    _STARTED[key] = read_in_child(read_folder_windows, (folder, window_s, clean, force, order))
+    return True
+
+
+def open_folder_windows(folder: Path, window_s: float, clean: bool, force: bool,
+                        order: str | None = None) -> tuple[Iterator[Any], bool, str]:
+    """The folder's windows, whether a child process reads them, and in which order.
+
+    A reader started by :func:`start_reading` for the same folder and options is
+    taken (once); else a child is started for a large folder, and a small one is
+    read here, window by window as they are asked for.  ``order`` defaults to
+    :func:`reading_order`.
+    """
+    order = reading_order(folder) if order is None else order
+    started = _STARTED.pop(_key(folder, window_s, clean, force, order), None)
+    if started is not None:
+        return started, True, order
+    recipe = (folder, window_s, clean, force, order)
+    if _reads_in_child(folder):
+        return read_in_child(read_folder_windows, recipe), True, order
+    return iter(read_folder_windows(*recipe)), False, order
+
+
+def stop_started() -> None:
+    """Stop every reader started and not taken."""
+    while _STARTED:
+        _, reader = _STARTED.popitem()
+        close = getattr(reader, "close", None)
+        if close is not None:
+            close()
+
+
+__all__ = ["CHILD_READER_MIN_BYTES", "open_folder_windows", "read_folder_windows",
+           "reading_order", "start_reading", "stop_started", "table_bytes"]
