@@ -256,10 +256,9 @@ def _csv_rows(path: Path, frame: pd.DataFrame, first_row: int) -> RawRows:
     return RawRows(path, frame.loc[keep].reset_index(drop=True), rows[keep])
 
 
-def _iter_csv(path: Path, chunk_rows: int | None,
+def _iter_csv(path: Path, header: list[str], chunk_rows: int | None,
               usecols: list[str] | None = None) -> Iterator[RawRows]:
     """A CSV file whole (``chunk_rows`` None) or in chunks: pyarrow's parser, else pandas'."""
-    header = csv_header(path)
     done = 0
     if _arrow_can_read(header, usecols):
         arrow = _iter_csv_arrow(path, header, chunk_rows, usecols)
@@ -437,9 +436,12 @@ def read_rows(path: Path, required: tuple[str, ...], *, chunk_rows: int | None =
         If the file cannot be read, lacks a required column, or has a malformed
         line (naming the file, the row and the line).
     """
-    require_columns(path, table_columns(path), required)
-    reader = _iter_csv if path.suffix == ".csv" else _iter_parquet
-    yield from reader(path, chunk_rows, usecols)
+    columns = table_columns(path)
+    require_columns(path, columns, required)
+    if path.suffix == ".csv":
+        yield from _iter_csv(path, columns, chunk_rows, usecols)
+    else:
+        yield from _iter_parquet(path, chunk_rows, usecols)
 
 
 __all__ = [
