@@ -137,13 +137,15 @@ def read_in_child(function: Callable[..., Iterable[Any]], args: tuple[Any, ...] 
     forked at once, before the first item is asked for, with this process's modules
     and caches; it takes none of this process's locks: its standard streams are new
     objects, and the warnings it raises are sent here and raised again in order.
-    Each item is pickled by the child's only thread and written to a pipe, which
-    this process reads when it asks for the item: the child reads one item ahead
-    and no thread of either process competes for a GIL (a queue's feeder thread
-    slowed the reading by a fifth).  ``args`` and the items must be picklable.  The
-    order is kept; an exception of the producer is raised here at the item it
-    stopped at.  Closing or abandoning the iterator stops the child.  Where forking
-    is not available (:func:`child_reading_available`), the items come from
+    Each item is pickled by the child's main thread and written to a pipe by a
+    second thread, which spends its time in ``write`` calls that release the GIL (a
+    queue's feeder thread, which also pickles, slowed the reading by a fifth).  The
+    child so runs ahead of this process by up to :data:`CHILD_AHEAD_BYTES` of pickled
+    items (a window that takes long to read is then absorbed by those read before
+    it); this process reads an item when it asks for it.  ``args`` and the items must
+    be picklable.  The order is kept; an exception of the producer is raised here at
+    the item it stopped at.  Closing or abandoning the iterator stops the child.
+    Where forking is not available (:func:`child_reading_available`), the items come from
     :func:`read_ahead` instead.
 
     Returns
@@ -239,6 +241,102 @@ def _stop_child(child: Any, reader: Any) -> None:
         child.join()
 
 
+#: How far (pickled bytes) the reading child may run ahead of this process, beyond
+#: the item it is writing: the items wait in the child's memory until this process
+#: asks for them.  At least one whole item is always held, however large.
+CHILD_AHEAD_BYTES = 64 << 20
+
+
+class _Outbox:
+    """The child's pickled items, written to the pipe by a thread in their order.
+
+    The producer goes on with the next item while this process is still busy with
+    an earlier one, up to ``budget`` bytes held; the writing thread spends its time
+    in ``write`` calls, which release the GIL, so it hardly slows the producer.
+
+    Parameters
+    ----------
+    writer : multiprocessing.connection.Connection
+        The child's end of the pipe.
+    budget : int
+        Bytes [B] held before :meth:`put` waits (one item is always accepted).
+    """
+
+    def __init__(self, writer: Any, budget: int) -> None:
+        import collections
+
+        self._writer = writer
+        self._budget = budget
+        self._items: collections.deque[bytes | None] = collections.deque()
+        self._held = 0
+        self._broken = False
+        self._changed = threading.Condition()
+        self._thread = threading.Thread(target=self._write_out, name="graphcal-outbox",
+                                        daemon=True)
+        self._thread.start()
+
+    def put(self, data: bytes) -> None:
+        """Queue ``data``; waits while the budget is used.
+
+        Raises
+        ------
+        BrokenPipeError
+            When the other end stopped reading.
+        """
+        with self._changed:
+            while self._held and self._held + len(data) > self._budget and not self._broken:
+                self._changed.wait()
+            if self._broken:
+                raise BrokenPipeError("the reading side closed the pipe")
+            self._items.append(data)
+            self._held += len(data)
+            self._changed.notify_all()
+
+    def finish(self) -> None:
+        """Wait until every queued item is written.
+
+        Raises
+        ------
+        BrokenPipeError
+            When the other end stopped reading first.
+        """
+        with self._changed:
+            self._items.append(None)
+            self._changed.notify_all()
+        self._thread.join()
+        if self._broken:
+            raise BrokenPipeError("the reading side closed the pipe")
+
+    def abandon(self) -> None:
+        """Drop what is not written yet and stop the writing thread (it is a daemon:
+        one blocked on a full pipe ends with the process)."""
+        with self._changed:
+            self._items.clear()
+            self._items.append(None)
+            self._changed.notify_all()
+
+    def _write_out(self) -> None:
+        while True:
+            with self._changed:
+                while not self._items:
+                    self._changed.wait()
+                data = self._items[0]
+            if data is None:
+                return
+            try:
+                self._writer.send_bytes(data)
+            except OSError:
+                with self._changed:
+                    self._broken = True
+                    self._changed.notify_all()
+                return
+            with self._changed:
+                if self._items and self._items[0] is data:
+                    self._items.popleft()
+                    self._held -= len(data)
+                self._changed.notify_all()
+
+
 def _widen_pipe(fd: int, size: int = 1 << 20) -> None:
     """Ask Linux for a pipe buffer of ``size`` bytes (fewer, larger writes); best effort."""
     import fcntl
@@ -269,8 +367,10 @@ def _produce_into(function: Callable[..., Iterable[Any]], args: tuple[Any, ...],
     sys.stdout = open(os.dup(1), "w", closefd=True)  # noqa: SIM115 - for the child's life
     sys.stderr = open(os.dup(2), "w", closefd=True)  # noqa: SIM115
 
+    outbox = _Outbox(writer, CHILD_AHEAD_BYTES)
+
     def put(message: tuple[str, Any]) -> None:
-        writer.send_bytes(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+        outbox.put(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
 
     def send_warnings(caught: list[warnings.WarningMessage]) -> None:
         for w in caught:
@@ -295,9 +395,11 @@ def _produce_into(function: Callable[..., Iterable[Any]], args: tuple[Any, ...],
                 ending = ("error", exc)
             send_warnings(caught)
             put(ending)
+            outbox.finish()
         except (KeyboardInterrupt, BrokenPipeError):
             return  # interrupted, or the parent stopped reading
         finally:
+            outbox.abandon()
             writer.close()
 
 

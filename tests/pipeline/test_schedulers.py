@@ -89,3 +89,52 @@ def test_read_in_child_stops_the_child_when_abandoned() -> None:
     assert [p.name for p in multiprocessing.active_children()] == ["graphcal-reader"]
     reader.close()
     assert not multiprocessing.active_children()
+
+
+def _large_items_marked(n: int, size_bytes: int, folder: str):
+    """A producer of large items that leaves a file named after each item it made."""
+    from pathlib import Path
+
+    for i in range(n):
+        item = bytes([i % 256]) * size_bytes
+        (Path(folder) / f"made-{i}").touch()
+        yield item
+
+
+def _made(folder, i: int, wait_s: float) -> bool:
+    import time
+
+    deadline = time.monotonic() + wait_s
+    while time.monotonic() < deadline:
+        if (folder / f"made-{i}").exists():
+            return True
+        time.sleep(0.01)
+    return (folder / f"made-{i}").exists()
+
+
+@needs_fork
+@pytest.mark.parametrize("budget_bytes", [None, 1])
+def test_read_in_child_runs_ahead_within_its_byte_budget(tmp_path, monkeypatch,
+                                                          budget_bytes) -> None:
+    """Items larger than the pipe: the child goes on producing while this process holds
+    the first one, as far as CHILD_AHEAD_BYTES allows and no further."""
+    from graphcal.pipeline import schedulers
+
+    if budget_bytes is not None:
+        monkeypatch.setattr(schedulers, "CHILD_AHEAD_BYTES", budget_bytes)
+    size = 3 << 20  # three times the widened pipe
+    reader = schedulers.read_in_child(_large_items_marked, (30, size, str(tmp_path)))
+    try:
+        first = next(reader)
+        assert len(first) == size and first[0] == 0
+        if budget_bytes is None:  # 64 MiB: some twenty items fit
+            assert _made(tmp_path, 8, 20.0)
+        else:
+            # One item in the pipe, one held, one being produced that waits to be held.
+            assert _made(tmp_path, 2, 20.0)
+            assert not _made(tmp_path, 3, 0.5)
+        rest = list(reader)
+        assert [item[0] for item in rest] == list(range(1, 30))
+        assert all(len(item) == size for item in rest)
+    finally:
+        reader.close()
