@@ -13,9 +13,11 @@ def group_medians(group: IntArray, columns: list[FloatArray]
                   ) -> tuple[IntArray, IntArray, list[FloatArray]]:
     """Per group, in order of first appearance: its code, its size and each column's median.
 
-    One stable sort per column (by group, then value); the median of a group of even
-    size is the mean of its two middle values, as in pandas.  About ten times faster
-    than ``DataFrame.groupby(...).agg("median")`` on the identity check's tables.
+    Per column, one sort by value and then a stable sort by group (a radix sort on
+    16-bit codes when there are fewer than 32,768 groups), which is the order by
+    group, then value; the median of a group of even size is the mean of its two
+    middle values, as in pandas.  About twenty times faster than
+    ``DataFrame.groupby(...).agg("median")`` on the identity check's tables.
 
     Parameters
     ----------
@@ -38,11 +40,44 @@ def group_medians(group: IntArray, columns: list[FloatArray]
     order = np.argsort(first, kind="stable")
     starts = np.cumsum(counts) - counts
     low, high = starts + (counts - 1) // 2, starts + counts // 2
+    narrow = inverse.astype(np.int16 if len(codes) <= np.iinfo(np.int16).max else np.int64)
     medians = []
     for values in columns:
-        ranked = np.asarray(values, dtype=float)[np.lexsort((values, inverse))]
+        values = np.asarray(values, dtype=float)
+        by_value = np.argsort(values)
+        ranked = values[by_value[np.argsort(narrow[by_value], kind="stable")]]
         medians.append((0.5 * (ranked[low] + ranked[high]))[order])
     return codes[order], counts[order], medians
 
 
-__all__ = ["group_medians"]
+def group_order(group: NDArray, values: FloatArray) -> IntArray:
+    """Row order by group code, then value: ``np.lexsort((values, group))``, faster.
+
+    When ``values`` are already in non-decreasing order (times of a table written in
+    time order) and the codes fit in 16 bits, one stable radix sort of the codes
+    gives the same order (ties by row, as ``lexsort``); otherwise ``lexsort`` runs.
+
+    Parameters
+    ----------
+    group : ndarray of int, shape (n,)
+        Each row's group code (``-1`` allowed, as ``pandas.factorize`` gives for a
+        missing value).
+    values : ndarray of float, shape (n,)
+        The second key (NaN sorts last within its group, as in ``lexsort``).
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+        The row indices in order.
+    """
+    group = np.asarray(group)
+    values = np.asarray(values)
+    n = len(group)
+    if (n > 1 and group.dtype.kind in "iu" and values.dtype.kind == "f"
+            and group.min() >= -1 and group.max() < np.iinfo(np.int16).max
+            and bool(np.all(values[1:] >= values[:-1]))):
+        return np.argsort((group + 1).astype(np.int16), kind="stable")
+    return np.lexsort((values, group))
+
+
+__all__ = ["group_medians", "group_order"]

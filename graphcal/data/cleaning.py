@@ -38,7 +38,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
-from graphcal.core.grouped import group_medians
+from graphcal.core.grouped import group_medians, group_order
 
 if TYPE_CHECKING:
     from graphcal.data.dataset import Dataset, Site
@@ -290,7 +290,7 @@ def _duplicated(table: pd.DataFrame, key: list[str]) -> BoolArray:
     if n < 2 or not key:
         return duplicate
     values = [_key_values(table, name) for name in key]
-    order = np.lexsort(values[:2][::-1])
+    order = group_order(values[0], values[1]) if len(values) > 1 else np.lexsort(values[:1])
     same = np.ones(n - 1, dtype=bool)
     for v in values[:2]:
         sorted_v = v[order]
@@ -310,11 +310,44 @@ def _duplicated(table: pd.DataFrame, key: list[str]) -> BoolArray:
 
 
 # --------------------------------------------------------------------------- ADS-B order
-def _track_order(adsb: pd.DataFrame) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """Row order by (aircraft, time) and each row's aircraft code (``pd.factorize``)."""
-    codes, _ = pd.factorize(adsb["target_id"].astype(str), sort=False)
-    order = np.lexsort((_column(adsb, "time_s"), codes))
-    return order, codes
+@dataclass(frozen=True)
+class _Tracks:
+    """An ADS-B table's rows by aircraft, then time: found once, kept through the cleaning.
+
+    Attributes
+    ----------
+    codes : ndarray of int
+        Each row's aircraft code, in order of first appearance (``pd.factorize`` of
+        ``target_id`` as text); codes of aircraft whose rows were all dropped are
+        unused.
+    names : pandas.Index
+        The address of each code.
+    order : ndarray of int
+        The rows by (code, time), ties by row.
+    """
+
+    codes: NDArray[np.int64]
+    names: pd.Index
+    order: NDArray[np.int64]
+
+    @classmethod
+    def of(cls, adsb: pd.DataFrame) -> _Tracks:
+        codes, names = pd.factorize(adsb["target_id"].astype(str), sort=False)
+        return cls(codes, pd.Index(names), group_order(codes, _column(adsb, "time_s")))
+
+    def kept(self, keep: BoolArray, adsb_kept: pd.DataFrame) -> _Tracks:
+        """The same for ``adsb_kept``, the rows where ``keep`` (as :func:`_keep` gives them).
+
+        Without sorting again, unless an aircraft's first row was dropped and the
+        codes are no longer in order of first appearance.
+        """
+        if keep.all():
+            return self
+        codes = self.codes[keep]
+        if np.any(np.diff(pd.unique(codes)) < 0):
+            return _Tracks.of(adsb_kept)
+        new_row = np.cumsum(keep) - 1
+        return _Tracks(codes, self.names, new_row[self.order[keep[self.order]]])
 
 
 def drop_stale_adsb(
@@ -343,9 +376,16 @@ def drop_stale_adsb(
     report : CleaningReport
         ``counts["adsb_stale"]``.
     """
+    stale = _stale(adsb, _Tracks.of(adsb), columns)
+    return _keep(adsb, ~stale), _report(adsb_stale=int(stale.sum()))
+
+
+def _stale(adsb: pd.DataFrame, tracks: _Tracks, columns: tuple[str, ...]) -> BoolArray:
+    """:func:`drop_stale_adsb`'s rows to drop."""
+    stale = np.zeros(len(adsb), dtype=bool)
     if len(adsb) < 2:
-        return _keep(adsb, np.ones(len(adsb), dtype=bool)), _report()
-    order, codes = _track_order(adsb)
+        return stale
+    order, codes = tracks.order, tracks.codes
     c = codes[order]
     t = _column(adsb, "time_s")[order]
     same = c[1:] == c[:-1]
@@ -353,9 +393,8 @@ def drop_stale_adsb(
     for name in columns:
         v = _column(adsb, name)[order]
         same &= v[1:] == v[:-1]
-    stale = np.zeros(len(adsb), dtype=bool)
     stale[order[1:][same]] = True
-    return _keep(adsb, ~stale), _report(adsb_stale=int(stale.sum()))
+    return stale
 
 
 def _ecef(adsb: pd.DataFrame) -> FloatArray:
@@ -498,13 +537,15 @@ def gate_adsb_kinematics(
     adsb : pandas.DataFrame
     report : CleaningReport
     """
-    keep, report = _gate_keep(adsb, _ecef(adsb), max_speed_mps, max_accel_mps2, gate_sigmas,
-                              max_wild_run, min_track_reports, flight_gap_s)
+    keep, report = _gate_keep(adsb, _Tracks.of(adsb), _ecef(adsb), max_speed_mps,
+                              max_accel_mps2, gate_sigmas, max_wild_run, min_track_reports,
+                              flight_gap_s)
     return _keep(adsb, keep), report
 
 
 def _gate_keep(
     adsb: pd.DataFrame,
+    tracks: _Tracks,
     ecef_all: FloatArray,
     max_speed_mps: float,
     max_accel_mps2: float,
@@ -513,12 +554,13 @@ def _gate_keep(
     min_track_reports: int,
     flight_gap_s: float,
 ) -> tuple[BoolArray, CleaningReport]:
-    """:func:`gate_adsb_kinematics`'s rows to keep, with the reports' ECEF positions given."""
+    """:func:`gate_adsb_kinematics`'s rows to keep, with the track order and the reports'
+    ECEF positions given."""
     report = _report()
     if len(adsb) < 2:
         return np.ones(len(adsb), dtype=bool), report
-    order, codes_all = _track_order(adsb)
-    codes = codes_all[order]
+    order = tracks.order
+    codes = tracks.codes[order]
     time_s = _column(adsb, "time_s")[order]
     gap = np.concatenate([[True], (codes[1:] != codes[:-1]) | (np.diff(time_s) > flight_gap_s)])
     flight = np.cumsum(gap) - 1
@@ -574,7 +616,7 @@ def _gate_keep(
 
 # --------------------------------------------------------------------------- identities
 def _interpolate_adsb(
-    adsb: pd.DataFrame, ecef_all: FloatArray, target_code: NDArray[np.int64],
+    adsb: pd.DataFrame, tracks: _Tracks, ecef_all: FloatArray, target_code: NDArray[np.int64],
     target_names: pd.Index, time_s: FloatArray, max_gap_s: float,
 ) -> tuple[FloatArray, BoolArray]:
     """ADS-B ECEF position [m] of each (target, time), linear in time; ``ok`` where bridged.
@@ -588,14 +630,14 @@ def _interpolate_adsb(
     ok = np.zeros(n, dtype=bool)
     if len(adsb) < 2 or n == 0:
         return ref, ok
-    a_code, categories = pd.factorize(adsb["target_id"].astype(str))  # first-seen order
-    to_category = pd.Index(categories).get_indexer(target_names.astype(str))
+    a_code = tracks.codes
+    to_category = tracks.names.get_indexer(target_names.astype(str))
     q_code = np.where(target_code >= 0, to_category[np.maximum(target_code, 0)], -1)
     a_time = _column(adsb, "time_s")
     t0 = min(a_time.min(), time_s.min())
     span = max(a_time.max(), time_s.max()) - t0 + 4.0 * max_gap_s + 1.0
     a_key = a_code * span + (a_time - t0)
-    order = np.argsort(a_key, kind="stable")
+    order = tracks.order  # a_key's order, which it keeps after rounding
     a_key, a_code_s, a_time_s = a_key[order], a_code[order], a_time[order]
     ecef = ecef_all[order]
     q_key = q_code * span + (time_s - t0)
@@ -688,14 +730,15 @@ def check_identities(
     report : CleaningReport
         ``counts["plots_identity_cleared"]`` and :attr:`CleaningReport.mislabelled`.
     """
-    return _check_identities(plots, adsb, None, sites, floor_m, z_limit, min_aircraft,
-                             min_plots, max_gap_s)
+    return _check_identities(plots, adsb, _Tracks.of(adsb), _ecef(adsb), sites, floor_m,
+                             z_limit, min_aircraft, min_plots, max_gap_s)
 
 
 def _check_identities(
     plots: pd.DataFrame,
     adsb: pd.DataFrame,
-    adsb_ecef: FloatArray | None,
+    tracks: _Tracks,
+    adsb_ecef: FloatArray,
     sites: Mapping[str, Site],
     floor_m: float,
     z_limit: float,
@@ -703,7 +746,7 @@ def _check_identities(
     min_plots: int,
     max_gap_s: float,
 ) -> tuple[pd.DataFrame, CleaningReport]:
-    """:func:`check_identities`, with the ADS-B reports' ECEF positions when known."""
+    """:func:`check_identities`, with the ADS-B track order and ECEF positions given."""
     report = _report()
     out = plots.reset_index(drop=True)
     if len(out) == 0 or len(adsb) < 2:
@@ -713,8 +756,8 @@ def _check_identities(
     names = pd.Index(names)
     has_id = np.append(np.asarray(names != "", dtype=bool), False)[target]  # -1: missing
     time_s = _column(out, "time_s")
-    ref, ok = _interpolate_adsb(adsb, _ecef(adsb) if adsb_ecef is None else adsb_ecef,
-                                np.where(has_id, target, -1), names, time_s, max_gap_s)
+    ref, ok = _interpolate_adsb(adsb, tracks, adsb_ecef, np.where(has_id, target, -1), names,
+                                time_s, max_gap_s)
     ok &= has_id
     radar, radar_names = pd.factorize(out["radar_id"].astype(str))
     radar_code = {str(name): code for code, name in enumerate(radar_names)}
@@ -905,17 +948,25 @@ def clean_dataset(
     report.merge(step)
     adsb = dataset.adsb
     if adsb is not None:
-        for check in (drop_non_finite_adsb, drop_duplicate_adsb, drop_stale_adsb):
+        for check in (drop_non_finite_adsb, drop_duplicate_adsb):
             adsb, step = check(adsb)
             report.merge(step)
-        ecef = _ecef(adsb)  # shared by the gate and the identity check
-        keep, step = _gate_keep(adsb, ecef, max_speed_mps, max_accel_mps2, gate_sigmas,
+        # The track order and the ECEF positions: found once, for the stale reports,
+        # the gate and the identity check.
+        tracks = _Tracks.of(adsb)
+        stale = _stale(adsb, tracks, ("lat_deg", "lon_deg"))
+        adsb_kept = _keep(adsb, ~stale)
+        adsb, tracks = adsb_kept, tracks.kept(~stale, adsb_kept)
+        report.merge(_report(adsb_stale=int(stale.sum())))
+        ecef = _ecef(adsb)
+        keep, step = _gate_keep(adsb, tracks, ecef, max_speed_mps, max_accel_mps2, gate_sigmas,
                                 max_wild_run, DEFAULT_MIN_TRACK_REPORTS, DEFAULT_FLIGHT_GAP_S)
-        adsb, ecef = _keep(adsb, keep), ecef[keep]
+        adsb_kept = _keep(adsb, keep)
+        adsb, tracks, ecef = adsb_kept, tracks.kept(keep, adsb_kept), ecef[keep]
         report.merge(step)
         if check_identity:
             plots, step = _check_identities(
-                plots, adsb, ecef, dataset.sites, identity_floor_m, identity_z,
+                plots, adsb, tracks, ecef, dataset.sites, identity_floor_m, identity_z,
                 DEFAULT_IDENTITY_MIN_AIRCRAFT, DEFAULT_IDENTITY_MIN_PLOTS, max_gap_s)
             report.merge(step)
     if adsb is not None and len(adsb) == 0:

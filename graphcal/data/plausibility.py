@@ -93,6 +93,10 @@ TIME_MARGIN_S = 60.0
 #: Rows of a table the statistical heuristics (coverage, height ratio) look at: a larger
 #: table is thinned to every k-th row (fractions and medians, not extremes).
 SAMPLE_ROWS = 50_000
+#: ADS-B reports the coverage heuristic looks at (every k-th row): it joins each
+#: report to every radar that sees its aircraft, and a fraction to about a percent is
+#: all it needs.
+COVERAGE_SAMPLE_ROWS = 10_000
 #: Mean earth radius [m] for ground distances.
 EARTH_RADIUS_M = 6_371_008.8
 
@@ -309,9 +313,9 @@ def _coverage(sites: Mapping[str, Site], plots: pd.DataFrame, adsb: pd.DataFrame
                    "latitude and longitude swapped, or a sign lost?")
 
 
-def _thinned(table: pd.DataFrame) -> pd.DataFrame:
-    """Every k-th row, at most about :data:`SAMPLE_ROWS` rows (deterministic)."""
-    step = max(1, len(table) // SAMPLE_ROWS)
+def _thinned(table: pd.DataFrame, rows: int = SAMPLE_ROWS) -> pd.DataFrame:
+    """Every k-th row, at most about ``rows`` rows (deterministic)."""
+    step = max(1, len(table) // rows)
     return table if step == 1 else table.iloc[::step]
 
 
@@ -391,7 +395,8 @@ def check_tables(sites: Mapping[str, Site], plots: pd.DataFrame,
             findings.append(check_time_overlap(
                 (float(plots["time_s"].min()), float(plots["time_s"].max())),
                 (float(a.min()), float(a.max()))))
-        findings.append(_coverage(sites, plots_sample, _thinned(adsb), stats, skip))
+        findings.append(_coverage(sites, plots_sample, _thinned(adsb, COVERAGE_SAMPLE_ROWS),
+                                  stats, skip))
     if plot_feet is None:
         findings.append(_site_altitude(sites, plots, skip))
     else:

@@ -423,3 +423,82 @@ def test_duplicate_records_are_those_pandas_finds() -> None:
         kept, report = drop_duplicate_plots(plots)
         expected = plots.duplicated(keep="first").to_numpy()
         pd.testing.assert_frame_equal(kept, plots[~expected].reset_index(drop=True))
+
+
+@pytest.mark.parametrize("row_order", ["shuffled", "by time"])
+def test_clean_dataset_is_its_steps_one_after_the_other(row_order: str) -> None:
+    """clean_dataset finds the ADS-B track order once and carries it through the stale
+    reports, the gate and the identity check; running the public steps one by one (each
+    finding the order afresh) must give the same tables, counts and warnings, in order,
+    also when an aircraft's first row in the table is one that is dropped."""
+    from graphcal.data.cleaning import (
+        coverage_warnings,
+        drop_duplicate_adsb,
+        drop_duplicate_plots,
+        drop_non_finite_adsb,
+        drop_non_finite_plots,
+        drop_stale_adsb,
+        gate_adsb_kinematics,
+    )
+
+    rng = np.random.default_rng(8)
+    dirty = _mislabelled(_dataset(seed=6), radar="C", aircraft="4ca004", address="4ca006")
+    dirty = _spoofed(dirty, target="4ca008", start_s=300.0, end_s=700.0, offset_m=4000.0)
+    dirty = _spoofed(dirty, target="4ca002", start_s=100.0, end_s=400.0, offset_m=5000.0)
+    dirty, _ = _wild(dirty, rng, n=20)
+    dirty, _ = _stale(dirty, rng, fraction=0.3)
+    dirty, _, _ = _duplicated(dirty, 0.2)
+    dirty = _shuffled(dirty)
+    if row_order == "by time":
+        dirty = _replace(dirty, adsb=dirty.adsb.sort_values("time_s", kind="stable",
+                                                            ignore_index=True))
+    cleaned, report = clean_dataset(dirty)
+
+    plots, _ = drop_non_finite_plots(dirty.plots, dirty.sites)
+    plots, _ = drop_duplicate_plots(plots)
+    adsb = dirty.adsb
+    steps = []
+    for step in (drop_non_finite_adsb, drop_duplicate_adsb, drop_stale_adsb,
+                 gate_adsb_kinematics):
+        adsb, found = step(adsb)
+        steps.append(found)
+    plots, identity = check_identities(plots, adsb, dirty.sites)
+    steps.append(identity)
+
+    pd.testing.assert_frame_equal(cleaned.adsb, adsb)
+    pd.testing.assert_frame_equal(cleaned.plots, plots)
+    assert report.jumping_aircraft == steps[3].jumping_aircraft
+    assert sorted(report.jumping_aircraft) == ["4ca002", "4ca008"]
+    assert report.mislabelled == identity.mislabelled
+    assert [(r, t) for r, t, _ in report.mislabelled] == [("C", "4ca006")]
+    for name in ("adsb_stale", "adsb_wild", "adsb_jumping_aircraft"):
+        assert report.counts[name] == sum(s.counts.get(name, 0) for s in steps)
+    assert report.counts["adsb_stale"] > 0 and report.counts["adsb_wild"] > 0
+    expected_warnings = [w for s in steps for w in s.warnings]
+    expected_warnings += coverage_warnings(plots, dirty.sites, True)
+    assert report.warnings == expected_warnings
+
+
+def test_clean_dataset_names_jumping_aircraft_in_table_order_after_a_stale_first_row(
+        ) -> None:
+    """The jumping aircraft are named in the order they first appear in the table that is
+    gated, as gate_adsb_kinematics names them: also when the table's first row, a stale
+    report of the later aircraft, is dropped before the gate."""
+    from graphcal.data.cleaning import gate_adsb_kinematics
+
+    dirty = _spoofed(_dataset(seed=6), target="4ca008", start_s=300.0, end_s=700.0,
+                     offset_m=4000.0)
+    dirty = _spoofed(dirty, target="4ca002", start_s=100.0, end_s=400.0, offset_m=5000.0)
+    adsb = dirty.adsb.sort_values("time_s", kind="stable", ignore_index=True)
+    first_seen = [t for t in pd.unique(adsb["target_id"]) if t in ("4ca002", "4ca008")]
+    later = first_seen[1]
+    mine = adsb[adsb["target_id"] == later]
+    repeat = mine.iloc[[0]].copy()  # its first position again, half a second later: stale
+    repeat["time_s"] += 0.5
+    adsb = pd.concat([repeat, adsb], ignore_index=True)
+    cleaned, report = clean_dataset(_replace(dirty, adsb=adsb))
+
+    assert report.counts["adsb_stale"] == 1
+    _, gate = gate_adsb_kinematics(adsb.iloc[1:].reset_index(drop=True))
+    assert gate.jumping_aircraft == first_seen
+    assert report.jumping_aircraft == first_seen
