@@ -15,21 +15,27 @@ that child's windows; a child never taken is stopped when the process ends.  Thi
 module imports no solver, so starting costs the caller nothing.
 
 A folder of CSV tables is read as if its rows were in time order
-(``order="sorted"``), without the reader's first pass over their times: the
-caller measures the spans meanwhile anyway (for its progress and the time-overlap
-check, :func:`graphcal.io.window_reader.check_span_overlap`), and if they show a
-file out of order, it drops that reader before taking a window and opens the
-folder again with ``order="auto"`` (:func:`open_folder_windows`).  A folder with
-Parquet tables is read with ``order="auto"``, whose first pass is cheap there.
+(``order="sorted"``), without the reader's first pass over their times.  The
+caller measures the spans meanwhile anyway, in a thread, while it calibrates the
+first windows (:class:`SpanCheck`): for its progress, for the time-overlap check
+(:func:`graphcal.io.window_reader.check_span_overlap`) and to confirm the time
+order.  If they show a file out of order, the windows taken so far may lack late
+rows: :class:`FolderReadAgain` tells the caller to drop them and read the folder
+again with ``order="auto"`` (:func:`open_folder_windows`).  A folder with Parquet
+tables is read with ``order="auto"``, whose first pass is cheap there.
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from graphcal.pipeline.schedulers import child_reading_available, read_in_child
+
+if TYPE_CHECKING:
+    from graphcal.io.dataset_span import DatasetSpan
 
 #: Tables (plots and ADS-B files together) at least this large [bytes] are read by a
 #: forked child (:func:`graphcal.pipeline.schedulers.read_in_child`), which reads
@@ -141,6 +147,77 @@ def open_folder_windows(folder: Path, window_s: float, clean: bool, force: bool,
     return iter(read_folder_windows(*recipe)), False, order
 
 
+class FolderReadAgain(Exception):  # noqa: N818 - a signal to the caller, not an error
+    """A folder read as if its rows were in time order is not in order: the windows taken
+    may lack late rows; read it again from the start with ``order="auto"``."""
+
+
+class SpanCheck:
+    """A folder's :func:`~graphcal.io.dataset_span.dataset_span`, measured in a thread
+    while its windows are read and calibrated, and checked when asked (module docstring).
+
+    Parameters
+    ----------
+    folder : Path
+        The dataset folder.
+    force : bool
+        Leave out the time-overlap check (``--force``).
+    order : str
+        The order the windows are read in: ``"sorted"`` takes the files' time order
+        for granted, which :meth:`result` then confirms.
+    """
+
+    def __init__(self, folder: Path, *, force: bool, order: str) -> None:
+        self._folder = Path(folder)
+        self._force = force
+        self._order = order
+        self._span: DatasetSpan | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._measure, name="graphcal-span",
+                                        daemon=True)
+        self._thread.start()
+
+    def _measure(self) -> None:
+        from graphcal.io.dataset_span import dataset_span
+
+        try:
+            self._span = dataset_span(self._folder)
+        except BaseException as exc:  # noqa: BLE001 - raised by result(), in the caller
+            self._error = exc
+
+    @property
+    def done(self) -> bool:
+        """Whether the span is measured (:meth:`result` then does not wait)."""
+        return not self._thread.is_alive()
+
+    def result(self) -> DatasetSpan:
+        """The span, once measured and checked.
+
+        Raises
+        ------
+        DatasetError
+            The measurement's own (a table missing, unreadable, without rows).
+        ImplausibleDataError
+            The plots and the ADS-B do not overlap in time (unless ``force``).
+        FolderReadAgain
+            The windows were read as if in time order and a file is not.
+        """
+        from graphcal.io.window_reader import check_span_overlap
+
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        span = self._span
+        assert span is not None
+        if not self._force:
+            check_span_overlap(span)
+        in_order = span.plots.files_in_order and (span.adsb is None
+                                                  or span.adsb.files_in_order)
+        if self._order == "sorted" and not in_order:
+            raise FolderReadAgain(f"{self._folder}: a table's rows are not in time order")
+        return span
+
+
 def stop_started() -> None:
     """Stop every reader started and not taken."""
     while _STARTED:
@@ -150,5 +227,6 @@ def stop_started() -> None:
             close()
 
 
-__all__ = ["CHILD_READER_MIN_BYTES", "open_folder_windows", "read_folder_windows",
-           "reading_order", "start_reading", "stop_started", "table_bytes"]
+__all__ = ["CHILD_READER_MIN_BYTES", "FolderReadAgain", "SpanCheck", "open_folder_windows",
+           "read_folder_windows", "reading_order", "start_reading", "stop_started",
+           "table_bytes"]

@@ -33,7 +33,12 @@ from graphcal.model.information import observability
 from graphcal.model.parameters import RadarTerms, prior_sigmas
 from graphcal.noise import filled_with_notes
 from graphcal.pipeline.schedulers import check_scheduler, map_windows
-from graphcal.pipeline.window_feed import open_folder_windows, read_folder_windows
+from graphcal.pipeline.window_feed import (
+    FolderReadAgain,
+    SpanCheck,
+    open_folder_windows,
+    read_folder_windows,
+)
 from graphcal.solvers.drift import DEFAULT_STEP_FALSE_ALARM
 from graphcal.solvers.windows import (
     WindowedCalibration,
@@ -146,18 +151,30 @@ def calibrate_windows(
     start = time.perf_counter()
     scheduler = check_scheduler(scheduler)
     rates = parse_drift(drift or {})
-    source = (_memory_source(dataset, window_s) if isinstance(dataset, Dataset)
-              else _folder_source(Path(dataset), window_s, clean, force))
-    for rid in breaks or {}:
-        if rid not in source.sites:
-            raise ValueError(f"--break {rid}@...: unknown radar; known: "
-                             f"{', '.join(source.sites)}")
     options = options or WindowOptions()
-    summaries = [s for s in map_windows(summarise_window, source.windows(),
-                                        scheduler=scheduler, args=(options,),
-                                        progress=progress, total=source.total,
-                                        prefetch=not source.read_ahead)
-                 if s is not None]
+    order = None
+    while True:
+        source = None
+        try:
+            try:
+                source = (_memory_source(dataset, window_s) if isinstance(dataset, Dataset)
+                          else _folder_source(Path(dataset), window_s, clean, force, order))
+                summaries = _first_pass(source, breaks, options, scheduler, progress)
+            except Exception:
+                if source is not None:
+                    # The span's own findings first, as when it was measured before
+                    # the first window.
+                    source.close()
+                    source.settle()
+                raise
+            source.settle()
+        except FolderReadAgain:
+            # Read as if in time order, and it is not: the windows may lack late rows.
+            if order == "auto":  # pragma: no cover - the auto order assumes nothing
+                raise
+            order = "auto"
+            continue
+        break
     elapsed = time.perf_counter() - start
     if progress is not None:
         progress("smoothing the chain", 0, 1)
@@ -225,6 +242,27 @@ def calibrate_windows(
     return cal
 
 
+def _first_pass(source: _Source, breaks: Mapping[str, Sequence[float]] | None,
+                options: WindowOptions, scheduler: str, progress: Progress | None
+                ) -> list[WindowSummary]:
+    """Every window's summary, in order (the first pass over the windows)."""
+    for rid in breaks or {}:
+        if rid not in source.sites:
+            raise ValueError(f"--break {rid}@...: unknown radar; known: "
+                             f"{', '.join(source.sites)}")
+
+    def report(stage: str, done: int, total: int | None) -> None:
+        # The folder's window count is known once its span is measured.
+        assert progress is not None
+        progress(stage, done, source.total)
+
+    return [s for s in map_windows(summarise_window, source.windows(), scheduler=scheduler,
+                                   args=(options,),
+                                   progress=None if progress is None else report,
+                                   total=source.total, prefetch=not source.read_ahead)
+            if s is not None]
+
+
 def _finish(cal: Calibration, source: _Source, scheduler: str,
             dataset: Dataset | str | os.PathLike[str]) -> None:
     """The run's estimated sigmas and the scheduler, in ``cal``."""
@@ -278,11 +316,15 @@ class _Source:
 
     sites: dict[str, Site]
     windows: Callable[[], Iterator[Window]]  # a fresh pass over the windows at each call
-    total: int | None
+    total: int | None  # windows; None until known
     cleaning_warnings: list[str] = field(default_factory=list)
     sigma_info: Any = None
     sigma_warnings: list[str] = field(default_factory=list)
     read_ahead: bool = False  # the first pass's windows are already read ahead (a child)
+    #: Raises what the folder's span shows to be wrong (FolderReadAgain among it).
+    settle: Callable[[], None] = lambda: None
+    #: Stops the first pass's reader.
+    close: Callable[[], None] = lambda: None
 
 
 def _memory_source(dataset: Dataset, window_s: float) -> _Source:
@@ -293,31 +335,31 @@ def _memory_source(dataset: Dataset, window_s: float) -> _Source:
                    info, warnings)
 
 
-def _folder_source(folder: Path, window_s: float, clean: bool, force: bool) -> _Source:
+def _folder_source(folder: Path, window_s: float, clean: bool, force: bool,
+                   order: str | None = None) -> _Source:
     """The folder's windows, read as they are calibrated.
 
     The first pass reads every window once, in a forked child process for a large
     folder (:mod:`graphcal.pipeline.window_feed`; the command line starts it before
     this is called), whose first window also gives the sigmas missing from
     ``sites.toml``; a later pass (the windows around a step) reads the folder again
-    in this process.
+    in this process.  Meanwhile a thread measures the folder's span: for the
+    progress, the time-overlap check the reader leaves to us, and the time order it
+    may have taken for granted; the source's ``settle`` raises what it finds
+    (:class:`~graphcal.pipeline.window_feed.SpanCheck`), the first pass's windows
+    check it as soon as it is measured.
     """
-    from graphcal.io.dataset_span import dataset_span
-    from graphcal.io.window_reader import check_span_overlap
-
-    stream, in_child, order = open_folder_windows(folder, window_s, clean, force)
-    # Measured while the first window is read: for the progress, the time-overlap
-    # check the reader leaves to us, and the time order it may have taken for granted.
-    span = dataset_span(folder)
-    if not force:
-        check_span_overlap(span)
-    in_order = span.plots.files_in_order and (span.adsb is None or span.adsb.files_in_order)
-    if order == "sorted" and not in_order:
-        getattr(stream, "close", lambda: None)()
-        stream, in_child, order = open_folder_windows(folder, window_s, clean, force, "auto")
-    total = len(span.window_indices(window_s))
-    first = next(stream, None)
+    stream, in_child, order = open_folder_windows(folder, window_s, clean, force, order)
+    span = SpanCheck(folder, force=force, order=order)
+    close = getattr(stream, "close", lambda: None)
+    try:
+        first = next(stream, None)
+    except Exception:
+        close()
+        span.result()  # the span's findings first
+        raise
     if first is None:
+        span.result()
         raise EstimationError(f"{folder}: no plots to calibrate")
     filled, info, warnings = filled_with_notes(first.dataset)
     sites = filled.sites
@@ -325,11 +367,22 @@ def _folder_source(folder: Path, window_s: float, clean: bool, force: bool) -> _
 
     def windows() -> Iterator[Window]:
         recipe = (folder, window_s, clean, force, order)
+        checking = bool(first_pass)
         source = first_pass.pop() if first_pass else read_folder_windows(*recipe)
         for window in source:
+            if checking and span.done:
+                checking = False
+                made.total = len(span.result().window_indices(window_s))
             yield replace(window, dataset=replace(window.dataset, sites=sites))
 
-    return _Source(sites, windows, total, [], info, warnings, read_ahead=in_child)
+    made = _Source(sites, windows, None, [], info, warnings, read_ahead=in_child,
+                   settle=lambda: _settle(made, span, window_s), close=close)
+    return made
+
+
+def _settle(source: _Source, span: SpanCheck, window_s: float) -> None:
+    """``span`` measured and checked, and the window count in ``source.total``."""
+    source.total = len(span.result().window_indices(window_s))
 
 
 def _radar_only(window: Window, radar_id: str, options: WindowOptions) -> Window:

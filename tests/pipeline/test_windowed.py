@@ -260,3 +260,58 @@ def test_a_csv_folder_out_of_time_order_is_read_sorted_by_window(stepping, tmp_p
             assert mine["n_plots"] == theirs["n_plots"]
             for key, sigma in mine["sigma"].items():
                 assert abs(mine[key] - theirs[key]) <= 1e-6 * sigma, (rid, key)
+
+
+@pytest.mark.parametrize("threshold", [0, 1 << 60], ids=["child", "here"])
+def test_a_late_row_deep_in_a_csv_table_sends_the_reading_back(stepping, tmp_path: Path,
+                                                              monkeypatch, threshold) -> None:
+    """A table in time order but for one row of the first window written near its end:
+    read as if in order, the first windows are calibrated before the late row is met.
+    They are dropped and the folder read again sorted by window: the first window counts
+    that row, and the series is the ordered folder's."""
+    import pandas as pd
+
+    import graphcal.pipeline.window_feed as window_feed
+
+    monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", threshold)
+    _, sim = stepping
+    ordered = tmp_path / "ordered"
+    write_dataset(sim.dataset, ordered)
+    late = tmp_path / "late"
+    write_dataset(sim.dataset, late)
+    plots = pd.read_csv(late / "plots.csv", dtype={"target_id": str, "radar_id": str})
+    moved = plots.index[plots["time_s"] < 600.0][5]
+    rest = plots.drop(index=moved)
+    at = len(rest) - 50
+    late_plots = pd.concat([rest.iloc[:at], plots.loc[[moved]], rest.iloc[at:]])
+    late_plots.to_csv(late / "plots.csv", index=False)
+    assert window_feed.reading_order(late) == "sorted"
+    expected = calibrate(ordered, window="15min")
+    got = calibrate(late, window="15min")
+    assert got.events == expected.events
+    for rid, entries in expected.series["radars"].items():
+        for mine, theirs in zip(entries, got.series["radars"][rid], strict=True):
+            assert mine["n_plots"] == theirs["n_plots"]
+            for key, sigma in mine["sigma"].items():
+                assert abs(mine[key] - theirs[key]) <= 1e-6 * sigma, (rid, key)
+
+
+@pytest.mark.parametrize("threshold", [0, 1 << 60], ids=["child", "here"])
+def test_adsb_on_another_time_base_is_refused_before_anything_else(
+        stepping, tmp_path: Path, monkeypatch, threshold) -> None:
+    """ADS-B two days after the plots: the time-overlap finding, measured beside the
+    reading, is what the calibration raises (not what the windows without ADS-B give)."""
+    import pandas as pd
+
+    import graphcal.pipeline.window_feed as window_feed
+    from graphcal.core.errors import ImplausibleDataError
+
+    monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", threshold)
+    _, sim = stepping
+    folder = tmp_path / "shifted"
+    write_dataset(sim.dataset, folder)
+    adsb = pd.read_csv(folder / "adsb.csv", dtype={"target_id": str})
+    adsb["time_s"] += 2 * 86400.0
+    adsb.to_csv(folder / "adsb.csv", index=False)
+    with pytest.raises(ImplausibleDataError, match="do not overlap"):
+        calibrate(folder, window="15min")
