@@ -22,6 +22,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.grouped import group_order
 from graphcal.core.refraction import refracted_polar_jacobian
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.memo import remember
@@ -70,17 +71,50 @@ def plot_arrays(dataset: Dataset, radar_id: str) -> PlotArrays:
 
 
 def _plot_arrays(dataset: Dataset, radar_id: str) -> PlotArrays:
-    plots = dataset.plots_of(radar_id)
-    altitude = plots["altitude_m"] if "altitude_m" in plots else pd.Series(np.nan, plots.index)
-    return PlotArrays(
+    # The rows of Dataset.plots_of (a stable sort by time), without building its table.
+    table = _plot_table(dataset.plots)
+    code = table.radar_codes.get(radar_id)
+    rows = (table.order[table.start[code]:table.start[code + 1]] if code is not None
+            else np.zeros(0, dtype=np.int64))
+    return PlotArrays(*(getattr(table.columns, name)[rows]
+                        for name in PlotArrays.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class _PlotTable:
+    """A plots table as SI arrays, its rows grouped by radar and in time order."""
+
+    columns: PlotArrays  # every row, in table order
+    radar_codes: dict[str, int]
+    order: NDArray[np.int64]  # rows by (radar code, time), ties by row
+    start: NDArray[np.int64]  # radar code k's rows are order[start[k]:start[k + 1]]
+
+
+def _plot_table(plots: pd.DataFrame) -> _PlotTable:
+    """:class:`_PlotTable` of ``plots``, once per table within a calibration."""
+    return remember(("plot_table",), (plots,), lambda: _make_plot_table(plots))
+
+
+def _make_plot_table(plots: pd.DataFrame) -> _PlotTable:
+    def column(name: str) -> NDArray[np.float64]:
+        if name not in plots:
+            return np.full(len(plots), np.nan)
+        return plots[name].to_numpy(dtype=float)
+
+    codes, names = pd.factorize(plots["radar_id"].astype(str))
+    time_s = column("time_s")
+    order = group_order(codes, time_s)
+    start = np.searchsorted(codes[order], np.arange(len(names) + 1)).astype(np.int64)
+    columns = PlotArrays(
         index=plots.index.to_numpy(dtype=np.int64),
-        time_s=plots["time_s"].to_numpy(dtype=float),
-        range_m=plots["range_m"].to_numpy(dtype=float),
-        azimuth_rad=np.deg2rad(plots["azimuth_deg"].to_numpy(dtype=float)),
-        elevation_rad=np.deg2rad(plots["elevation_deg"].to_numpy(dtype=float)),
-        altitude_m=altitude.to_numpy(dtype=float),
+        time_s=time_s,
+        range_m=column("range_m"),
+        azimuth_rad=np.deg2rad(column("azimuth_deg")),
+        elevation_rad=np.deg2rad(column("elevation_deg")),
+        altitude_m=column("altitude_m"),
         target_id=plots["target_id"].to_numpy(dtype=object),
     )
+    return _PlotTable(columns, {str(name): k for k, name in enumerate(names)}, order, start)
 
 
 def neighbour_plots(plots: PlotArrays, skip: int = 1, half_width: int = 4) -> PlotArrays:
@@ -332,7 +366,7 @@ def _adsb_track_table(adsb: pd.DataFrame) -> AdsbTrackTable:
     codes, names = pd.factorize(target[valid].astype(str), sort=True)
     time_s = adsb["time_s"].to_numpy(float)[valid]
     # As tracks_by_target: per aircraft in time order (stable), repeated times dropped.
-    order = np.lexsort((time_s, codes))
+    order = group_order(codes, time_s)
     codes, time_s = codes[order], time_s[order]
     keep = np.ones(len(order), dtype=bool)
     keep[1:] = (codes[1:] != codes[:-1]) | (np.diff(time_s) > 0)
