@@ -1,5 +1,5 @@
 """``python -m graphcal``: the command line."""
 
-from graphcal.cli.app import app
+from graphcal.cli.app import main
 
-app()
+main()
