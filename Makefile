@@ -20,6 +20,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet -e ".[test,docs]"
+	$(BIN)/python -m compileall -q graphcal
 	touch $(STAMP)
 
 install: $(STAMP)
