@@ -84,15 +84,20 @@ def exit_at_once(status: object) -> None:
 
     Python's own shutdown frees every loaded module one object at a time; with pandas,
     SciPy and GTSAM loaded that is a quarter of a second after the command's work is
-    done.  Everything else a normal exit does still happens, in its order: the threads
-    that are not daemons are waited for, the exit handlers run (``atexit``: temporary
-    files, child processes), and the standard streams are flushed.  Only the freeing
-    of memory, which the operating system does at once, is skipped.
+    done.  Everything else a normal exit does still happens: the exit handlers run
+    (``atexit``: temporary files, child processes) and the standard streams are
+    flushed.  Only the freeing of memory, which the operating system does at once, is
+    skipped.  While a thread that is not a daemon is alive (a worker pool left open,
+    say), the exit is the normal one, which knows how to end such threads.
     """
     import atexit
     import os
     import threading
 
+    main_thread = threading.main_thread()
+    if any(t is not main_thread and not t.daemon and t.is_alive()
+           for t in threading.enumerate()):
+        sys.exit(status)
     if status is None:
         code = 0
     elif isinstance(status, int):
@@ -100,9 +105,6 @@ def exit_at_once(status: object) -> None:
     else:  # SystemExit("message"): the message on stderr, status 1
         print(status, file=sys.stderr)
         code = 1
-    for thread in threading.enumerate():
-        if thread is not threading.main_thread() and not thread.daemon:
-            thread.join()
     atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         try:
