@@ -152,29 +152,12 @@ def calibrate_windows(
     scheduler = check_scheduler(scheduler)
     rates = parse_drift(drift or {})
     options = options or WindowOptions()
-    order = None
-    while True:
-        source = None
-        try:
-            try:
-                source = (_memory_source(dataset, window_s) if isinstance(dataset, Dataset)
-                          else _folder_source(Path(dataset), window_s, clean, force, order))
-                summaries = _first_pass(source, breaks, options, scheduler, progress)
-            except Exception:
-                if source is not None:
-                    # The span's own findings first, as when it was measured before
-                    # the first window.
-                    source.close()
-                    source.settle()
-                raise
-            source.settle()
-        except FolderReadAgain:
-            # Read as if in time order, and it is not: the windows may lack late rows.
-            if order == "auto":  # pragma: no cover - the auto order assumes nothing
-                raise
-            order = "auto"
-            continue
-        break
+    first_pass = (dataset, window_s, clean, force, breaks, options, scheduler, progress)
+    try:
+        source, summaries = _first_pass(*first_pass)
+    except FolderReadAgain:
+        # Read as if in time order, and it is not: the windows may lack late rows.
+        source, summaries = _first_pass(*first_pass, order="auto")
     elapsed = time.perf_counter() - start
     if progress is not None:
         progress("smoothing the chain", 0, 1)
@@ -242,25 +225,43 @@ def calibrate_windows(
     return cal
 
 
-def _first_pass(source: _Source, breaks: Mapping[str, Sequence[float]] | None,
-                options: WindowOptions, scheduler: str, progress: Progress | None
-                ) -> list[WindowSummary]:
-    """Every window's summary, in order (the first pass over the windows)."""
-    for rid in breaks or {}:
-        if rid not in source.sites:
-            raise ValueError(f"--break {rid}@...: unknown radar; known: "
-                             f"{', '.join(source.sites)}")
+def _first_pass(dataset: Dataset | str | os.PathLike[str], window_s: float, clean: bool,
+                force: bool, breaks: Mapping[str, Sequence[float]] | None,
+                options: WindowOptions, scheduler: str, progress: Progress | None,
+                order: str | None = None) -> tuple[_Source, list[WindowSummary]]:
+    """The windows' source and every window's summary, in order (the first pass).
 
-    def report(stage: str, done: int, total: int | None) -> None:
-        # The folder's window count is known once its span is measured.
-        assert progress is not None
-        progress(stage, done, source.total)
+    Raises what the folder's span shows to be wrong before any other error, as when
+    it was measured before the first window; :class:`FolderReadAgain` when the
+    folder was read as if in time order and is not.
+    """
+    source = None
+    try:
+        source = (_memory_source(dataset, window_s) if isinstance(dataset, Dataset)
+                  else _folder_source(Path(dataset), window_s, clean, force, order))
+        for rid in breaks or {}:
+            if rid not in source.sites:
+                raise ValueError(f"--break {rid}@...: unknown radar; known: "
+                                 f"{', '.join(source.sites)}")
 
-    return [s for s in map_windows(summarise_window, source.windows(), scheduler=scheduler,
-                                   args=(options,),
-                                   progress=None if progress is None else report,
-                                   total=source.total, prefetch=not source.read_ahead)
-            if s is not None]
+        def report(stage: str, done: int, total: int | None) -> None:
+            # The folder's window count is known once its span is measured.
+            assert progress is not None and source is not None
+            progress(stage, done, source.total)
+
+        summaries = [s for s in map_windows(summarise_window, source.windows(),
+                                            scheduler=scheduler, args=(options,),
+                                            progress=None if progress is None else report,
+                                            total=source.total,
+                                            prefetch=not source.read_ahead)
+                     if s is not None]
+    except Exception:
+        if source is not None:
+            source.close()
+            source.settle()
+        raise
+    source.settle()
+    return source, summaries
 
 
 def _finish(cal: Calibration, source: _Source, scheduler: str,
@@ -372,7 +373,7 @@ def _folder_source(folder: Path, window_s: float, clean: bool, force: bool,
         for window in source:
             if checking and span.done:
                 checking = False
-                made.total = len(span.result().window_indices(window_s))
+                _settle(made, span, window_s)
             yield replace(window, dataset=replace(window.dataset, sites=sites))
 
     made = _Source(sites, windows, None, [], info, warnings, read_ahead=in_child,

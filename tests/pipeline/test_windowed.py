@@ -234,6 +234,20 @@ def test_a_head_start_is_only_a_head_start(stepping, tmp_path: Path, monkeypatch
     assert not window_feed._STARTED and not multiprocessing.active_children()
 
 
+def _assert_series_as_ordered(sim, tmp_path: Path, got: Calibration) -> None:
+    """``got`` has the events and series of the simulation's folder written in time
+    order: the same plots per window, the values to 1e-6 of their sigmas."""
+    ordered = tmp_path / "ordered"
+    write_dataset(sim.dataset, ordered)
+    expected = calibrate(ordered, window="15min")
+    assert got.events == expected.events
+    for rid, entries in expected.series["radars"].items():
+        for mine, theirs in zip(entries, got.series["radars"][rid], strict=True):
+            assert mine["n_plots"] == theirs["n_plots"]
+            for key, sigma in mine["sigma"].items():
+                assert abs(mine[key] - theirs[key]) <= 1e-6 * sigma, (rid, key)
+
+
 @pytest.mark.parametrize("threshold", [0, 1 << 60], ids=["child", "here"])
 def test_a_csv_folder_out_of_time_order_is_read_sorted_by_window(stepping, tmp_path: Path,
                                                                  monkeypatch, threshold) -> None:
@@ -245,21 +259,12 @@ def test_a_csv_folder_out_of_time_order_is_read_sorted_by_window(stepping, tmp_p
 
     monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", threshold)
     _, sim = stepping
-    ordered = tmp_path / "ordered"
-    write_dataset(sim.dataset, ordered)
     shuffled = tmp_path / "shuffled"
     write_dataset(sim.dataset, shuffled)
     plots = pd.read_csv(shuffled / "plots.csv", dtype={"target_id": str, "radar_id": str})
     plots.sample(frac=1.0, random_state=2).to_csv(shuffled / "plots.csv", index=False)
     assert window_feed.reading_order(shuffled) == "sorted"
-    expected = calibrate(ordered, window="15min")
-    got = calibrate(shuffled, window="15min")
-    assert got.events == expected.events
-    for rid, entries in expected.series["radars"].items():
-        for mine, theirs in zip(entries, got.series["radars"][rid], strict=True):
-            assert mine["n_plots"] == theirs["n_plots"]
-            for key, sigma in mine["sigma"].items():
-                assert abs(mine[key] - theirs[key]) <= 1e-6 * sigma, (rid, key)
+    _assert_series_as_ordered(sim, tmp_path, calibrate(shuffled, window="15min"))
 
 
 @pytest.mark.parametrize("threshold", [0, 1 << 60], ids=["child", "here"])
@@ -275,8 +280,6 @@ def test_a_late_row_deep_in_a_csv_table_sends_the_reading_back(stepping, tmp_pat
 
     monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", threshold)
     _, sim = stepping
-    ordered = tmp_path / "ordered"
-    write_dataset(sim.dataset, ordered)
     late = tmp_path / "late"
     write_dataset(sim.dataset, late)
     plots = pd.read_csv(late / "plots.csv", dtype={"target_id": str, "radar_id": str})
@@ -286,14 +289,7 @@ def test_a_late_row_deep_in_a_csv_table_sends_the_reading_back(stepping, tmp_pat
     late_plots = pd.concat([rest.iloc[:at], plots.loc[[moved]], rest.iloc[at:]])
     late_plots.to_csv(late / "plots.csv", index=False)
     assert window_feed.reading_order(late) == "sorted"
-    expected = calibrate(ordered, window="15min")
-    got = calibrate(late, window="15min")
-    assert got.events == expected.events
-    for rid, entries in expected.series["radars"].items():
-        for mine, theirs in zip(entries, got.series["radars"][rid], strict=True):
-            assert mine["n_plots"] == theirs["n_plots"]
-            for key, sigma in mine["sigma"].items():
-                assert abs(mine[key] - theirs[key]) <= 1e-6 * sigma, (rid, key)
+    _assert_series_as_ordered(sim, tmp_path, calibrate(late, window="15min"))
 
 
 @pytest.mark.parametrize("threshold", [0, 1 << 60], ids=["child", "here"])
