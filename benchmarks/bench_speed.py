@@ -15,7 +15,7 @@ with the next seed, shifted by 3 hours and given new aircraft addresses until th
 dataset has the plots asked for, and the dataset is then cut at the time of its
 ``N``-th plot.
 
-Then two commands are timed end to end, as subprocesses, alternately and
+Then three commands are timed end to end, as subprocesses, alternately and
 ``--repeats`` times each:
 
 * ``graphcal calibrate DIR --out result.json`` with its defaults (ADS-B and
@@ -23,7 +23,12 @@ Then two commands are timed end to end, as subprocesses, alternately and
   model checks);
 * :mod:`benchmarks.scipy_adsb`, a plain scipy least-squares fit of the ADS-B model
   alone (range offset, gain, azimuth and elevation biases per radar, ADS-B
-  interpolated to the plot times).
+  interpolated to the plot times);
+* the *import floor*: a Python process that only imports the outside libraries
+  ``graphcal calibrate`` cannot run without (:data:`FLOOR_IMPORTS`: pandas with
+  numpy and pyarrow, GTSAM, SciPy's special functions, typer) and exits.  No
+  implementation on these libraries can be faster than this; its ratio to the
+  script shows how much of the script's time is left for the work itself.
 
 The table gives, per size, the median wall times, their ratio (and that of the CPU
 times, less sensitive to other load on the machine), the child's peak memory and
@@ -278,6 +283,10 @@ def agreement(graph: dict[str, Any], plain: dict[str, Any]) -> float:
     return worst
 
 
+#: The outside libraries every ``graphcal calibrate`` run imports (the import floor).
+FLOOR_IMPORTS = ("pandas", "gtsam", "scipy.special", "typer")
+
+
 def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
                work: Path, window: str | None = None) -> dict[str, Any]:
     """Time graphcal (each root) and the scipy script on one dataset, alternately.
@@ -296,6 +305,8 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
     }
     commands["scipy"] = ([sys.executable, "-m", "benchmarks.scipy_adsb", str(folder), "--out",
                           str(work / "scipy.json")], environment_for(ROOT))
+    commands["floor"] = ([sys.executable, "-c", f"import {', '.join(FLOOR_IMPORTS)}"],
+                         environment_for(ROOT))
     walls: dict[str, list[float]] = {name: [] for name in commands}
     cpu: dict[str, list[float]] = {name: [] for name in commands}
     memory: dict[str, list[float]] = {name: [] for name in commands}
@@ -316,13 +327,16 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
     plain = json.loads((work / "scipy.json").read_text())
     truth = json.loads((folder / "truth.json").read_text())
     out: dict[str, Any] = {
-        "label": label, "dataset": folder.name, "repeats": repeats,
+        "label": label, "dataset": folder.name, "repeats": repeats, "window": window,
+        "floor_imports": list(FLOOR_IMPORTS),
         "n_plots": int(sum(e["n_plots"] for e in truth["radars"].values())),
         "wall_s": {name: {"median": statistics.median(t), "all": t} for name, t in walls.items()},
         "cpu_s": {name: {"median": statistics.median(t), "all": t} for name, t in cpu.items()},
         "peak_rss_mib": {name: max(m) for name, m in memory.items()},
         "stages_s": {}, "ratio_to_scipy": {}, "cpu_ratio_to_scipy": {}, "agreement_sigma": {},
     }
+    out["ratio_to_scipy"]["floor"] = (statistics.median(walls["floor"])
+                                      / statistics.median(walls["scipy"]))
     for name in roots:
         median_wall = statistics.median(walls[name])
         timing = {key: statistics.median(s.get(key, 0.0) for s in stages[name])
@@ -369,6 +383,11 @@ def print_table(results: list[dict[str, Any]], names: list[str]) -> None:
             base = r["wall_s"][names[-1]]["median"]
             print(f"  [{r['label']}] " + ", ".join(
                 f"{n} / {names[-1]} = {r['wall_s'][n]['median'] / base:.2f}" for n in names[:-1]))
+        floor = r["wall_s"].get("floor")
+        if floor is not None:
+            print(f"  [{r['label']}] import floor ({', '.join(r['floor_imports'])}): "
+                  f"{floor['median']:.2f} s, {r['ratio_to_scipy']['floor']:.2f} of the scipy "
+                  "script's wall time")
         for name in names:
             print(f"  [{r['label']}] {name}: scipy peak {r['peak_rss_mib']['scipy']:.0f} MiB; "
                   f"max |graphcal - scipy| = {r['agreement_sigma'][name]:.1f} sigma")
@@ -424,7 +443,7 @@ def main(argv: list[str] | None = None) -> int:
         "benchmark": "bench_speed",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "traffic": traffic, "format": args.fmt, "seed": args.seed,
-        "runs": list(roots),
+        "runs": list(roots), "window": args.window,
         "environment": {"load_average_1min": load, "cpu_count": os.cpu_count(),
                         "python": platform.python_version(), "machine": platform.machine()},
         "results": results,

@@ -142,17 +142,40 @@ def quantile_bins(x: FloatArray, n_bins: int) -> IntArray:
     return np.searchsorted(inner, x, side="right").astype(np.int64)
 
 
+def plot_bins(x: FloatArray, rows: NDArray[np.bool_], n_bins: int = N_BINS
+              ) -> IntArray | None:
+    """Each plot's quantile bin of ``x`` (:func:`quantile_bins`), ``-1`` outside ``rows``.
+
+    Only the plots of ``rows`` with a finite ``x`` are binned, into
+    ``min(n_bins, count // MIN_BIN_PLOTS)`` bins; ``None`` when that leaves fewer
+    than ``MIN_DOF + 1`` bins.  The bins depend on ``x`` and ``rows`` alone, so the
+    tests of several coordinates binned by one variable can share them
+    (``binned_test(..., bins=...)``).
+    """
+    x = np.asarray(x, dtype=float)
+    ok = np.asarray(rows, dtype=bool) & np.isfinite(x)
+    k = min(n_bins, int(ok.sum()) // MIN_BIN_PLOTS)
+    if k < MIN_DOF + 1:
+        return None
+    bins = np.full(len(x), -1, dtype=np.int64)
+    bins[ok] = quantile_bins(x[ok], k)
+    return bins
+
+
 def segment_codes(target: NDArray, time_s: FloatArray, segment_s: float) -> IntArray:
     """Segment number of each plot: its aircraft and ``floor((t - t_first) / segment_s)``.
 
-    Plots of an unknown aircraft (empty ``target``) each form their own segment.
+    Plots of an unknown aircraft (empty or missing ``target``) each form their own
+    segment.
     """
-    codes, _ = pd.factorize(pd.Series(target, dtype=object).astype(str), sort=False)
+    codes, names = pd.factorize(target if isinstance(target, pd.Series) else np.asarray(target),
+                                sort=False)
     codes = np.asarray(codes, dtype=np.int64)
+    empty = np.flatnonzero(np.asarray(names, dtype=object) == "")
+    unknown = (codes < 0) | (np.isin(codes, empty) if len(empty) else False)
     first = pd.Series(time_s).groupby(codes).transform("min").to_numpy(float)
     piece = np.floor((time_s - first) / segment_s).astype(np.int64)
     key = codes * (int(piece.max(initial=0)) + 1) + piece
-    unknown = np.asarray(pd.Series(target, dtype=object).astype(str) == "")
     key = np.where(unknown, -1 - np.arange(len(key)), key)
     return pd.factorize(key)[0].astype(np.int64)
 
@@ -264,6 +287,7 @@ def binned_test(
     terms: TermsFit | None = None,
     *,
     n_bins: int = N_BINS,
+    bins: IntArray | None = None,
 ) -> BinnedMeans | None:
     """Bin ``residual`` by ``x`` and test the bin means for structure (module doc).
 
@@ -285,6 +309,9 @@ def binned_test(
         null distribution accounts for the fit.  Default: none.
     n_bins : int
         Bins wanted; fewer when the plots do not fill them.
+    bins : ndarray (n,) of int, optional
+        The plots' bins as :func:`plot_bins` gives them for ``x``, ``terms.rows``
+        and ``n_bins`` (computed when not given).
 
     Returns
     -------
@@ -299,12 +326,12 @@ def binned_test(
     if terms is None:
         terms = fit_terms(e, variance, None)
     fit = terms.rows
-    ok = fit & np.isfinite(x)
-    k = min(n_bins, int(ok.sum()) // MIN_BIN_PLOTS)
-    if k < MIN_DOF + 1:
-        return None
-    bins = np.full(len(e), -1, dtype=np.int64)
-    bins[ok] = quantile_bins(x[ok], k)
+    if bins is None:
+        bins = plot_bins(x, fit, n_bins)
+        if bins is None:
+            return None
+    ok = bins >= 0
+    k = int(bins.max()) + 1
     # Keep bins with enough plots and segments; renumber them 0 .. K-1.
     n = np.bincount(bins[ok], minlength=k)
     pieces = _piece_codes(segment[ok], bins[ok], k)
@@ -411,7 +438,8 @@ def _segment_correlation(big_y: FloatArray, n_u: FloatArray, piece_bin: IntArray
 def _sum_by(codes: IntArray, values: FloatArray, size: int | None = None) -> FloatArray:
     """Row sums of ``values`` grouped by ``codes`` (0 .. size - 1), one row per code."""
     size = int(codes.max()) + 1 if size is None else size
-    return np.stack([np.bincount(codes, column, minlength=size) for column in values.T], axis=1)
+    columns = np.ascontiguousarray(values.T)
+    return np.stack([np.bincount(codes, column, minlength=size) for column in columns], axis=1)
 
 
 def _dense_codes(segment: IntArray) -> tuple[IntArray, int]:
@@ -441,5 +469,5 @@ def _piece_bins(pieces: IntArray, bins: IntArray) -> IntArray:
 
 __all__ = ["MIN_BIN_PLOTS", "MIN_BIN_SEGMENTS", "N_BINS", "BinnedMeans", "TermsFit",
            "binned_test", "fit_terms", "log_chi2_sf", "log_chi2_sf_series",
-           "quantile_bins",
+           "plot_bins", "quantile_bins",
            "segment_codes", "weights"]

@@ -45,8 +45,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-from graphcal.analysis.binned_test import BinnedMeans, TermsFit, binned_test, fit_terms
+from graphcal.analysis.binned_test import BinnedMeans, TermsFit, binned_test, fit_terms, plot_bins
 from graphcal.analysis.check_patterns import describe
 from graphcal.analysis.check_residuals import (
     SEGMENT_S,
@@ -299,16 +300,29 @@ class ModelChecks:
 
 
 # --------------------------------------------------------------------------- the checks
-def _test(res: RadarResiduals, coordinate: str, variable: str, terms: TermsFit | None = None
-          ) -> BinnedMeans | None:
-    """One binned test of ``res`` in display units (the terms fitted when not given)."""
+def _test(res: RadarResiduals, coordinate: str, variable: str, terms: TermsFit | None = None,
+          shared_bins: dict[str, tuple[NDArray[np.bool_], NDArray[np.int64] | None]] | None
+          = None) -> BinnedMeans | None:
+    """One binned test of ``res`` in display units (the terms fitted when not given).
+
+    ``shared_bins``: the plots' bins by variable, with the rows they were made for,
+    kept across the coordinates of one radar (the coordinates' residuals are
+    usually finite on the same plots, and then share the bins).
+    """
     scale = COORDINATES[coordinate][1]
     e = res.residuals[coordinate] * scale
     v = res.variances[coordinate] * scale**2
     if terms is None:
         terms = fit_terms(e, v, res.regressors[coordinate])
     x = res.variables[variable] * VARIABLES[variable][1]
-    return binned_test(x, e, v, res.segment, terms)
+    if shared_bins is None:
+        return binned_test(x, e, v, res.segment, terms)
+    kept = shared_bins.get(variable)
+    if kept is None or not np.array_equal(kept[0], terms.rows):
+        kept = shared_bins[variable] = (terms.rows, plot_bins(x, terms.rows))
+    if kept[1] is None:
+        return None
+    return binned_test(x, e, v, res.segment, terms, bins=kept[1])
 
 
 def radar_checks(res: RadarResiduals, site: Site,
@@ -323,6 +337,7 @@ def radar_checks(res: RadarResiduals, site: Site,
     n_residuals: dict[str, int] = {}
     for coordinate, (chi2, n) in normalised_sums(res).items():
         chi2_per_dof[coordinate], n_residuals[coordinate] = chi2 / n, n
+    shared_bins: dict[str, tuple[NDArray[np.bool_], NDArray[np.int64] | None]] = {}
     for coordinate, e in res.residuals.items():
         v = res.variances[coordinate]
         scale = COORDINATES[coordinate][1]
@@ -330,7 +345,7 @@ def radar_checks(res: RadarResiduals, site: Site,
         for variable in res.variables:
             if coordinate == "altitude" and variable == "range":
                 continue  # a pressure altitude is a function of height: see altitude vs height
-            bins = _test(res, coordinate, variable, terms)
+            bins = _test(res, coordinate, variable, terms, shared_bins)
             if bins is not None:
                 tests.append(CheckTest(coordinate, variable, bins))
     threshold = family_false_alarm / max(len(tests), 1)

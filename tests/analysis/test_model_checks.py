@@ -22,6 +22,7 @@ from graphcal.analysis.binned_test import (
     fit_terms,
     log_chi2_sf,
     log_chi2_sf_series,
+    plot_bins,
     quantile_bins,
     segment_codes,
 )
@@ -54,6 +55,43 @@ def test_segments_cut_each_aircraft_by_time() -> None:
     assert codes[3] != codes[4]
     # Plots of unknown aircraft are each their own segment.
     assert len(set(codes)) == 7 - 1
+
+
+def test_missing_aircraft_are_unknown_and_a_table_column_gives_the_same_segments() -> None:
+    import pandas as pd
+
+    target = np.array(["a", "a", None, "b", "", None], dtype=object)
+    time_s = np.array([0.0, 10.0, 20.0, 30.0, 40.0, 50.0])
+    codes = segment_codes(target, time_s, 60.0)
+    # "a" is one segment, "b" another; the empty and the two missing names each their own.
+    assert codes[0] == codes[1] and len(set(codes)) == 5
+    column = pd.Series(["a", "a", "c", "b", "c", "a"], dtype="string")
+    np.testing.assert_array_equal(
+        segment_codes(column, time_s, 60.0),
+        segment_codes(np.asarray(column, dtype=object), time_s, 60.0))
+
+
+def test_bins_made_once_give_the_same_test_for_every_coordinate() -> None:
+    """The bins of one variable, made once (plot_bins) and passed to each coordinate's
+    test, give the test each coordinate computes for itself, to the bit."""
+    rng = np.random.default_rng(11)
+    n = 2500
+    x = rng.uniform(0.0, 360.0, n)
+    x[:7] = np.nan  # left out of the bins, still in the terms' fit
+    segment = rng.integers(0, 300, n)
+    for e in (0.3 * np.sin(np.deg2rad(x)) + rng.normal(0.0, 1.0, n), rng.normal(0.0, 2.0, n)):
+        v = rng.uniform(0.5, 2.0, n)
+        terms = fit_terms(e, v, np.ones((n, 1)))
+        bins = plot_bins(x, terms.rows)
+        assert set(np.unique(bins)) == set(range(-1, 10))
+        assert np.all(bins[:7] == -1)
+        alone = binned_test(x, e, v, segment, terms)
+        shared = binned_test(x, e, v, segment, terms, bins=bins)
+        for field in ("mean", "sigma", "absorbed", "n_plots", "n_segments", "lower", "upper"):
+            np.testing.assert_array_equal(getattr(shared, field), getattr(alone, field))
+        assert (shared.chi2, shared.dof, shared.p_value, shared.rho) == (
+            alone.chi2, alone.dof, alone.p_value, alone.rho)
+    assert plot_bins(np.arange(100.0), np.ones(100, dtype=bool)) is None  # two bins: no test
 
 
 def test_bin_means_and_sigmas_equal_the_direct_computation() -> None:
