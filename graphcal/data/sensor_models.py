@@ -113,6 +113,10 @@ class SensorModel:
         return self.dimensions == 3
 
 
+#: The ``models/`` folder at the top of the repository.
+_PACKAGE_MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+
+
 def models_dir() -> Path:
     """The folder holding the sensor model files.
 
@@ -125,7 +129,7 @@ def models_dir() -> Path:
     override = os.environ.get(MODELS_DIR_ENV)
     if override:
         return Path(override)
-    return Path(__file__).resolve().parents[2] / "models"
+    return _PACKAGE_MODELS_DIR
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
@@ -284,7 +288,9 @@ def load_sensor_model(name: str) -> SensorModel:
         If no radar model has that name (the message lists the available ones)
         or the file is invalid.
     """
-    path = _model_files().get(name)
+    path = models_dir() / f"{name}.toml"
+    if Path(name).name != name or not path.is_file():  # not a file of the folder
+        path = _model_files().get(name)
     if path is None:
         available = ", ".join(list_sensor_models()) or "none"
         raise SensorModelError(

@@ -326,6 +326,22 @@ def test_wrap_to_pi(angle, expected):
     np.testing.assert_allclose(wrapped, expected, rtol=0, atol=1e-14)
 
 
+def test_wrap_to_2pi_equals_numpy_mod_within_two_turns():
+    """Against np.mod (the second implementation): the same bits for |a| < 4 pi, where
+    every use in the package lies (azimuths from arctan2, differences of angles), apart
+    from np.mod's exact 2 pi, which wraps to 0; NaN and infinities give NaN."""
+    rng = np.random.default_rng(7)
+    edges = TWO_PI * np.arange(-1, 2)
+    x = np.concatenate([rng.uniform(-4 * np.pi, 4 * np.pi, 100_000), edges,
+                        np.nextafter(edges, np.inf), np.nextafter(edges, -np.inf),
+                        [np.nextafter(4 * np.pi, 0.0), np.nextafter(-4 * np.pi, 0.0)]])
+    expected = np.mod(x, TWO_PI)
+    expected[expected >= TWO_PI] = 0.0
+    np.testing.assert_array_equal(wrap_to_2pi(x), expected)
+    with np.errstate(invalid="ignore"):
+        assert np.isnan(wrap_to_2pi(np.array([np.nan, np.inf, -np.inf]))).all()
+
+
 def test_wrap_to_pi_random_range():
     """Random angles over +-1e3 rad: wrap_to_pi in [-pi, pi) and differs by a multiple of 2 pi
     (tolerance 1e-9 rad: |x| <= 1e3 has ulp 1.1e-13, the mod adds a few)."""
