@@ -49,7 +49,7 @@ def calibrate_command(
         int, typer.Option(help="wls/wls-pruned: re-linearisations (1 = the paper's method).")
     ] = 1,
     max_gap_s: Annotated[
-        float | None, typer.Option(help="Longest time gap bridged by interpolation \\[s].")
+        float | None, typer.Option(help="Longest time gap bridged by interpolation [s].")
     ] = None,
     cross: Annotated[
         str, typer.Option(metavar="pairwise|target-state|none",
@@ -122,7 +122,7 @@ def calibrate_command(
                      "(every radar), whole tracks, or single observations."),
     ] = "segment",
     segment_s: Annotated[
-        float, typer.Option(help="--select: segment length \\[s].")
+        float, typer.Option(help="--select: segment length [s].")
     ] = 60.0,
     select_seed: Annotated[
         int, typer.Option(help="--select random: seed of the draw.")
@@ -139,8 +139,8 @@ def calibrate_command(
         bool,
         typer.Option(
             "--model-checks/--no-model-checks",
-            help="After the estimate, bin each radar's residuals against range \\[km], "
-            "elevation \\[deg] or height \\[km], azimuth \\[deg] and time \\[s] and warn "
+            help="After the estimate, bin each radar's residuals against range [km], "
+            "elevation [deg] or height [km], azimuth [deg] and time [s] and warn "
             "('unmodelled ...') when their structure is beyond chance (false alarms on "
             "under 1 % of radars): refraction, pressure altitudes, antenna eccentricity, a "
             "drifting bias. --no-model-checks skips them.",
@@ -168,7 +168,7 @@ def calibrate_command(
         list[str] | None,
         typer.Option(
             "--break", metavar="RADAR@TIME",
-            help="--window: a known change (maintenance) of a radar at TIME \\[s, dataset "
+            help="--window: a known change (maintenance) of a radar at TIME [s, dataset "
             "time base]: its chain is cut there; repeatable.",
         ),
     ] = None,

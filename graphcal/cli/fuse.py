@@ -35,10 +35,10 @@ def fuse_command(
     ] = None,
     q_m2_s3: Annotated[
         float | None,
-        typer.Option("--q-m2-s3", help="Tracker acceleration noise density \\[m^2/s^3] "
+        typer.Option("--q-m2-s3", help="Tracker acceleration noise density [m^2/s^3] "
                      "(default 100: manoeuvring civil traffic)."),
     ] = None,
-    grid_s: Annotated[float, typer.Option(help="Fusion time step \\[s].")] = 1.0,
+    grid_s: Annotated[float, typer.Option(help="Fusion time step [s].")] = 1.0,
     overwrite: Annotated[bool, typer.Option(help="Replace an existing --out file.")] = False,
     force: Annotated[bool, typer.Option("--force", help=FORCE_HELP)] = False,
 ) -> None:

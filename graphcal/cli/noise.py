@@ -42,8 +42,8 @@ def noise_command(
         typer.Option(metavar="TABLE.csv|.parquet",
                      help="Write paper 000's variance lookup table (range x azimuth bins)."),
     ] = None,
-    range_bin_km: Annotated[float, typer.Option(help="--table: range bin \\[km].")] = 50.0,
-    azimuth_bin_deg: Annotated[float, typer.Option(help="--table: azimuth bin \\[deg].")] = 45.0,
+    range_bin_km: Annotated[float, typer.Option(help="--table: range bin [km].")] = 50.0,
+    azimuth_bin_deg: Annotated[float, typer.Option(help="--table: azimuth bin [deg].")] = 45.0,
     overwrite: Annotated[
         bool, typer.Option(help="Replace existing --write-sites / --table files.")
     ] = False,

@@ -48,7 +48,7 @@ def observability_command(
                           help="--budget: select single observations, segments of one "
                           "aircraft's track, or whole tracks.")
     ] = "segment",
-    segment_s: Annotated[float, typer.Option(help="--budget: segment length \\[s].")] = 60.0,
+    segment_s: Annotated[float, typer.Option(help="--budget: segment length [s].")] = 60.0,
     random_draws: Annotated[
         int, typer.Option(help="--budget: random subsets drawn for the baseline.")
     ] = 20,

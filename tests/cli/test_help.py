@@ -26,11 +26,28 @@ def test_every_command_is_registered_in_order() -> None:
 
 
 @pytest.mark.parametrize("name", COMMANDS)
-def test_no_help_text_has_an_unescaped_bracket(name: str) -> None:
-    """Rich markup reads ``[s]`` as a style and drops it; a unit is written ``\\[s]``."""
+def test_no_help_text_has_a_markup_escape(name: str) -> None:
+    """The help is plain text (no rich markup): a unit is written ``[s]``, and an escape
+    ``\\[s]`` would be printed as it stands."""
     command = _commands()[name]
     for text in [command.help or "", *(getattr(p, "help", None) or "" for p in command.params)]:
-        assert not re.search(r"(?<!\\)\[", text), f"{name}: {text!r}"
+        assert "\\[" not in text, f"{name}: {text!r}"
+
+
+def test_the_help_fits_80_columns_with_each_option_beside_its_text() -> None:
+    """At 80 columns every line fits, and each command's line in the list is whole
+    (its first docstring paragraph, wrapped, not cut short with '...')."""
+    for args in (["--help"], *([name, "--help"] for name in COMMANDS)):
+        result = runner.invoke(app, args, env={"COLUMNS": "80"}, terminal_width=80)
+        assert result.exit_code == 0
+        assert max(len(line) for line in result.output.splitlines()) <= 80, args
+    listing = runner.invoke(app, ["--help"], env={"COLUMNS": "80"}, terminal_width=80).output
+    assert "..." not in listing.split("Commands:")[1]
+    assert "elevation) from its data." in listing  # noise's line, wrapped whole
+    calibrate = runner.invoke(app, ["calibrate", "--help"], env={"COLUMNS": "80"},
+                              terminal_width=80).output
+    # An option's text starts on its own line or beside it, never in a narrow column.
+    assert re.search(r"--window DURATION\s+Biases over time: calibrate each window", calibrate)
 
 
 @pytest.mark.parametrize(("name", "unit"), [
