@@ -350,6 +350,13 @@ class _Tracks:
         return _Tracks(codes, self.names, new_row[self.order[keep[self.order]]])
 
 
+def _keep_tracks(adsb: pd.DataFrame, tracks: _Tracks, keep: BoolArray
+                 ) -> tuple[pd.DataFrame, _Tracks]:
+    """The rows of ``adsb`` where ``keep`` (:func:`_keep`) and their track order."""
+    kept = _keep(adsb, keep)
+    return kept, tracks.kept(keep, kept)
+
+
 def drop_stale_adsb(
     adsb: pd.DataFrame, columns: tuple[str, ...] = ("lat_deg", "lon_deg")
 ) -> tuple[pd.DataFrame, CleaningReport]:
@@ -955,14 +962,12 @@ def clean_dataset(
         # the gate and the identity check.
         tracks = _Tracks.of(adsb)
         stale = _stale(adsb, tracks, ("lat_deg", "lon_deg"))
-        adsb_kept = _keep(adsb, ~stale)
-        adsb, tracks = adsb_kept, tracks.kept(~stale, adsb_kept)
+        adsb, tracks = _keep_tracks(adsb, tracks, ~stale)
         report.merge(_report(adsb_stale=int(stale.sum())))
         ecef = _ecef(adsb)
         keep, step = _gate_keep(adsb, tracks, ecef, max_speed_mps, max_accel_mps2, gate_sigmas,
                                 max_wild_run, DEFAULT_MIN_TRACK_REPORTS, DEFAULT_FLIGHT_GAP_S)
-        adsb_kept = _keep(adsb, keep)
-        adsb, tracks, ecef = adsb_kept, tracks.kept(keep, adsb_kept), ecef[keep]
+        (adsb, tracks), ecef = _keep_tracks(adsb, tracks, keep), ecef[keep]
         report.merge(step)
         if check_identity:
             plots, step = _check_identities(

@@ -61,19 +61,29 @@ def read_folder_windows(folder: Path, window_s: float, clean: bool, force: bool,
 def reading_order(folder: Path) -> str:
     """``"sorted"`` for a folder whose tables are all CSV files, else ``"auto"``
     (module docstring)."""
-    from graphcal.io.folder import dataset_tables
-
-    plot_files, adsb_files = dataset_tables(folder)
-    csv = all(path.suffix == ".csv" for path in [*plot_files, *(adsb_files or [])])
-    return "sorted" if csv else "auto"
+    return _order_of(_table_files(folder))
 
 
 def table_bytes(folder: Path) -> int:
     """Bytes of the folder's plots and ADS-B table files, on disk."""
+    return _bytes_of(_table_files(folder))
+
+
+def _table_files(folder: Path) -> list[Path]:
+    """The folder's plots and ADS-B table files
+    (:func:`graphcal.io.folder.dataset_tables`)."""
     from graphcal.io.folder import dataset_tables
 
     plot_files, adsb_files = dataset_tables(folder)
-    return sum(path.stat().st_size for path in [*plot_files, *(adsb_files or [])])
+    return [*plot_files, *(adsb_files or [])]
+
+
+def _order_of(files: list[Path]) -> str:
+    return "sorted" if all(path.suffix == ".csv" for path in files) else "auto"
+
+
+def _bytes_of(files: list[Path]) -> int:
+    return sum(path.stat().st_size for path in files)
 
 
 def _key(folder: Path, window_s: float, clean: bool, force: bool, order: str
@@ -81,8 +91,8 @@ def _key(folder: Path, window_s: float, clean: bool, force: bool, order: str
     return str(Path(folder).resolve()), float(window_s), bool(clean), bool(force), order
 
 
-def _reads_in_child(folder: Path) -> bool:
-    return table_bytes(folder) >= CHILD_READER_MIN_BYTES and child_reading_available()
+def _reads_in_child(files: list[Path]) -> bool:
+    return _bytes_of(files) >= CHILD_READER_MIN_BYTES and child_reading_available()
 
 
 def start_reading(folder: str | Path, window: str | float, *, clean: bool = True,
@@ -114,11 +124,12 @@ def start_reading(folder: str | Path, window: str | float, *, clean: bool = True
     try:
         window_s = parse_duration(window)
         folder = Path(folder)
-        order = reading_order(folder)
+        files = _table_files(folder)
+        order = _order_of(files)
         key = _key(folder, window_s, clean, force, order)
         if key in _STARTED:
             return True
-        if not _reads_in_child(folder):
+        if not _reads_in_child(files):
             return False
         # Imported before the fork, which the child would otherwise do on its own.
         import graphcal.io.window_reader  # noqa: F401
@@ -137,12 +148,13 @@ def open_folder_windows(folder: Path, window_s: float, clean: bool, force: bool,
     read here, window by window as they are asked for.  ``order`` defaults to
     :func:`reading_order`.
     """
-    order = reading_order(folder) if order is None else order
+    files = _table_files(folder)
+    order = _order_of(files) if order is None else order
     started = _STARTED.pop(_key(folder, window_s, clean, force, order), None)
     if started is not None:
         return started, True, order
     recipe = (folder, window_s, clean, force, order)
-    if _reads_in_child(folder):
+    if _reads_in_child(files):
         return read_in_child(read_folder_windows, recipe), True, order
     return iter(read_folder_windows(*recipe)), False, order
 
