@@ -1,8 +1,16 @@
 """Sensor models: typical accuracies of radar types and the ADS-B quality table.
 
-A sensor model is a TOML file in the repository's ``models/`` folder (or in the
-folder named by the environment variable ``GRAPHCAL_MODELS_DIR``).  A radar
-model supplies defaults for the sites that name it in ``sites.toml``
+A sensor model is a TOML file in the models folder, found in this order
+(:func:`models_dir`):
+
+1. the folder named by the environment variable ``GRAPHCAL_MODELS_DIR``, when set;
+2. the package's own data, ``graphcal/models/`` read with :mod:`importlib.resources`:
+   an installed (non-editable) package carries there a copy of the repository's
+   ``models/`` made when the wheel is built (``setup.py``);
+3. the ``models/`` folder at the top of the source tree (a checkout or an editable
+   install), where the models are edited.
+
+A radar model supplies defaults for the sites that name it in ``sites.toml``
 (``model = "ssr-mode-s"``): random-error sigmas, scan period and which biases
 exist.  File keys carry their units (``_m``, ``_s``, ``_deg``, ``_mrad``); the
 :class:`SensorModel` holds SI values (radians), except :attr:`SensorModel.typical_bias`,
@@ -15,11 +23,16 @@ Navigation Accuracy Category for position (NACp) used by
 
 from __future__ import annotations
 
+import atexit
 import math
 import os
+import shutil
+import tempfile
 import tomllib
 from dataclasses import dataclass, field
 from functools import lru_cache
+from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
 
@@ -113,8 +126,40 @@ class SensorModel:
         return self.dimensions == 3
 
 
-#: The ``models/`` folder at the top of the repository.
-_PACKAGE_MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+#: The package that carries the sensor models as data once built, and their folder in it.
+_DATA_PACKAGE = "graphcal"
+_DATA_FOLDER = "models"
+#: The ``models/`` folder at the top of the source tree (checkout, editable install).
+_SOURCE_MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+
+
+@lru_cache(maxsize=1)
+def _packaged_models_dir() -> Path | None:
+    """The package's own copy of the models (``graphcal/models/``), if it has one.
+
+    A wheel carries the copy; a source tree does not (``None``).  A package
+    imported from a zip file has no folder on disk: its model files are then
+    copied once into a temporary folder, removed at exit.
+    """
+    try:
+        folder = resources.files(_DATA_PACKAGE).joinpath(_DATA_FOLDER)
+        if not folder.is_dir():
+            return None
+    except (ModuleNotFoundError, OSError):
+        return None
+    if isinstance(folder, Path):
+        return folder
+    return _materialise(folder)
+
+
+def _materialise(folder: Traversable) -> Path:
+    """A temporary on-disk copy of the ``*.toml`` files of a packaged folder."""
+    target = Path(tempfile.mkdtemp(prefix="graphcal-models-"))
+    atexit.register(shutil.rmtree, target, ignore_errors=True)
+    for entry in folder.iterdir():
+        if entry.is_file() and entry.name.endswith(".toml"):
+            (target / entry.name).write_bytes(entry.read_bytes())
+    return target
 
 
 def models_dir() -> Path:
@@ -123,13 +168,19 @@ def models_dir() -> Path:
     Returns
     -------
     Path
-        ``$GRAPHCAL_MODELS_DIR`` when set, else the ``models/`` folder at the top
-        of the repository.
+        ``$GRAPHCAL_MODELS_DIR`` when set (and not empty), else the package's own
+        data (``graphcal/models/`` of an installed wheel), else the ``models/``
+        folder at the top of the source tree.  The last is returned even when it
+        does not exist; reading a model then fails with a message that names
+        ``GRAPHCAL_MODELS_DIR``.
     """
     override = os.environ.get(MODELS_DIR_ENV)
     if override:
         return Path(override)
-    return _PACKAGE_MODELS_DIR
+    packaged = _packaged_models_dir()
+    if packaged is not None:
+        return packaged
+    return _SOURCE_MODELS_DIR
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
@@ -147,7 +198,9 @@ def _model_files() -> dict[str, Path]:
     """All ``*.toml`` files in the models folder, by name."""
     folder = models_dir()
     if not folder.is_dir():
-        raise SensorModelError("sensor model folder not found", path=folder)
+        hint = "" if os.environ.get(MODELS_DIR_ENV) else (
+            f"; set {MODELS_DIR_ENV} to a folder of sensor model files (*.toml)")
+        raise SensorModelError(f"sensor model folder not found{hint}", path=folder)
     return {path.stem: path for path in sorted(folder.glob("*.toml"))}
 
 
@@ -353,7 +406,7 @@ def adsb_sigma_from_nacp(nacp: ArrayLike) -> NDArray[np.float64]:
     radius containing the true position with 95 % probability) of the NACp
     category (DO-260B): for a circular 2-D Gaussian the 95 % radius is
     ``sqrt(-2 ln 0.05) sigma = 2.4477 sigma``.  The table is read from
-    ``models/adsb-nacp.toml``.
+    ``adsb-nacp.toml`` of the models folder (:func:`models_dir`).
 
     Parameters
     ----------
