@@ -1,11 +1,13 @@
 """The ``graphcal`` command line: the typer app, one command per module of :mod:`graphcal.cli`.
 
 Bad input prints one line ``error: <file>, row N, field 'x': what is wrong``
-and exits with status 2 (:mod:`graphcal.cli.common`).
+and exits with status 2 (:mod:`graphcal.cli.common`); so does trouble with the
+environment (``error: out.json: disk full``), never a traceback.
 """
 
 from __future__ import annotations
 
+import functools
 import inspect
 import sys
 from collections.abc import Callable
@@ -14,7 +16,13 @@ from typing import Annotated
 import typer
 
 from graphcal.cli.calibrate import calibrate_command
-from graphcal.cli.common import console
+from graphcal.cli.common import (
+    EXIT_BAD_INPUT,
+    check_seed,
+    console,
+    install_signal_handlers,
+    route_warnings,
+)
 from graphcal.cli.compare import compare_command
 from graphcal.cli.correct import correct_command
 from graphcal.cli.fuse import fuse_command
@@ -56,12 +64,30 @@ def _options(
     ] = False,
 ) -> None:
     """Joint bias calibration of air-surveillance radar networks."""
+    from graphcal.core.atomic import clear_protected
+
+    clear_protected()  # what an earlier command (in this process) protected
 
 
 def _summary(command: Callable[..., object]) -> str:
     """The first paragraph of a command's docstring, on one line: its line in ``--help``
     (given whole, so that the list is wrapped at the terminal's width, not cut)."""
     return " ".join((inspect.getdoc(command) or "").split("\n\n")[0].split())
+
+
+def _seed_checked(command: Callable[..., object]) -> Callable[..., object]:
+    """``command``, refusing a negative ``--seed`` first (:func:`check_seed`) when it has
+    one (``simulate``, ``compare``): numpy takes only non-negative seeds."""
+    if "seed" not in inspect.signature(command).parameters:
+        return command
+
+    @functools.wraps(command)
+    def checked(*args: object, **kwargs: object) -> object:
+        seed = kwargs.get("seed")
+        check_seed(seed if isinstance(seed, int) else None)
+        return command(*args, **kwargs)
+
+    return checked
 
 
 for _name, _command in [
@@ -71,18 +97,33 @@ for _name, _command in [
     ("import-asterix", import_asterix_command), ("observability", observability_command),
     ("report", report_command), ("correct", correct_command), ("history", history_command),
 ]:
-    app.command(name=_name, short_help=_summary(_command))(_command)
+    app.command(name=_name, short_help=_summary(_command))(_seed_checked(_command))
 
 
 def main() -> None:  # pragma: no cover - console entry point
     """Run the command line (what ``python -m graphcal`` and the ``graphcal`` script do),
     then end the process at once (:func:`exit_at_once`)."""
+    install_signal_handlers()
+    route_warnings()
     try:
         app()
         status: object = 0
     except SystemExit as exc:
         status = exc.code
+    except OSError as exc:  # an environment error no command turned into a message
+        from graphcal.core.errors import os_error_message
+
+        _say(f"error: {os_error_message(exc)}")
+        status = EXIT_BAD_INPUT
     exit_at_once(status)
+
+
+def _say(line: str) -> None:
+    """One line on standard error, whatever state the stream is in."""
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 def exit_at_once(status: object) -> None:

@@ -20,7 +20,8 @@ from typing import Any, NoReturn
 import typer
 from rich.console import Console
 
-from graphcal.core.errors import EstimationError, GraphcalInputError
+from graphcal.core.atomic import protect, unprotect
+from graphcal.core.errors import EstimationError, GraphcalInputError, os_error_message
 
 #: Width used when the output is not a terminal (pipes, logs, ``make demo``) and the
 #: environment variable ``COLUMNS`` does not give one.
@@ -70,6 +71,14 @@ def check_choice(value: str | None, option: str, choices: Sequence[str],
     ``"selection method"``)."""
     if value is not None and value not in choices:
         fail(f"{option}: unknown {what} '{value}'; use one of: {', '.join(choices)}",
+             EXIT_BAD_INPUT)
+
+
+def check_seed(seed: int | None, option: str = "--seed") -> None:
+    """Refuse (exit 2) a random seed that numpy cannot take: ``--seed -1: the seed must
+    be a non-negative integer``."""
+    if seed is not None and seed < 0:
+        fail(f"{option} {seed}: the seed must be a non-negative integer (0, 1, 2, ...)",
              EXIT_BAD_INPUT)
 
 
@@ -166,6 +175,11 @@ def check_output_file(path: Path | None, option: str, *, overwrite: bool | None 
     _check_against_inputs(path, label, inputs, folder=False)
     if overwrite is False and (path.exists() or path.is_symlink()):
         fail(f"{label}: exists; pass --overwrite to replace it", EXIT_BAD_INPUT)
+    # Published without replacing a file that another process writes meanwhile.
+    if overwrite is False:
+        protect(path)
+    else:
+        unprotect(path)
 
 
 def check_output_folder(path: Path | None, option: str, *, overwrite: bool,
@@ -180,13 +194,44 @@ def check_output_folder(path: Path | None, option: str, *, overwrite: bool,
     if path is None:
         return
     label = f"{option} {path}"
+    if path.name in ("", ".", "..") or _inside(Path.cwd().resolve(), _resolved(path)):
+        fail(f"{label}: names the current folder or one that holds it; give the name of "
+             "a new folder", EXIT_BAD_INPUT)
     if path.exists() and not path.is_dir():
         fail(f"{label}: exists and is not a folder", EXIT_BAD_INPUT)
     _check_against_inputs(path, label, inputs, folder=True)
-    if path.is_dir() and not overwrite and any(path.iterdir()):
+    try:
+        entries = sorted(p.name for p in path.iterdir()) if path.is_dir() else []
+    except OSError as exc:
+        fail(f"{label}: {os_error_message(exc)}", EXIT_BAD_INPUT)
+    if entries and not overwrite:
         fail(f"{label}: folder exists and is not empty; pass --overwrite to replace it",
              EXIT_BAD_INPUT)
+    if entries:
+        foreign = foreign_entries(entries)
+        if foreign:
+            fail(f"{label}: folder is not a graphcal dataset (it holds "
+                 f"{', '.join(repr(n) for n in foreign[:3])}"
+                 f"{', ...' if len(foreign) > 3 else ''}); --overwrite only replaces a "
+                 "dataset folder: remove it yourself or write elsewhere", EXIT_BAD_INPUT)
     _writable_folder(path.parent, label, create=True)
+
+
+#: What a dataset folder written by graphcal holds (``--overwrite`` replaces only such
+#: a folder).
+DATASET_ENTRIES = frozenset({"sites.toml", "plots.csv", "plots.parquet", "adsb.csv",
+                             "adsb.parquet", "plots", "adsb", "truth.json"})
+
+
+def foreign_entries(names: Iterable[str]) -> list[str]:
+    """The entries of a folder that make it something other than a graphcal dataset: every
+    name that is not a dataset file (:data:`DATASET_ENTRIES`), or ``sites.toml`` itself
+    when it is missing."""
+    names = list(names)
+    foreign = [n for n in names if n not in DATASET_ENTRIES]
+    if "sites.toml" not in names and not foreign:
+        foreign = ["no sites.toml"]
+    return foreign
 
 
 def check_distinct_outputs(*paths: tuple[str, Path | None]) -> None:
@@ -203,13 +248,80 @@ def check_distinct_outputs(*paths: tuple[str, Path | None]) -> None:
 
 @contextmanager
 def errors_to_exit() -> Iterator[None]:
-    """Turn input and estimation errors into one-line messages and exit codes."""
+    """Turn input and estimation errors into one-line messages and exit codes.
+
+    An operating-system error (a full disk, a file-size limit, a read-only file system,
+    a missing permission, a folder where a file is wanted, ...) is input or environment
+    trouble too: ``error: <path>: disk full``, status 2.
+    """
     try:
         yield
     except GraphcalInputError as exc:
         fail(str(exc), EXIT_BAD_INPUT)
     except EstimationError as exc:
         fail(str(exc), EXIT_ESTIMATION_FAILED)
+    except OSError as exc:
+        fail(os_error_message(exc), EXIT_BAD_INPUT)
+
+
+#: Starts of numpy's floating-point warnings (and of its statistics on empty input):
+#: graphcal checks its results for finite values itself (the fit verdict, the
+#: observability warnings), so these say nothing more to the user.
+QUIET_WARNINGS = ("invalid value encountered", "divide by zero encountered",
+                  "overflow encountered", "underflow encountered", "Mean of empty slice",
+                  "Degrees of freedom <= 0", "All-NaN slice", "All-NaN axis",
+                  "invalid value in", "Sending large graph")
+
+
+def route_warnings() -> None:
+    """Python warnings as graphcal's own one-line ``warning: ...`` messages.
+
+    numpy's floating-point warnings (:data:`QUIET_WARNINGS`) are dropped; any other
+    warning prints one line on standard error, without the file and source line of a
+    raw Python warning.  Warning options given to Python (``-W``, ``PYTHONWARNINGS``)
+    keep Python's own handling, for developers.
+    """
+    import warnings
+
+    if sys.warnoptions:
+        return
+
+    def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+             file: object = None, line: str | None = None) -> None:
+        text = " ".join(str(message).split())
+        if any(start in text for start in QUIET_WARNINGS):
+            return
+        try:
+            err_console.print(f"warning: {text}", highlight=False, soft_wrap=True,
+                              markup=False)
+        except (OSError, ValueError):
+            pass
+
+    warnings.showwarning = show
+
+
+def install_signal_handlers() -> None:
+    """SIGTERM ends the command as an interruption (``SystemExit(143)`` in the main
+    thread), so every ``finally`` and ``with`` block runs and temporary files and
+    folders are removed; SIGXFSZ (a file-size limit) is ignored, so that the write
+    fails with "file too large" instead of killing the process."""
+    import signal
+
+    if threading.current_thread() is not threading.main_thread():
+        return
+    owner = os.getpid()
+
+    def terminate(signum: int, frame: object) -> None:
+        if os.getpid() != owner:  # a forked worker: die as by default
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        signal.signal(signum, signal.SIG_DFL)  # a second SIGTERM ends at once
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, terminate)
+    if hasattr(signal, "SIGXFSZ"):
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 
 
 @contextmanager
@@ -375,6 +487,9 @@ __all__ = [
     "check_choice",
     "check_distinct_outputs",
     "check_input_path",
+    "check_seed",
+    "foreign_entries",
+    "install_signal_handlers",
     "check_output_file",
     "check_output_folder",
     "console",
@@ -383,6 +498,7 @@ __all__ = [
     "errors_to_exit",
     "fail",
     "parse_sac_sic",
+    "route_warnings",
     "plain_width",
     "progress_bar",
 ]

@@ -11,6 +11,7 @@ from graphcal.cli.common import (
     EXIT_BAD_INPUT,
     check_input_path,
     check_output_folder,
+    check_seed,
     console,
     errors_to_exit,
     fail,
@@ -41,6 +42,7 @@ def simulate_command(
 
     if fmt not in ("csv", "parquet"):
         fail(f"--format must be csv or parquet, not '{fmt}'", EXIT_BAD_INPUT)
+    check_seed(seed)
     check_input_path(scenario, "")
     check_output_folder(out, "--out", overwrite=overwrite, inputs=[scenario])
     chunk_s = None

@@ -71,8 +71,14 @@ import numpy as np
 import pandas as pd
 import tomli_w
 
-from graphcal.core.atomic import atomic_write_text, write_table
-from graphcal.core.errors import DatasetError, SensorModelError
+from graphcal.core.atomic import atomic_write_text, rename_no_replace, write_table
+from graphcal.core.errors import (
+    DatasetError,
+    OutputExistsError,
+    SensorModelError,
+    os_error_cause,
+    os_error_errno,
+)
 from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosphere
 from graphcal.data.bias import ESTIMATE_NAMES
 from graphcal.data.dataset import (
@@ -344,7 +350,14 @@ def _read_toml(path: Path) -> dict[str, Any]:
             return tomllib.load(handle)
     except FileNotFoundError:
         raise DatasetError("file not found", path=path) from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+    except IsADirectoryError:
+        raise DatasetError("is a folder, not a TOML file", path=path) from None
+    except UnicodeDecodeError:
+        raise DatasetError("cannot read TOML: not UTF-8 text (a binary file?)",
+                           path=path) from None
+    except OSError as exc:
+        raise DatasetError(os_error_cause(exc), path=path) from None
+    except tomllib.TOMLDecodeError as exc:
         raise DatasetError(f"cannot read TOML: {exc}", path=path) from None
 
 
@@ -715,13 +728,46 @@ def _is_empty_folder(path: Path) -> bool:
 
 
 def _check_target(target: Path, overwrite: bool) -> None:
-    """Refuse a target that is a file, or a non-empty folder without ``overwrite``."""
+    """Refuse a target that is a file, a non-empty folder without ``overwrite``, or (with
+    ``overwrite``) a non-empty folder without ``sites.toml``: not a dataset, files of its
+    user.  (The command line is stricter: it replaces only a folder that holds nothing
+    but dataset files.)"""
     if not target.exists() and not target.is_symlink():
         return
     if not target.is_dir() or target.is_symlink():
         raise DatasetError("exists and is not a folder", path=target)
-    if not overwrite and not _is_empty_folder(target):
+    if _is_empty_folder(target):
+        return
+    if not overwrite:
         raise DatasetError("folder exists and is not empty (pass overwrite=True)", path=target)
+    if not (target / SITES_FILE).is_file():
+        raise DatasetError(f"folder is not a graphcal dataset (no {SITES_FILE}); overwrite "
+                           "replaces only a dataset folder", path=target)
+
+
+def _name_write_error(exc: OSError, staging: Path, target: Path,
+                      current: str | None = None) -> None:
+    """Give an error of writing into ``staging`` the destination's name (in place):
+    ``target/plots.csv``, not the hidden temporary folder."""
+    if exc.errno is None:
+        code = os_error_errno(exc)
+        if code is not None:
+            exc.errno, exc.strerror = code, os.strerror(code)
+    if exc.errno is None:  # not an error of the system: its message stands
+        return
+    name = exc.filename
+    if isinstance(name, str | os.PathLike):
+        text = os.fspath(name)
+        inside = os.fspath(staging)
+        if text == inside or text.startswith(inside + os.sep):
+            base = os.path.relpath(text, inside).split(os.sep)[0]
+            base = base if base != "." else ""
+            if base.startswith("."):  # a temporary file: name its table
+                base = current or ""
+            exc.filename = str(target / base) if base else str(target)
+            exc.filename2 = None
+    elif name is None:
+        exc.filename = str(target / current) if current else str(target)
 
 
 def _move_into_place(staging: Path, target: Path, overwrite: bool) -> None:
@@ -729,12 +775,23 @@ def _move_into_place(staging: Path, target: Path, overwrite: bool) -> None:
 
     An existing ``target`` is first renamed to a hidden backup, which is
     deleted once the new folder is in place (and restored if that fails).
+    Without ``overwrite`` a ``target`` that another process wrote meanwhile is never
+    replaced (:class:`OutputExistsError`).
     """
+    if not overwrite and (target.is_symlink()
+                          or (target.exists() and not _is_empty_folder(target))):
+        raise OutputExistsError(target)
     _check_target(target, overwrite)
     if _is_empty_folder(target):
         target.rmdir()
     if not target.exists():
-        os.rename(staging, target)
+        if overwrite:
+            os.rename(staging, target)
+            return
+        try:
+            rename_no_replace(staging, target)
+        except FileExistsError as exc:
+            raise OutputExistsError(target) from exc
         return
     backup = target.with_name(f".{target.name}.old-{uuid.uuid4().hex[:12]}")
     os.rename(target, backup)
@@ -801,8 +858,10 @@ class DatasetWriter:
             os.chmod(self._staging, 0o755)
             write_sites(sites, self._staging / SITES_FILE, plot_altitude=plot_altitude,
                         epoch_utc=epoch_utc)
-        except BaseException:
+        except BaseException as exc:
             self.abort()
+            if isinstance(exc, OSError):
+                _name_write_error(exc, self._staging, self.folder, SITES_FILE)
             raise
 
     def _table(self, stem: str) -> TableWriter:
@@ -811,17 +870,25 @@ class DatasetWriter:
                                              **self._options)
         return self._tables[stem]
 
+    def _writing(self, name: str, write: Callable[[], None]) -> None:
+        """``write()``, an operating-system error named by the destination's file."""
+        try:
+            write()
+        except OSError as exc:
+            _name_write_error(exc, self._staging, self.folder, name)
+            raise
+
     def write_plots(self, frame: pd.DataFrame) -> None:
         """Append rows to the plots table (the first piece sets its columns)."""
-        self._table("plots").write(frame)
+        self._writing(f"plots.{self.fmt}", lambda: self._table("plots").write(frame))
 
     def write_adsb(self, frame: pd.DataFrame) -> None:
         """Append rows to the ADS-B table; without any call there is no ADS-B table."""
-        self._table("adsb").write(frame)
+        self._writing(f"adsb.{self.fmt}", lambda: self._table("adsb").write(frame))
 
     def write_text(self, name: str, text: str) -> None:
         """Add a text file (e.g. ``truth.json``) to the folder."""
-        atomic_write_text(self._staging / name, text)
+        self._writing(name, lambda: atomic_write_text(self._staging / name, text))
 
     def rows_written(self, stem: str) -> int:
         """Rows written so far to table ``stem`` (``"plots"`` or ``"adsb"``)."""
@@ -829,12 +896,17 @@ class DatasetWriter:
 
     def commit(self) -> Path:
         """Finish every table and rename the folder into place; returns the folder."""
+        current: str | None = None
         try:
-            for writer in self._tables.values():
+            for stem, writer in self._tables.items():
+                current = f"{stem}.{self.fmt}"
                 writer.close()
+            current = None
             _move_into_place(self._staging, self.folder, self.overwrite)
-        except BaseException:
+        except BaseException as exc:
             self.abort()
+            if isinstance(exc, OSError):
+                _name_write_error(exc, self._staging, self.folder, current)
             raise
         return self.folder
 
@@ -901,17 +973,24 @@ def write_dataset(
     _check_target(target, overwrite)
     target.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
+    current: str | None = SITES_FILE
     try:
         os.chmod(staging, 0o755)
         write_sites(dataset.sites, staging / SITES_FILE, plot_altitude=dataset.plot_altitude,
                     epoch_utc=dataset.epoch_utc)
-        write_table(dataset.plots, staging / f"plots.{fmt}")
+        current = f"plots.{fmt}"
+        write_table(dataset.plots, staging / current)
         if dataset.adsb is not None:
-            write_table(dataset.adsb, staging / f"adsb.{fmt}")
+            current = f"adsb.{fmt}"
+            write_table(dataset.adsb, staging / current)
         for name, text in (files or {}).items():
+            current = name
             atomic_write_text(staging / name, text)
+        current = None
         _move_into_place(staging, target, overwrite)
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(staging, ignore_errors=True)
+        if isinstance(exc, OSError):
+            _name_write_error(exc, staging, target, current)
         raise
     return target

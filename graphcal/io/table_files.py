@@ -43,7 +43,7 @@ import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
-from graphcal.core.errors import DatasetError
+from graphcal.core.errors import DatasetError, os_error_cause
 from graphcal.data.dataset import (
     ADSB_COLUMNS,
     ADSB_OPTIONAL_COLUMNS,
@@ -127,6 +127,9 @@ def find_table_files(folder: Path, stem: str) -> list[Path] | None:
         the parts folder holds no part, parts of both formats, or a sub-folder.
     """
     candidates = [folder / f"{stem}.{fmt}" for fmt in TABLE_FORMATS]
+    for path in candidates:
+        if path.is_dir():
+            raise DatasetError("is a folder, not a table file", path=path)
     found = [path for path in candidates if path.is_file()]
     parts_folder = folder / stem
     if parts_folder.is_dir():
@@ -181,8 +184,39 @@ def _csv_errors(path: Path) -> Iterator[None]:
         raise DatasetError("the file is empty (no header line)", path=path) from None
     except pd.errors.ParserError as exc:
         raise csv_parser_error(path, exc) from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+    except UnicodeDecodeError:
+        raise not_utf8_error(path) from None
+    except OSError as exc:
+        raise DatasetError(os_error_cause(exc), path=path) from None
+    except ValueError as exc:
         raise DatasetError(f"cannot read CSV: {exc}", path=path) from None
+
+
+def not_utf8_error(path: Path) -> DatasetError:
+    """A :class:`DatasetError` naming the first line and field of a CSV file that is not
+    UTF-8 text: ``row 4, field 'range_m': not UTF-8 text (byte 0xff, line 5)``."""
+    header: list[str] | None = None
+    try:
+        with path.open("rb") as stream:
+            for number, raw in enumerate(stream, start=1):
+                line = raw[3:] if number == 1 and raw.startswith(b"\xef\xbb\xbf") else raw
+                try:
+                    text = line.decode("utf-8")
+                except UnicodeDecodeError as exc:
+                    byte = line[exc.start]
+                    what = f"not UTF-8 text (byte 0x{byte:02x}, line {number}); save the " \
+                           "file as UTF-8"
+                    if header is None:
+                        return DatasetError(f"the header line is {what}", path=path)
+                    column = line[:exc.start].count(b",")
+                    field = header[column] if column < len(header) else None
+                    return DatasetError(what, path=path, row=number - 1, field=field)
+                if header is None:
+                    header = [name.strip().strip('"') for name in text.rstrip("\r\n")
+                              .split(",")]
+    except OSError as exc:
+        return DatasetError(os_error_cause(exc), path=path)
+    return DatasetError("not UTF-8 text; save the file as UTF-8", path=path)
 
 
 def csv_header(path: Path) -> list[str]:

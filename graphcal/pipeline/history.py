@@ -76,7 +76,7 @@ import math
 import os
 import sqlite3
 from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -454,17 +454,95 @@ def _parse_run(result: Mapping[str, Any], provenance: Mapping[str, Any]) -> _Run
 # --------------------------------------------------------------------------- the file
 
 
+#: SQLite's errors in words (the start of its message -> the cause).
+_SQLITE_CAUSES = (
+    ("database or disk is full", "disk full"),
+    ("attempt to write a readonly database", "read-only (no permission to write it, or a "
+                                             "read-only file system)"),
+    ("database is locked", "busy: another process is writing it; try again"),
+    ("file is not a database", "not a graphcal history database (not an SQLite file)"),
+    ("database disk image is malformed", "damaged (database disk image is malformed)"),
+    ("disk i/o error", "input/output error"),
+    ("unable to open database file", "cannot open (permission denied, or not a file)"),
+)
+
+
+def _io_cause(path: Path | None) -> str | None:
+    """Why a write to ``path`` failed with an input/output error, when the file system
+    says it: ``"disk full"`` (no free space in its folder) or ``"file too large"`` (the
+    process's file-size limit reached); SQLite names neither."""
+    if path is None:
+        return None
+    with suppress(OSError):
+        stat = os.statvfs(path.parent)
+        if stat.f_bavail * stat.f_frsize < 256 * 1024:
+            return "disk full"
+    with suppress(ImportError, OSError, ValueError):
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+        if limit != resource.RLIM_INFINITY:
+            sizes = [p.stat().st_size for p in (path, *_leftovers(path)) if p.exists()]
+            if sizes and max(sizes) + 64 * 1024 >= limit:
+                return "file too large"
+    return None
+
+
+def _sqlite_cause(exc: sqlite3.Error, path: Path | None = None) -> str:
+    """An SQLite error in words: ``"disk full"``, ``"read-only ..."``, ..."""
+    text = str(exc).lower()
+    if "disk i/o error" in text or "database or disk is full" in text:
+        found = _io_cause(path)
+        if found is not None:
+            return found
+    for start, cause in _SQLITE_CAUSES:
+        if start in text:
+            return cause
+    return str(exc)
+
+
+def _leftovers(path: Path) -> list[Path]:
+    """The journal or write-ahead log an interrupted write left beside ``path``."""
+    return [p for p in (path.with_name(path.name + "-journal"),
+                        path.with_name(path.name + "-wal")) if p.exists()]
+
+
+def _recover(path: Path) -> bool:
+    """Roll back what an interrupted write left (a hot journal), as any SQLite writer does
+    when it opens the file; a read-only connection cannot.  False when not possible."""
+    if not _leftovers(path) or not os.access(path, os.W_OK) \
+            or not os.access(path.parent, os.W_OK | os.X_OK):
+        return False
+    try:
+        con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=rw", uri=True,
+                              isolation_level=None)
+    except sqlite3.Error:
+        return False
+    try:
+        con.execute("PRAGMA application_id").fetchone()  # reading rolls the journal back
+    except sqlite3.Error:
+        return False
+    finally:
+        con.close()
+    return True
+
+
 def _check_file(con: sqlite3.Connection, path: Path, *, empty_ok: bool) -> bool:
     """Whether ``con`` is a graphcal history (False: an empty database, if ``empty_ok``)."""
     try:
         app_id = con.execute("PRAGMA application_id").fetchone()[0]
         version = con.execute("PRAGMA user_version").fetchone()[0]
         n_tables = con.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
-    except sqlite3.DatabaseError:
-        raise HistoryError("not a graphcal history database (not an SQLite file)",
-                           path=path) from None
+    except sqlite3.DatabaseError as exc:
+        cause = _sqlite_cause(exc, path)
+        if "read-only" in cause and _leftovers(path):
+            cause = (f"an interrupted write left {_leftovers(path)[0].name}, which needs "
+                     "write access to be rolled back")
+        raise HistoryError(cause, path=path) from None
     if app_id == 0 and n_tables == 0 and empty_ok:
         return False
+    if app_id == 0 and n_tables == 0:
+        raise HistoryError("holds no runs yet (an empty database)", path=path)
     if app_id != APPLICATION_ID:
         raise HistoryError("not a graphcal history database (an SQLite file of another "
                            "application)", path=path)
@@ -478,16 +556,26 @@ def _check_file(con: sqlite3.Connection, path: Path, *, empty_ok: bool) -> bool:
 
 @contextmanager
 def _connect(path: Path, *, write: bool) -> Iterator[sqlite3.Connection]:
-    """An open connection (read-only unless ``write``), closed afterwards."""
+    """An open connection (read-only unless ``write``), closed afterwards.
+
+    A read-only connection first rolls back a hot journal that a killed writer left
+    (:func:`_recover`), which a read-only connection cannot do itself.
+    """
     if not write and not path.is_file():
-        raise HistoryError("no such file" if not path.exists() else "not a file", path=path)
+        raise HistoryError("no such file" if not path.exists()
+                           else "is a folder, not a file" if path.is_dir()
+                           else "not a file", path=path)
     if write and not path.parent.is_dir():
         raise HistoryError(f"folder {path.parent} does not exist", path=path)
+    if write and path.is_dir():
+        raise HistoryError("is a folder, not a file", path=path)
+    if not write and _leftovers(path):
+        _recover(path)
     uri = f"{path.resolve().as_uri()}?mode={'rwc' if write else 'ro'}"
     try:
         con = sqlite3.connect(uri, uri=True, isolation_level=None)
     except sqlite3.Error as exc:
-        raise HistoryError(f"cannot open: {exc}", path=path) from None
+        raise HistoryError(_sqlite_cause(exc, path), path=path) from None
     try:
         con.execute("PRAGMA foreign_keys = ON")
         yield con
@@ -589,13 +677,18 @@ def append_run(
                 if not _check_file(con, path, empty_ok=True):
                     _create_schema(con)
                 run_id = _insert_run(con, run)
+                con.execute("COMMIT")
             except BaseException:
-                con.execute("ROLLBACK")
+                # SQLite has rolled back by itself after some errors (a full disk):
+                # a second rollback would hide the cause.
+                if con.in_transaction:
+                    with suppress(sqlite3.Error):
+                        con.execute("ROLLBACK")
                 raise
-            con.execute("COMMIT")
     except sqlite3.Error as exc:
+        cause = _sqlite_cause(exc, path)  # before removing what it looks at
         _remove_new(path, existed)
-        raise HistoryError(f"cannot write: {exc}", path=path) from None
+        raise HistoryError(cause, path=path) from None
     except BaseException:
         _remove_new(path, existed)
         raise

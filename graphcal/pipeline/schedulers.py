@@ -51,7 +51,15 @@ def check_scheduler(scheduler: str | None) -> str:
         "address of a Dask scheduler (e.g. tcp://10.0.0.5:8786)")
 
 
+def quiet_large_graphs() -> None:
+    """Silence Dask's "Sending large graph of size ..." warning: the windows travel as
+    scattered data (:func:`_map_on_dask`), and the warning only says that a window is
+    big, which is expected and nothing the user can act on."""
+    warnings.filterwarnings("ignore", message=r"(?s).*Sending large graph", category=UserWarning)
+
+
 def _client(scheduler: str) -> Any:
+    quiet_large_graphs()
     try:
         from distributed import Client, LocalCluster
     except ImportError as exc:  # pragma: no cover - distributed is a dependency
@@ -461,7 +469,10 @@ def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: 
         results: dict[int, Any] = {}
         next_out = done = 0
         for number, item in enumerate(items):
-            pending[client.submit(function, item, *scattered, pure=False)] = number
+            # The window as scattered data, not inside the task graph (the graph stays
+            # small, as Dask wants it).
+            data = client.scatter([item], hash=False)[0]
+            pending[client.submit(function, data, *scattered, pure=False)] = number
             while len(pending) >= 2 * threads:
                 finished, _ = wait(list(pending), return_when="FIRST_COMPLETED")
                 for future in finished:
@@ -488,4 +499,5 @@ def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: 
 
 
 __all__ = ["SCHEDULERS", "ChildItems", "check_scheduler", "child_reading_available", "map_windows",
+           "quiet_large_graphs",
            "read_ahead", "read_in_child"]

@@ -42,11 +42,13 @@ def simulate(
     Raises
     ------
     ValueError
-        If both or neither of ``rng`` and ``seed`` are given.
+        If both or neither of ``rng`` and ``seed`` are given, or ``seed`` is negative.
     """
     if (rng is None) == (seed is None):
         raise ValueError("give exactly one of rng (a numpy Generator) and seed (an int)")
     if rng is None:
+        if not isinstance(seed, int | np.integer) or seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, not {seed!r}")
         rng = np.random.default_rng(seed)
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
