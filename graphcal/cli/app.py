@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import os
 import sys
 from collections.abc import Callable
 from typing import Annotated
@@ -42,6 +43,8 @@ app = typer.Typer(
     # Plain help: an option per line and its text wrapped beside it, readable at 80
     # columns and when piped (rich's panels leave calibrate's texts a column of 20).
     rich_markup_mode=None,
+    # A defect prints one line (main); GRAPHCAL_DEBUG=1 gives Python's plain traceback.
+    pretty_exceptions_enable=False,
 )
 
 
@@ -100,6 +103,14 @@ for _name, _command in [
     app.command(name=_name, short_help=_summary(_command))(_seed_checked(_command))
 
 
+#: Environment variable that lets a defect's traceback through (``GRAPHCAL_DEBUG=1``).
+DEBUG_ENV = "GRAPHCAL_DEBUG"
+#: Exit status of a defect of graphcal itself (an unexpected exception).
+EXIT_INTERNAL_ERROR = 1
+#: Exit status after Ctrl-C (128 + SIGINT), as shells report it.
+EXIT_INTERRUPTED = 130
+
+
 def main() -> None:  # pragma: no cover - console entry point
     """Run the command line (what ``python -m graphcal`` and the ``graphcal`` script do),
     then end the process at once (:func:`exit_at_once`)."""
@@ -115,6 +126,18 @@ def main() -> None:  # pragma: no cover - console entry point
 
         _say(f"error: {os_error_message(exc)}")
         status = EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        _say("error: interrupted")
+        status = EXIT_INTERRUPTED
+    except MemoryError:
+        _say("error: out of memory; calibrate a long recording in windows (--window 1h)")
+        status = EXIT_BAD_INPUT
+    except Exception as exc:  # a defect of graphcal: one line, the traceback on request
+        if os.environ.get(DEBUG_ENV):
+            raise
+        _say(f"error: internal error ({type(exc).__name__}: {exc}); please report it with "
+             f"the command line; {DEBUG_ENV}=1 shows the traceback")
+        status = EXIT_INTERNAL_ERROR
     exit_at_once(status)
 
 
