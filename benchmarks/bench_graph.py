@@ -69,6 +69,7 @@ import scipy.linalg
 import scipy.optimize
 from numpy.typing import NDArray
 
+from benchmarks import RESULTS
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import CONTRACT_KEYS
 from graphcal.data.dataset import Dataset
@@ -85,7 +86,7 @@ T = TypeVar("T")
 
 HERE = Path(__file__).resolve().parent
 SCENARIO_PATH = HERE / "scenarios" / "network_10radars_1h.toml"
-RESULTS_PATH = HERE / "results" / "bench_graph.json"
+RESULTS_PATH = RESULTS / "bench_graph.json"
 
 #: Repeats of every timed solve in part 1; the median is reported.
 REPEATS = 3
@@ -783,7 +784,7 @@ def main(argv: list[str] | None = None) -> int:
         "wall_time_s": time.perf_counter() - start,
     }
     write_json_atomic(RESULTS_PATH, document)
-    print(f"figures written to {RESULTS_PATH.relative_to(HERE.parent)}")
+    print(f"figures written to {RESULTS_PATH}")
 
     if not all(r["agreement"]["ok"] for r in part1):
         print("ERROR: the GTSAM and scipy solutions differ by "

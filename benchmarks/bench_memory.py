@@ -41,10 +41,10 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import RESULTS
 from graphcal.core.atomic import atomic_write_text
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
 SCENARIO = ROOT / "benchmarks" / "scenarios" / "network_4radars_17h.toml"
 DEFAULT_FUNCTION = "benchmarks.bench_memory:read_windows"
 TARGET_RATIO = 1.5

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import RESULTS
 from graphcal.analysis.observability import ObservationBlocks, observation_blocks
 from graphcal.analysis.selection import MAX_CONVEX_UNITS, select, selection_units
 from graphcal.core.atomic import atomic_write_text
@@ -35,7 +36,6 @@ from graphcal.simulation.scenario import load_scenario
 from graphcal.simulation.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
 TARGET_S = 30.0
 
 

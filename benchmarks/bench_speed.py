@@ -68,9 +68,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from benchmarks import RESULTS
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-RESULTS_PATH = HERE / "results" / "bench_speed.json"
+RESULTS_PATH = RESULTS / "bench_speed.json"
 OPENSKY_SCENARIO = HERE / "scenarios" / "speed_opensky.toml"
 SYNTHETIC_SCENARIO = HERE / "scenarios" / "speed_synthetic.toml"
 #: Sizes run by default.
@@ -412,7 +414,7 @@ def main(argv: list[str] | None = None) -> int:
                         default=Path(tempfile.gettempdir()) / "graphcal-bench-speed",
                         help="where the simulated datasets are kept between runs")
     parser.add_argument("--json", type=Path, default=RESULTS_PATH,
-                        help="where to write the figures (default benchmarks/results/)")
+                        help="where to write the figures (default: RESULTS/bench_speed.json)")
     parser.add_argument("--window", default=None,
                         help="run graphcal with --window DURATION (e.g. 1h): biases over time, "
                         "read window by window")

@@ -26,13 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import RESULTS
 from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY
 from graphcal.pipeline.calibrate import calibrate
 from graphcal.simulation.scenario import parse_scenario
 from graphcal.simulation.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "benchmarks" / "results"
 
 #: The step's size [m] and the drifts per hour.
 STEP_M = 60.0
@@ -143,7 +143,7 @@ def main(argv: list[str] | None = None) -> None:
           f"{summary['steps_found']}/{args.seeds}; events on constant radars "
           f"{summary['events_on_constant']}, on drifting {summary['events_on_drifting']}, "
           f"extra on SUD {summary['extra_sud_events']}")
-    RESULTS.mkdir(exist_ok=True)
+    RESULTS.mkdir(parents=True, exist_ok=True)
     suffix = "" if summary["adsb"] else "_no_adsb"
     (RESULTS / f"drift_steps{suffix}.json").write_text(json.dumps(summary, indent=2) + "\n")
 

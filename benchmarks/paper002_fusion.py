@@ -57,6 +57,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from benchmarks import RESULTS  # noqa: E402
 from graphcal.data.align import plot_arrays  # noqa: E402
 from graphcal.model.cross_radar import convert_plots  # noqa: E402
 from graphcal.simulation.scenario import load_scenario  # noqa: E402
@@ -72,7 +73,6 @@ from graphcal.tracking.kalman import (
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "paper002_three_radars.toml"
-RESULTS = ROOT / "benchmarks" / "results"
 RADARS = ("I", "II", "III")
 #: Paper 002 Table 2 (fixed R1, converted R2) and Table 3 (equal, covariance weights) [m].
 PAPER_TABLE2_M = {"fixed": 1569.25, "converted-first": 1463.62}

@@ -10,19 +10,28 @@ Pages: ``README.md``, every ``docs/**/*.md`` and ``scenarios/README.md``.  In ea
   long Monte-Carlo runs);
 - ``<!-- expect: TEXT -->`` lines right after a block's closing fence check its output: the
   output must contain TEXT, or, when TEXT ends with ``NUMBER ± TOLERANCE``, the first number
-  after the label in the output must lie within the tolerance of NUMBER.
+  after the label in the output must lie within the tolerance of NUMBER; ``<!-- expect:
+  "TEXT" -->`` (in double quotes) always asks for TEXT as it stands, ``±`` included;
+- a ``text`` block with ``<!-- output -->`` on the line just above it shows what the last run
+  block printed: each of its lines other than ``...`` must be in that output;
+- a block with ``<!-- file: NAME -->`` on the line just above it (a ``sites.toml`` the page
+  shows) is written to NAME in the page's folder, so that the blocks after it use it;
+- in the README's tour and the pages of ``PROSE_CHECKED``, every ``NUMBER ± NUMBER`` of the
+  prose after a run block (up to the next run block) must be quoted, as printed, in one of
+  that block's expect lines, so that the numbers the prose quotes are checked too.
 
 The blocks of one page run in order in one temporary folder that links to the bundled
 ``scenarios/`` and ``models/``, so later blocks use what earlier ones wrote.  A page that uses
 ``demo-out`` without simulating it gets a copy of the demo network simulated with seed 1, as in
 the README's tour.  Pages run two at a time (the commands are subprocesses; the Python blocks
-take turns, as they change the working directory).
+take turns, as they change the working directory).  In all comparisons runs of spaces and line
+breaks count as one space.
 
 Checks that need no run: every ``graphcal`` command line of every block, run or not
 (synopses in ``text`` blocks included), names an existing command and only options that
 command has; every ``graphcal.…`` name quoted in a code span imports; every module appears
 in the API reference (docs/api/); lists and tables render as such; the README stays under
-15 000 bytes and its links resolve.
+15 000 bytes (its HTML comment lines, the checks above, not counted) and its links resolve.
 """
 
 from __future__ import annotations
@@ -52,9 +61,15 @@ COMMAND_TIMEOUT_S = 300
 
 FENCE = re.compile(r"^(?P<indent>[ \t]*)(?P<fence>`{3,})(?P<lang>[\w+-]*)")
 NO_RUN = "<!-- no-run -->"
+OUTPUT = "<!-- output -->"
+FILE = re.compile(r"^<!--\s*file:\s*(?P<name>[\w.-]+)\s*-->$")
 EXPECT = re.compile(r"^\s*<!--\s*expect:\s*(?P<text>.*?)\s*-->\s*$")
 NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 NUMBER_CHECK = re.compile(rf"^(?:(?P<label>.*?)\s+)?(?P<value>{NUMBER})\s*±\s*(?P<tol>{NUMBER})$")
+PLUS_MINUS = re.compile(rf"(?<![\w.]){NUMBER}\s*±\s*{NUMBER}")
+#: Pages whose prose numbers are checked against expect lines (the README's tour always is).
+PROSE_CHECKED = ("docs/own-recording.md",)
+TOUR = ("<!-- --8<-- [start:tour] -->", "<!-- --8<-- [end:tour] -->")
 
 
 @dataclass
@@ -67,6 +82,9 @@ class Block:
     code: str
     run: bool
     expects: list[str] = field(default_factory=list)
+    shows_output: bool = False  # a ``text`` block marked <!-- output -->
+    file: str | None = None  # written to this name in the page's folder (<!-- file: NAME -->)
+    end: int = 0  # 1-based line of the last expect line (or of the closing fence)
 
     @property
     def where(self) -> str:
@@ -110,14 +128,17 @@ def read_blocks(page: Path) -> list[Block]:
         while j < len(lines) and (match := EXPECT.match(lines[j])):
             expects.append(match["text"])
             j += 1
-        run = not (start > 0 and lines[start - 1].strip() == NO_RUN)
-        found.append(Block(page, start + 1, opening["lang"], "\n".join(body), run, expects))
+        above = lines[start - 1].strip() if start > 0 else ""
+        named = FILE.match(above)
+        found.append(Block(page, start + 1, opening["lang"], "\n".join(body), above != NO_RUN,
+                           expects, shows_output=above == OUTPUT, end=j,
+                           file=named["name"] if named else None))
         i = j
     return found
 
 
 def runnable(block: Block) -> bool:
-    if not block.run:
+    if not block.run or block.file is not None:
         return False
     if block.lang == "python":
         return True
@@ -127,6 +148,9 @@ def runnable(block: Block) -> bool:
 def check_expectations(block: Block, output: str) -> None:
     output = " ".join(output.split())  # runs of spaces and line breaks count as one space
     for text in (" ".join(expect.split()) for expect in block.expects):
+        if len(text) > 1 and text[0] == text[-1] == '"':
+            assert text[1:-1] in output, f"{block.where}: output lacks {text[1:-1]!r}:\n{output}"
+            continue
         numeric = NUMBER_CHECK.match(text)
         if numeric is None:
             assert text in output, f"{block.where}: output lacks {text!r}:\n{output}"
@@ -140,6 +164,17 @@ def check_expectations(block: Block, output: str) -> None:
         assert abs(value - expected) <= tol, (
             f"{block.where}: {label} printed {value}, the page says {expected} ± {tol}"
         )
+
+
+def check_shown_output(block: Block, output: str) -> None:
+    """A ``<!-- output -->`` block's lines (``...`` skipped) are all in ``output``."""
+    printed = " ".join(output.split())
+    for line in block.code.splitlines():
+        shown = " ".join(line.split())
+        if shown and shown != "...":
+            assert shown in printed, (
+                f"{block.where}: the command does not print {shown!r}:\n{output}"
+            )
 
 
 def run_command(block: Block, command: str, cwd: Path) -> str:
@@ -198,7 +233,14 @@ def run_page(page: Path, folder: Path, demo_out: Path | None) -> None:
         assert demo_out is not None
         shutil.copytree(demo_out, folder / "demo-out")
     namespace: dict[str, object] = {"__name__": "__docs__"}
-    for block in blocks:
+    output = ""
+    for block in read_blocks(page):
+        if block.shows_output:
+            check_shown_output(block, output)
+        if block.file is not None:
+            (folder / block.file).write_text(block.code + "\n", encoding="utf-8")
+        if not runnable(block):
+            continue
         if block.lang == "python":
             with _PYTHON_TURN:
                 output = run_python(block, namespace, folder)
@@ -337,9 +379,51 @@ def test_lists_and_tables_render() -> None:
     assert not problems, "\n".join(problems)
 
 
+def prose_after_blocks(page: Path) -> list[tuple[Block, int, str]]:
+    """Each prose line (outside fences and comments) after a run block, with that block.
+
+    The README counts only inside its tour.  A line belongs to the last run block above it.
+    """
+    lines = page.read_text(encoding="utf-8").splitlines()
+    lo, hi = 0, len(lines)
+    if page.name == "README.md":
+        lo = next(i for i, line in enumerate(lines) if line.strip() == TOUR[0])
+        hi = next(i for i, line in enumerate(lines) if line.strip() == TOUR[1])
+    blocks = read_blocks(page)
+    inside = set()
+    for block in blocks:  # fence, body and expect lines
+        inside.update(range(block.line - 1, block.end))
+    owner: Block | None = None
+    found = []
+    starts = {block.line - 1: block for block in blocks}
+    for i in range(len(lines)):
+        if i in starts and runnable(starts[i]):
+            owner = starts[i]
+        if lo <= i < hi and i not in inside and owner is not None:
+            if not lines[i].lstrip().startswith("<!--"):
+                found.append((owner, i + 1, lines[i]))
+    return found
+
+
+@pytest.mark.parametrize("name", ["README.md", *PROSE_CHECKED])
+def test_prose_numbers_are_checked(name: str) -> None:
+    """Every ``value ± sigma`` the prose quotes is in an expect line of the block it describes,
+    as printed: the prose cannot keep a number the commands no longer print."""
+    problems = []
+    for block, line, text in prose_after_blocks(ROOT / name):
+        expects = " ".join(" ".join(e.split()) for e in block.expects)
+        for quoted in PLUS_MINUS.findall(text):
+            if " ".join(quoted.split()) not in expects:
+                problems.append(f"{name}:{line}: {quoted!r} is in no expect line of the "
+                                f"block at {block.where}")
+    assert not problems, "\n".join(problems)
+
+
 def test_readme_is_short_and_its_links_resolve() -> None:
     text = (ROOT / "README.md").read_text(encoding="utf-8")
-    assert len(text.encode("utf-8")) < 15_000  # bytes, as `wc -c` counts
+    shown = "".join(line for line in text.splitlines(keepends=True)
+                    if not re.fullmatch(r"\s*<!--.*-->\s*", line))
+    assert len(shown.encode("utf-8")) < 15_000  # bytes, as `wc -c` counts, less the checks
     for target in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", text):
         if "://" not in target:
             assert (ROOT / target).exists(), f"README links to missing {target}"
