@@ -38,6 +38,26 @@ Verdict
 Without ADS-B each residual compares two radars, so a radar's misfit also shows
 in its partners': the radars are listed worst first.
 
+Widening (:func:`sigma_inflation`)
+    Between 1 and the limit the fit passes, yet the sigmas, computed from the stated
+    noise, are too small when the residuals are larger than it says.  A coordinate
+    whose ``chi2 / dof`` exceeds
+
+    ``widen_limit(dof) = max(WIDEN_FLOOR, chi2_isf(WIDEN_P, dof) / dof)``
+
+    (:data:`WIDEN_P` 1e-3, :data:`WIDEN_FLOOR` 1.15: on data the model fits, the
+    demo scenarios' coordinates stay within 0.95-1.05 at 5,000-9,000 dof; see
+    ``benchmarks/variance_factor_study.py``) gives the parameters it measures a
+    variance factor ``f`` = its ``chi2 / dof`` (range: range offset and gain; azimuth:
+    azimuth bias and eccentricity; elevation: elevation bias); the time offset, which
+    every coordinate measures through the along-track motion, takes the radar's
+    largest.  The pipeline (``graphcal calibrate``, method ``graph``) multiplies each
+    such parameter's row and column of the joint covariance by ``sqrt(f)``, which
+    keeps it positive semi-definite, records ``info["sigma_inflation"]`` and warns.
+    Residuals against ADS-B carry the ADS-B error as well as the radar's, and without
+    ADS-B the partner's: the factor says the stated noise is too small, not whose.
+    Over windows the windows' residuals are pooled per radar (:func:`pooled_verdict`).
+
 Over time windows (``calibrate --window``) each window's own fit is judged so, from
 the numbers its summary carries (:class:`graphcal.solvers.window_fit.WindowFit`:
 residuals against ADS-B only; a window without them is judged on its range gains
@@ -60,7 +80,7 @@ from scipy import special
 
 from graphcal.analysis.model_checks import ModelChecks, calibrated_residuals, normalised_sums
 from graphcal.core.errors import EstimationError
-from graphcal.data.bias import count_non_positive_ranges
+from graphcal.data.bias import CONTRACT_KEYS, count_non_positive_ranges
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.solvers.window_fit import WindowFit
@@ -75,6 +95,17 @@ MAX_RANGE_GAIN = 0.01
 JUDGED: tuple[str, ...] = ("range", "azimuth", "elevation")
 #: At most this many windows are named per radar in the message (all in the JSON).
 MESSAGE_WINDOWS = 4
+#: Chance that a correct model with the stated noise has its sigmas widened (given its dof).
+WIDEN_P = 1e-3
+#: Smallest ``chi2/dof`` that widens the sigmas: room for the noise model (module docstring).
+WIDEN_FLOOR = 1.15
+#: The coordinate that measures each bias term (the time offset: every coordinate).
+MEASURED_BY: dict[str, str] = {"range_offset": "range", "range_gain": "range",
+                               "azimuth_bias": "azimuth", "azimuth_sin": "azimuth",
+                               "azimuth_cos": "azimuth", "elevation_bias": "elevation"}
+#: The sites.toml key of each judged coordinate's stated sigma.
+SIGMA_KEYS: dict[str, str] = {"range": "sigma_range_m", "azimuth": "sigma_azimuth_mrad",
+                              "elevation": "sigma_elevation_mrad"}
 
 
 def chi2_limit(dof: float, p: float = P, floor: float = FLOOR) -> float:
@@ -222,7 +253,10 @@ class FitVerdict:
                 "ranges in km) and the sigmas in sites.toml")
         if self.reference == "cross":
             text += (" (without ADS-B each residual compares two radars, so one radar's "
-                     "misfit shows in its partners' too; the worst is named first)")
+                     "misfit shows in its partners' too; the worst is named first), and "
+                     "each radar's clock: a time-stamping bias of a second or more moves "
+                     "its plots along track, and without ADS-B it is not estimated "
+                     "(calibrate with ADS-B to estimate time_offset_s)")
         return text
 
     def _describe(self, radar_id: str) -> str:
@@ -427,7 +461,179 @@ def fit_verdict(
     return verdict_from_sums(cal, reference, sums, p=p, floor=floor, negative=negative)
 
 
-__all__ = ["FLOOR", "JUDGED", "MAX_RANGE_GAIN", "MESSAGE_WINDOWS", "P", "CoordinateFit",
-           "FitVerdict", "ModelMisfitError", "RadarFit", "WindowJudgement", "chi2_limit",
-           "fit_verdict", "negative_ranges", "radar_fit", "verdict_from_sums", "window_verdict",
+def widen_limit(dof: float, p: float = WIDEN_P, floor: float = WIDEN_FLOOR) -> float:
+    """Largest ``chi2 / dof`` that leaves the sigmas as they are (module docstring)."""
+    return chi2_limit(dof, p, floor)
+
+
+@dataclass(frozen=True)
+class SigmaInflation:
+    """One radar's sigmas widened: the coordinates whose ``chi2 / dof`` exceeds
+    :func:`widen_limit`, with their ratio and limit, and what the residuals were
+    measured against."""
+
+    radar_id: str
+    coordinates: dict[str, tuple[float, float]]  # coordinate -> (chi2/dof, limit)
+    reference: str
+
+    @property
+    def factor(self) -> float:
+        """The largest variance factor: the largest ``chi2 / dof`` that exceeded."""
+        return max(ratio for ratio, _ in self.coordinates.values())
+
+    def parameter_factor(self, name: str) -> float:
+        """The variance factor of the bias term ``name`` (internal name): its coordinate's
+        ``chi2 / dof`` when that exceeded, else 1; the radar's largest for the time offset
+        (and any term no single coordinate measures)."""
+        coordinate = MEASURED_BY.get(name)
+        if coordinate is None:
+            return self.factor
+        return self.coordinates.get(coordinate, (1.0, 0.0))[0]
+
+    def to_dict(self, names: Iterable[str] = ()) -> dict[str, Any]:
+        """JSON-ready (``info["sigma_inflation"][radar]``): the largest factor, the
+        coordinates that exceeded, and per contract key of ``names`` (the radar's
+        estimated terms) its variance factor."""
+        return {"factor": self.factor, "reference": self.reference,
+                "coordinates": {c: {"chi2_per_dof": r, "limit": lim}
+                                for c, (r, lim) in self.coordinates.items()},
+                "parameters": {CONTRACT_KEYS[n][0]: self.parameter_factor(n) for n in names}}
+
+    def message(self) -> str:
+        """The warning: the radar, the coordinates and ratios, the likely causes."""
+        worst = sorted(self.coordinates.items(), key=lambda item: -item[1][0])
+        found = ", ".join(f"{c} chi2/dof {r:.2f} > {lim:.2f}" for c, (r, lim) in worst)
+        keys = " or ".join(SIGMA_KEYS[c] for c, _ in worst if c in SIGMA_KEYS)
+        if self.reference == "adsb":
+            cause = (f"the sigmas in sites.toml ({keys}) or the ADS-B sigma_m/NACp are "
+                     "smaller than the data's scatter (residuals against ADS-B carry both "
+                     "errors: ADS-B sigmas too small widen every radar, most those with the "
+                     "smallest sigmas)")
+        else:
+            cause = (f"the sigmas in sites.toml ({keys}) are smaller than the data's scatter "
+                     "(without ADS-B each residual carries the partner radar's error too, "
+                     "so a partner's misstated sigma widens this radar as well, and this "
+                     "radar's own shows diluted)")
+        return (f"radar {self.radar_id}: its residuals exceed their sigmas beyond chance "
+                f"({found}): sigmas widened by up to {math.sqrt(self.factor):.2f} times "
+                f"(variance factor {self.factor:.2f}, info.sigma_inflation); {cause}, or an "
+                "effect the model leaves out (see the model checks)")
+
+
+def sigma_inflation(verdict: FitVerdict, *, p: float = WIDEN_P,
+                    floor: float = WIDEN_FLOOR) -> dict[str, SigmaInflation]:
+    """The radars whose sigmas are too small by their residuals (module docstring).
+
+    Returns
+    -------
+    dict of str to SigmaInflation
+        Per radar with a judged coordinate above :func:`widen_limit`, in the
+        verdict's order; radars within their sigmas are absent.
+    """
+    out = {}
+    for rid, fit in verdict.radars.items():
+        beyond = {}
+        for c in fit.coordinates:
+            limit = widen_limit(c.dof, p, floor)
+            if math.isfinite(c.ratio) and c.ratio > limit:
+                beyond[c.coordinate] = (c.ratio, limit)
+        if beyond:
+            out[rid] = SigmaInflation(rid, beyond, verdict.reference)
+    return out
+
+
+def pooled_verdict(fits: Iterable[WindowFit]) -> FitVerdict:
+    """One verdict from every window's residuals pooled, radar by radar: per coordinate
+    the windows' chi-squares and counts summed, less every window's estimated terms
+    (``calibrate --window``: a noise stated too small is too small in every window, and
+    the pooled ``dof`` are the batch's; :func:`sigma_inflation` reads it)."""
+    sums: dict[str, dict[str, tuple[float, int]]] = {}
+    terms: dict[str, int] = {}
+    reference = "none"
+    for fit in fits:
+        if fit.reference == "adsb":
+            reference = "adsb"
+        for rid, by in fit.sums.items():
+            pooled = sums.setdefault(rid, {})
+            for coordinate, (chi2, n) in by.items():
+                if n > 0 and math.isfinite(chi2):
+                    c0, n0 = pooled.get(coordinate, (0.0, 0))
+                    pooled[coordinate] = (c0 + float(chi2), n0 + int(n))
+            terms[rid] = terms.get(rid, 0) + int(fit.n_terms.get(rid, 0))
+    radars = {rid: radar_fit(rid, by, terms.get(rid, 0), None) for rid, by in sums.items()}
+    return FitVerdict(reference, radars)
+
+
+#: Time-stamping bias [s] assumed typical when a radar names no sensor model.
+DEFAULT_TYPICAL_TIME_OFFSET_S = 0.1
+#: Radars sharing a time offset beyond this multiple of their typical one: the ADS-B clock.
+#: Independent radar clocks do not agree on an offset 3 times their typical size; ADS-B
+#: stamped at reception instead of applicability runs 0.3-1 s late on every radar alike.
+SHARED_TIME_OFFSET_MULTIPLE = 3.0
+
+
+def shared_time_offset_warning(cal: Calibration, sites: Mapping[str, Any]) -> str | None:
+    """A warning when every radar's estimated time offset is the same, and far too large.
+
+    Radars' clocks are independent: when two or more radars all come out with one
+    time offset, beyond :data:`SHARED_TIME_OFFSET_MULTIPLE` times their sensor models'
+    typical time-stamping bias (``typical_bias.time_offset_s``, else
+    :data:`DEFAULT_TYPICAL_TIME_OFFSET_S`) and each beyond 5 of its sigmas, while
+    they agree with each other, what is off is the common reference: the ADS-B
+    time base.  The radars' offsets then put their plots on the ADS-B's clock.
+
+    Returns
+    -------
+    str or None
+        The warning, naming the offset, its multiple of the typical value and the
+        ADS-B clock; ``None`` when the offsets do not look shared.
+    """
+    from graphcal.data.sensor_models import load_sensor_model
+
+    offsets: dict[str, tuple[float, float]] = {}
+    typical = 0.0
+    for rid in cal.radar_ids:
+        value, sigma = cal.value(rid, "time_offset_s"), cal.sigma(rid, "time_offset_s")
+        if value is None or sigma is None or not (math.isfinite(value)
+                                                  and math.isfinite(sigma)):
+            continue
+        offsets[rid] = (value, sigma)
+        site = sites.get(rid)
+        radar_typical = DEFAULT_TYPICAL_TIME_OFFSET_S
+        model = getattr(site, "model", None)
+        if model:
+            try:
+                radar_typical = load_sensor_model(model).typical_bias.get(
+                    "time_offset_s", radar_typical)
+            except (OSError, ValueError):
+                pass
+        typical = max(typical, radar_typical)
+    if len(offsets) < 2 or typical <= 0:
+        return None
+    values = [v for v, _ in offsets.values()]
+    sigmas = [s for _, s in offsets.values()]
+    mean = sum(values) / len(values)
+    limit = SHARED_TIME_OFFSET_MULTIPLE * typical
+    if not all(abs(v) > limit and abs(v) > 5.0 * s and (v > 0) == (mean > 0)
+               for v, s in offsets.values()):
+        return None
+    if max(values) - min(values) > 0.2 * abs(mean) + 5.0 * max(sigmas):
+        return None
+    detail = ", ".join(f"{rid} {v:+.3f} ± {s:.3f}" for rid, (v, s) in offsets.items())
+    return (f"every radar has the same time offset, {mean:+.2f} s ({detail} s), "
+            f"{abs(mean) / typical:,.0f} times the sensor models' typical "
+            f"{typical:g} s: the ADS-B time_s is likely on another clock, "
+            f"{-mean:+.2f} s off the radars' (a time base, leap-second or GPS-UTC offset; "
+            "the time of reception instead of the time of applicability, which runs 0.3-1 s "
+            "late?), not every radar's; the time offsets put the plots on "
+            "the ADS-B's clock. Check the ADS-B times before using them")
+
+
+__all__ = ["DEFAULT_TYPICAL_TIME_OFFSET_S", "FLOOR", "JUDGED", "MAX_RANGE_GAIN",
+           "MEASURED_BY", "MESSAGE_WINDOWS", "P", "SHARED_TIME_OFFSET_MULTIPLE", "SIGMA_KEYS",
+           "WIDEN_FLOOR",
+           "WIDEN_P", "CoordinateFit", "FitVerdict", "ModelMisfitError", "RadarFit",
+           "SigmaInflation", "WindowJudgement", "chi2_limit", "fit_verdict",
+           "negative_ranges", "pooled_verdict", "radar_fit", "shared_time_offset_warning",
+           "sigma_inflation", "verdict_from_sums", "widen_limit", "window_verdict",
            "windows_verdict"]

@@ -153,6 +153,28 @@ def observation_blocks(
     return _graph_blocks(dataset, use_adsb, max_gap_s, linearise)
 
 
+def excluded_parameters_note(dataset: Dataset, method: str = "graph", *,
+                             use_adsb: bool = True) -> str | None:
+    """What the observability analysis leaves out that a calibration may estimate.
+
+    The analysis covers the biases of the measurement model (range offset and gain,
+    azimuth, elevation, eccentricity): not the radars' time-stamping biases
+    (``time_offset_s``), which ``graphcal calibrate`` estimates, with ADS-B, for the
+    radars whose traffic determines them.  So the two count different parameters on
+    the same data (16 against 21 on the demo network); this says so, in one line.
+    """
+    radars = len(dataset.radar_ids)
+    if not radars:
+        return None
+    have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
+    if method == "graph" and have_adsb:
+        return (f"time offsets (time_offset_s) are not included: calibrate also estimates "
+                f"them with ADS-B, up to {radars} more parameters (one per radar whose "
+                "traffic determines it)")
+    return ("time offsets (time_offset_s) are not included; they need ADS-B, so "
+            "calibrate does not estimate them here either")
+
+
 def _graph_blocks(
     dataset: Dataset, use_adsb: bool, max_gap_s: float, linearise: str
 ) -> ObservationBlocks:

@@ -13,6 +13,7 @@ the choices are repeated here from the modules that own them (a test keeps them 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -91,6 +92,7 @@ def check_calibrate_options(ctx: typer.Context) -> None:
     if params.get("time_offset") not in TIME_OFFSET_CHOICES:
         fail(f"--time-offset must be auto, on or off, not '{params.get('time_offset')}'",
              EXIT_BAD_INPUT)
+    check_numbers(params)
     _check_adsb(ctx, method)
     _check_method_options(ctx, method)
     _check_selection(ctx, method)
@@ -103,6 +105,42 @@ def check_calibrate_options(ctx: typer.Context) -> None:
             and params.get("report") is None):
         fail("--truth is compared in the printed table and in --report; with --out alone "
              "it is not used", EXIT_BAD_INPUT)
+
+
+#: Numeric options that must be a positive, finite number: parameter -> (option, what).
+POSITIVE_OPTIONS: dict[str, tuple[str, str]] = {
+    "max_gap_s": ("--max-gap-s", "a positive number of seconds"),
+    "segment_s": ("--segment-s", "a positive number of seconds"),
+    "robust_scale": ("--robust-scale", "a positive, finite factor"),
+}
+#: Integer options that must be at least 1: parameter -> option.
+COUNT_OPTIONS: dict[str, str] = {
+    "iterations": "--iterations", "max_iterations": "--max-iterations", "budget": "--budget",
+}
+
+
+def check_positive(value: float | None, option: str, what: str = "a positive number") -> None:
+    """Refuse (exit 2) a value that is not a finite number above zero (``None`` passes).
+
+    A negative, zero, NaN or infinite duration, scale or threshold is never meant: a
+    gap of -3 s bridges nothing and silently turns ADS-B off, one of ``inf`` bridges
+    hours.
+    """
+    if value is None:
+        return
+    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+        fail(f"{option} must be {what}, not {value}", EXIT_BAD_INPUT)
+
+
+def check_numbers(params: Mapping[str, Any]) -> None:
+    """Refuse (exit 2) numeric options out of their domain (:data:`POSITIVE_OPTIONS`,
+    :data:`COUNT_OPTIONS`), whether or not the method uses them."""
+    for name, (option, what) in POSITIVE_OPTIONS.items():
+        check_positive(params.get(name), option, what)
+    for name, option in COUNT_OPTIONS.items():
+        value = params.get(name)
+        if value is not None and value < 1:
+            fail(f"{option} must be at least 1, not {value}", EXIT_BAD_INPUT)
 
 
 def _check_adsb(ctx: typer.Context, method: str) -> None:
@@ -187,4 +225,6 @@ __all__ = [
     "WINDOW_OPTIONS",
     "WLS_OPTIONS",
     "check_calibrate_options",
+    "check_numbers",
+    "check_positive",
 ]

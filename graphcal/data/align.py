@@ -326,6 +326,9 @@ class AdsbTrackTable:
         the track has fewer than two reports.
         """
         known = code >= 0
+        if not len(self.targets):  # no track at all (an empty ADS-B table)
+            n = len(query_time_s)
+            return np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n, dtype=bool)
         c = np.where(known, code, 0)
         j, w, ok = bracket_in_blocks(self.time_s, self.key, c, self.start[c],
                                      self.start[c + 1], query_time_s, max_gap_s)
@@ -363,6 +366,7 @@ def adsb_track_table(adsb: pd.DataFrame) -> AdsbTrackTable:
 def _adsb_track_table(adsb: pd.DataFrame) -> AdsbTrackTable:
     target = adsb["target_id"]
     valid = (target.notna() & (target.astype(str) != "")).to_numpy(dtype=bool)
+    valid = valid & np.isfinite(adsb["alt_m"].to_numpy(float))  # no geometric height: not used
     codes, names = pd.factorize(target[valid].astype(str), sort=True)
     time_s = adsb["time_s"].to_numpy(float)[valid]
     # As tracks_by_target: per aircraft in time order (stable), repeated times dropped.

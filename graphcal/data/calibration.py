@@ -3,15 +3,25 @@
 Estimates and covariance are held in SI units (m, fraction, rad, s) and
 converted to the contract's units (m, fraction, mrad, s) on output.
 
-Marginal queries, all in contract units::
+The rule: the arrays ``estimate`` and ``covariance`` are SI, like everything
+inside graphcal; the methods that take a radar or a contract key answer in
+contract units.  Queries in contract units::
 
-    cal.covariance("LAEG")            # LAEG's covariance block
-    cal.covariance("LAEG", "DOLE")    # cross block between LAEG's and DOLE's parameters
+    cal.value("LAEG", "azimuth_bias_mrad")
     cal.sigma("LAEG", "azimuth_bias_mrad")
+    cal.marginal("LAEG")              # LAEG's covariance block
+    cal.marginal("LAEG", "DOLE")      # cross block between LAEG's and DOLE's parameters
     cal.correlation("LAEG", "DOLE")   # unit-free
 
-``cal.covariance`` is still the joint SI matrix as an array (see
-:class:`JointCovariance`).  :meth:`Calibration.from_dict` and
+The joint matrix, with its units in the name::
+
+    cal.covariance_contract           # contract units (m, fraction, mrad, s), the JSON's
+    cal.covariance_si                 # SI units (m, fraction, rad, s)
+
+``cal.covariance`` is the SI matrix (``cal.covariance[i, j]`` in rad^2 for two
+azimuth terms).  Calling it, ``cal.covariance("LAEG")``, still gives the
+contract-unit block of :meth:`Calibration.marginal` but is deprecated (a
+``DeprecationWarning``): one name should not answer in two units.  :meth:`Calibration.from_dict` and
 :meth:`Calibration.read_json` rebuild a result from its contract JSON so that
 the same queries work on a file.
 """
@@ -148,6 +158,13 @@ class JointCovariance(np.ndarray):
             estimated parameters (:meth:`Calibration.marginal_labels`), units
             the products of the contract units (m, fraction, mrad, s).
         """
+        import warnings
+
+        warnings.warn(
+            "cal.covariance(radar) gives contract units (mrad) while cal.covariance[i, j] is "
+            "SI (rad): use cal.marginal(radar) for contract-unit blocks, cal.covariance_si "
+            "or cal.covariance_contract for the whole matrix",
+            DeprecationWarning, stacklevel=2)
         owner = self._owner
         if owner is None:
             raise TypeError(
@@ -234,10 +251,13 @@ class Calibration:
     estimate : ndarray
         Estimates in SI units.
     covariance : JointCovariance
-        Joint covariance in SI units, shape ``(len(labels), len(labels))``.
-        Assign any array; reading gives a :class:`JointCovariance`, an ndarray
-        view that can also be called for contract-unit blocks:
-        ``cal.covariance("LAEG")``, ``cal.covariance("LAEG", "DOLE")``.
+        Joint covariance in SI units (m, fraction, rad, s), shape ``(len(labels),
+        len(labels))``: the constructor takes it in SI.  Reading gives a
+        :class:`JointCovariance`, an SI ndarray view (indexing it gives SI
+        elements, as always) that can also be called for contract-unit blocks:
+        ``cal.covariance("LAEG")``, ``cal.covariance("LAEG", "DOLE")``.  To make the
+        units explicit use :attr:`covariance_si` (SI) or :attr:`covariance_contract`
+        (contract units, the JSON's), whose names say what they hold.
     n_plots : dict
         Plots of each radar used by the estimator.
     observability : Observability
@@ -417,6 +437,25 @@ class Calibration:
         scale = _contract_scale(self.labels)
         return self._covariance * np.outer(scale, scale)
 
+    @property
+    def covariance_contract(self) -> NDArray[np.float64]:
+        """Joint covariance in contract units (m, fraction, mrad, s), ``labels`` order.
+
+        The units of :meth:`sigma`, :meth:`marginal`, ``covariance(radar)`` and the
+        result JSON's ``covariance.matrix``: ``sqrt(covariance_contract[i, i])`` is
+        the sigma of ``contract_labels()[i]``.  A fresh array (writes do not go back).
+        """
+        return self.contract_covariance()
+
+    @property
+    def covariance_si(self) -> NDArray[np.float64]:
+        """Joint covariance in SI units (m, fraction, rad, s), ``labels`` order.
+
+        What the estimators compute and ``cal.covariance[i, j]`` indexes; a plain
+        ndarray view of the calibration's matrix.  Assign through ``covariance``.
+        """
+        return self._covariance.view(np.ndarray)
+
     def marginal_labels(self, radar_id: str) -> list[str]:
         """Contract keys of one radar's estimated parameters, in covariance order.
 
@@ -569,6 +608,7 @@ class Calibration:
             ],
             dtype=float,
         ) / scale
+        _check_result_values(radars, labels, matrix, fail)
 
         radar_ids = [str(rid) for rid in radars]
         residuals: dict[str, ResidualStats] = {}
@@ -733,6 +773,53 @@ def _short(value: float | None, digits: int = 4) -> str:
     return f"{value:.{digits}g}"
 
 
+#: Largest |range_gain| a result may carry [fraction]: 10 %.  No radar's range scale is
+#: that far off; a gain of -1 (ranges in other units, a sign lost) would correct every
+#: range to infinity.
+MAX_RESULT_RANGE_GAIN = 0.1
+#: Largest |value| of the angular biases [mrad]: half a turn in azimuth (and the
+#: eccentricity terms), a quarter turn in elevation.
+MAX_RESULT_ANGLE_MRAD = {"azimuth_bias_mrad": 1000.0 * math.pi,
+                         "azimuth_sin_mrad": 1000.0 * math.pi,
+                         "azimuth_cos_mrad": 1000.0 * math.pi,
+                         "elevation_bias_mrad": 500.0 * math.pi}
+#: Relative tolerance between a result's ``sigma`` entry and the square root of the
+#: covariance's diagonal (the JSON holds both; they must tell the same).
+SIGMA_TOLERANCE = 1e-3
+
+
+def bias_value_problem(key: str, value: float) -> str | None:
+    """What is wrong with a result's bias value (contract key and units), or ``None``.
+
+    Every value must be finite; ``range_gain`` within :data:`MAX_RESULT_RANGE_GAIN`
+    (10 %), the angular biases within :data:`MAX_RESULT_ANGLE_MRAD`.
+    """
+    if not math.isfinite(value):
+        return f"{value!r} is not a finite number"
+    if key == "range_gain" and abs(value) > MAX_RESULT_RANGE_GAIN:
+        return (f"{value:.6g} is beyond ±{MAX_RESULT_RANGE_GAIN:g} (±{MAX_RESULT_RANGE_GAIN:.0%})"
+                ": no radar's range scale is that far off, and correcting with it would "
+                "give meaningless ranges (a gain of -1 divides by zero); a result of "
+                "another tool or in other units?")
+    limit = MAX_RESULT_ANGLE_MRAD.get(key)
+    if limit is not None and abs(value) > limit:
+        return (f"{value:.6g} mrad is beyond ±{limit:.0f} mrad: an angle in other units "
+                "(degrees, microradians)?")
+    return None
+
+
+def sigma_problem(value: Any) -> str | None:
+    """What is wrong with a result's ``sigma`` entry, or ``None`` (``null`` passes:
+    an undetermined parameter)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return f"{value!r} is not a number"
+    if not math.isfinite(value) or value < 0.0:
+        return f"{value!r} is not a finite number >= 0 (a 1-sigma)"
+    return None
+
+
 #: Relative tolerances of :func:`covariance_problem`: asymmetry against
 #: ``sqrt(C_ii C_jj)``, and the most negative eigenvalue of the correlation matrix.
 SYMMETRY_TOLERANCE = 1e-6
@@ -793,6 +880,67 @@ def covariance_problem(matrix: NDArray[np.float64], labels: list[str]) -> str | 
     return None
 
 
+def _check_result_values(radars: Mapping[str, Any], labels: list[tuple[str, str]],
+                         matrix: NDArray[np.float64], fail: Any) -> None:
+    """Raise ``fail(message, field)`` for a result whose values cannot be right.
+
+    Every estimated (labelled) value must be a finite number within its limits
+    (:func:`bias_value_problem`); a radar's non-null bias keys must be labelled in
+    the covariance (or held fixed); each ``sigma`` entry must be ``null`` or a finite
+    number >= 0, belong to a labelled parameter and agree with the covariance's
+    diagonal (:data:`SIGMA_TOLERANCE`).
+    """
+    position = {label: i for i, label in enumerate(labels)}
+    for rid, entry in radars.items():
+        fixed = entry.get("fixed") if isinstance(entry.get("fixed"), Mapping) else {}
+        for key, value in entry.items():
+            if key not in NAME_FROM_KEY:
+                continue
+            where = f"radars.{rid}.{key}"
+            labelled = (rid, NAME_FROM_KEY[key]) in position
+            if value is None:
+                if labelled and math.isfinite(matrix[position[(rid, NAME_FROM_KEY[key])],
+                                                     position[(rid, NAME_FROM_KEY[key])]]):
+                    raise fail("null, but the covariance gives it a finite variance (an "
+                               "estimated value needs a number; null is for an undetermined "
+                               "one)", where)
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise fail(f"{value!r} is not a number", where)
+            problem = bias_value_problem(key, float(value))
+            if problem is not None:
+                raise fail(problem, where)
+            if not labelled and key not in fixed:
+                raise fail("has a value but no covariance label (an estimated value needs "
+                           "one; a known one goes under 'fixed')", where)
+        for key, value in dict(fixed).items():
+            if key in NAME_FROM_KEY and value is not None:
+                problem = (bias_value_problem(key, float(value))
+                           if isinstance(value, int | float) and not isinstance(value, bool)
+                           else f"{value!r} is not a number")
+                if problem is not None:
+                    raise fail(problem, f"radars.{rid}.fixed.{key}")
+        sigmas = entry.get("sigma")
+        if sigmas is None:
+            continue
+        if not isinstance(sigmas, Mapping):
+            raise fail("not an object", f"radars.{rid}.sigma")
+        for key, value in sigmas.items():
+            where = f"radars.{rid}.sigma.{key}"
+            problem = sigma_problem(value)
+            if problem is not None:
+                raise fail(problem, where)
+            if key not in NAME_FROM_KEY or (rid, NAME_FROM_KEY[key]) not in position:
+                raise fail("a sigma for a parameter the covariance does not label", where)
+            i = position[(rid, NAME_FROM_KEY[key])]
+            variance = float(matrix[i, i])
+            if value is not None and math.isfinite(variance):
+                expected = math.sqrt(max(variance, 0.0))
+                if abs(value - expected) > SIGMA_TOLERANCE * max(expected, abs(value)) + 1e-300:
+                    raise fail(f"{value:.6g} disagrees with the covariance's diagonal "
+                               f"(sqrt {expected:.6g})", where)
+
+
 def _read_series(value: Any) -> dict[str, Any] | None:
     """A result's ``series`` block, checked: a window length and, per radar, windows
     with their span and finite values (``KeyError``/``ValueError`` otherwise)."""
@@ -830,7 +978,8 @@ def _set_covariance(self: Calibration, value: ArrayLike) -> None:
 Calibration.covariance = property(  # type: ignore[assignment]
     _get_covariance,
     _set_covariance,
-    doc="Joint covariance in SI units; callable for contract-unit blocks (JointCovariance).",
+    doc="Joint covariance, indexed in SI units (covariance_si), callable for contract-unit "
+        "blocks (JointCovariance); covariance_contract is the whole matrix in contract units.",
 )
 
 
@@ -895,6 +1044,11 @@ def read_biases(path: str | Path) -> dict[str, RadarBias]:
     radars = data.get("radars") if isinstance(data, Mapping) else None
     if not isinstance(radars, Mapping):
         raise ResultError("missing or not an object", path=path, field="radars")
+    covariance = data.get("covariance")
+    if isinstance(covariance, Mapping) and covariance.get("labels"):
+        # A calibration result with its covariance: every check of from_dict.  Without
+        # labels (a truth.json, values only) the values are checked below.
+        Calibration.from_dict(data, source=path)
     out: dict[str, RadarBias] = {}
     for rid, entry in radars.items():
         if not isinstance(entry, Mapping):
@@ -909,9 +1063,9 @@ def read_biases(path: str | Path) -> dict[str, RadarBias]:
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise ResultError(f"{value!r} is not a number", path=path,
                                   field=f"radars.{rid}.{key}")
-            if not math.isfinite(value):
-                raise ResultError(f"{value!r} is not a finite number", path=path,
-                                  field=f"radars.{rid}.{key}")
+            problem = bias_value_problem(key, float(value))
+            if problem is not None:
+                raise ResultError(problem, path=path, field=f"radars.{rid}.{key}")
             name = NAME_FROM_KEY[key]
             values[name] = float(value) / CONTRACT_KEYS[name][1]
         out[str(rid)] = RadarBias(

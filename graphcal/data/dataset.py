@@ -33,7 +33,8 @@ PLOT_COLUMNS: tuple[str, ...] = (
 )
 #: Optional plot columns.
 PLOT_OPTIONAL_COLUMNS: tuple[str, ...] = ("altitude_m",)
-#: Required ADS-B columns.
+#: Required ADS-B columns.  A row's ``alt_m`` may be empty (a source without a geometric
+#: height): it is read, and left out of a calibration by the cleaning, with a warning.
 ADSB_COLUMNS: tuple[str, ...] = ("time_s", "target_id", "lat_deg", "lon_deg", "alt_m")
 #: Optional ADS-B columns (``baro_alt_m``: the reported pressure altitude [m], contract v2).
 ADSB_OPTIONAL_COLUMNS: tuple[str, ...] = ("sigma_m", "nacp", "baro_alt_m")

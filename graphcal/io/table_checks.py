@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from graphcal.data.cleaning import MAX_PLOT_RANGE_M
 from graphcal.data.dataset import ADSB_DEFAULT_SIGMA_M, Site
 from graphcal.data.sensor_models import adsb_sigma_from_nacp
 from graphcal.io.table_files import MISSING_TEXT, RawRows
@@ -156,6 +157,9 @@ def validate_plots(table: RawRows, sites: Mapping[str, Site], *,
     range_m = _numeric(table, problems, "range_m")
     _flag_not_finite(problems, range_m, "range_m", required=True)
     problems.flag(range_m < 0.0, "range_m", lambda pos: f"negative range {range_m[pos]}")
+    problems.flag(range_m > MAX_PLOT_RANGE_M, "range_m",
+                  lambda pos: f"{range_m[pos]:.6g} is beyond any radar's reach "
+                  f"({MAX_PLOT_RANGE_M / 1e3:,.0f} km): a corrupt value or another unit?")
     azimuth_deg = _numeric(table, problems, "azimuth_deg")
     _flag_not_finite(problems, azimuth_deg, "azimuth_deg", required=True)
     _flag_outside(problems, azimuth_deg, "azimuth_deg", 0.0, 360.0, high_open=True)
@@ -231,8 +235,9 @@ def validate_adsb(table: RawRows, *, extra: ExtraCheck | None = None) -> pd.Data
     -------
     pandas.DataFrame
         The contract columns normalised (``sigma_m`` filled in, ``nacp`` as
-        ``Int64`` when present, ``baro_alt_m`` when present), then the extra
-        columns unchanged; a fresh ``RangeIndex``.
+        ``Int64`` when present, ``baro_alt_m`` when present, ``alt_m`` NaN where
+        empty: a report without a geometric height), then the extra columns
+        unchanged; a fresh ``RangeIndex``.
 
     Raises
     ------
@@ -252,7 +257,10 @@ def validate_adsb(table: RawRows, *, extra: ExtraCheck | None = None) -> pd.Data
     _flag_not_finite(problems, lon_deg, "lon_deg", required=True)
     _flag_outside(problems, lon_deg, "lon_deg", -180.0, 180.0)
     alt_m = _numeric(table, problems, "alt_m")
-    _flag_not_finite(problems, alt_m, "alt_m", required=True)
+    # May be empty: a source without a geometric height (CAT021 without I140); such a
+    # report is kept here and left out of a calibration by the cleaning, with a warning
+    # (graphcal.data.cleaning.drop_non_finite_adsb).  Infinite is still an error.
+    _flag_not_finite(problems, alt_m, "alt_m", required=False)
     nacp = _adsb_nacp(table, problems)
     sigma_m = _adsb_sigma(table, problems, nacp)
     baro_alt_m = None

@@ -12,6 +12,8 @@ error rather than silently ignored.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import os
 import time
 from collections.abc import Callable, Mapping
@@ -225,6 +227,11 @@ def calibrate(
         Unknown method or option value, or an option the method does not use.
     """
     start = time.perf_counter()
+    for name, value in (("max_gap_s", max_gap_s), ("segment_s", segment_s),
+                        ("robust_scale", robust_scale)):
+        if value is not None and not (isinstance(value, int | float)
+                                      and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a positive, finite number, not {value}")
     folder = None
     if not isinstance(dataset, Dataset):
         if window is not None:  # read window by window, not loaded whole
@@ -301,10 +308,21 @@ def calibrate(
         timing = cal.info.setdefault("timing_s", {})
         timing["model_checks_s"] = cal.info["model_checks"]["seconds"]
         timing["total_s"] = time.perf_counter() - start
+    _warn_shared_time_offset(cal, dataset.sites)
     if cal.radar_ids:
         _judge_fit(cal, dataset, checks, use_adsb=use_adsb, max_gap_s=options.get("max_gap_s"),
                    raise_on_failure=check_fit)
     return cal
+
+
+def _warn_shared_time_offset(cal: Calibration, sites: Mapping[str, Any]) -> None:
+    """Warn when every radar's time offset is one and the same, far beyond a sensor's:
+    the ADS-B clock (:func:`graphcal.analysis.fit_verdict.shared_time_offset_warning`)."""
+    from graphcal.analysis.fit_verdict import shared_time_offset_warning
+
+    warning = shared_time_offset_warning(cal, sites)
+    if warning is not None:
+        cal.warnings.append(warning)
 
 
 def _impossible(cal: Calibration, dataset: Dataset) -> bool:
@@ -327,6 +345,44 @@ def _judge_fit(cal: Calibration, dataset: Dataset, checks: Any, *, use_adsb: boo
         if raise_on_failure:
             raise ModelMisfitError(verdict, cal)
         cal.warnings.append(verdict.message())
+    if cal.method == "graph":
+        _widen_sigmas(cal, verdict)
+
+
+def _widen_sigmas(cal: Calibration, verdict: Any) -> None:
+    """Widen the sigmas of the radars whose residuals exceed them beyond chance.
+
+    :func:`graphcal.analysis.fit_verdict.sigma_inflation` gives each term of such a
+    radar a variance factor ``f`` (the ``chi2/dof`` of the coordinate that measures it,
+    when beyond chance; the largest for the time offset); the term's row and column of
+    the joint covariance (and its row of the height model's cross-covariance) are
+    multiplied by ``sqrt(f)``, which keeps the matrix positive semi-definite and the
+    result's sigmas its diagonal's square roots.  Records ``info["sigma_inflation"]``
+    (per radar: largest factor, coordinates, per-term factors) and scales
+    ``info["efficiency"]`` (sigma over the bound) alike; one warning per radar.
+    """
+    from graphcal.analysis.fit_verdict import sigma_inflation
+
+    widened = sigma_inflation(verdict)
+    widened = {rid: w for rid, w in widened.items() if rid in cal.radar_ids}
+    if not widened:
+        return
+    scale = np.array([math.sqrt(widened[rid].parameter_factor(name)) if rid in widened
+                      else 1.0 for rid, name in cal.labels])
+    cal.covariance = cal.covariance_si * np.outer(scale, scale)
+    by_label = dict(zip(cal.contract_labels(), scale, strict=True))
+    atmosphere = cal.atmosphere
+    if atmosphere is not None and len(atmosphere.cross_labels):
+        rows = np.array([by_label.get(label, 1.0) for label in atmosphere.cross_labels])
+        cal.atmosphere = dataclasses.replace(
+            atmosphere, cross_covariance=np.asarray(atmosphere.cross_covariance) * rows[:, None])
+    efficiency = cal.info.get("efficiency") or {}
+    for label, factor in by_label.items():
+        if efficiency.get(label) is not None:
+            efficiency[label] = efficiency[label] * float(factor)
+    cal.info["sigma_inflation"] = {
+        rid: w.to_dict(name for r, name in cal.labels if r == rid) for rid, w in widened.items()}
+    cal.warnings.extend(w.message() for w in widened.values())
 
 
 def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,
@@ -356,9 +412,15 @@ def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,
         robust_scale=options["robust_scale"], fixed=options.get("fixed") or {},
         max_iterations=options["max_iterations"],
         **({"max_gap_s": options["max_gap_s"]} if "max_gap_s" in options else {}))
-    return calibrate_windows(dataset, parse_duration(window), clean=clean,
-                             options=window_options, progress=progress, force=force,
-                             check_fit=check_fit, **chain)
+    cal = calibrate_windows(dataset, parse_duration(window), clean=clean,
+                            options=window_options, progress=progress, force=force,
+                            check_fit=check_fit, **chain)
+    if isinstance(dataset, Dataset):
+        sites = dataset.sites
+    else:
+        sites = load_sites(Path(dataset) / SITES_FILE)
+    _warn_shared_time_offset(cal, sites)
+    return cal
 
 
 def _check_model(cal: Calibration, dataset: Dataset, *, use_adsb: bool,
@@ -416,7 +478,7 @@ def bound_info(
         key, scale = CONTRACT_KEYS[name]
         bound_sigma = result.sigma(rid, key)
         sigma[f"{rid}.{key}"] = float(bound_sigma)
-        reported = float(np.sqrt(cal.covariance[i, i])) * scale
+        reported = float(np.sqrt(cal.covariance_si[i, i])) * scale
         efficiency[f"{rid}.{key}"] = float(reported / bound_sigma) if bound_sigma > 0 else None
     if cal.atmosphere is not None and result.atmosphere_sigma is not None:
         for key, bound_sigma in result.atmosphere_sigma.items():

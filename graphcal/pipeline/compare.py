@@ -17,8 +17,19 @@ dataset.  Over the runs, per method, radar and parameter (contract units):
 ``status``         ``ok``, ``failed in K of N runs``, or for a method that never
                    gave an estimate ``failed: <first error>`` (its one row has no
                    radar or parameter and NaN figures: failed methods stay in the
-                   table)
+                   table); with :data:`MIN_RUNS_JUDGED` runs or more, a row whose
+                   ``consistency`` is outside :data:`CONSISTENCY_RANGE` (0.7-1.4),
+                   and beyond the chance spread of a std from its runs (3 x
+                   ``1/sqrt(2 (n - 1))``: the range is 0.61-1.64 at 12 runs),
+                   says ``sigma too small`` or ``sigma too large`` instead of
+                   ``ok``, and one whose mean is off the truth by more than
+                   :data:`BIAS_STANDARD_ERRORS` standard errors (and half a std)
+                   says ``biased``
 =================  =============================================================
+
+The sigmas of ``ls``, ``fl``, ``fl-ls``, ``wls`` and ``wls-pruned`` are the papers'
+formal ones (from the stated noise, scaled by no fit statistic): the table shows
+whether they are honest on the scenario.
 
 The results do not depend on ``jobs``: every run's randomness comes from its
 own seed and the runs are put back in order.  Only the run times vary.
@@ -46,12 +57,29 @@ import pandas as pd
 
 from graphcal.core.atomic import atomic_write_table, atomic_write_text
 from graphcal.core.errors import EstimationError
-from graphcal.data.bias import CONTRACT_KEYS, PARAMETER_NAMES, to_contract_units
+from graphcal.data.bias import (
+    CONTRACT_KEYS,
+    ECCENTRICITY_NAMES,
+    PARAMETER_NAMES,
+    to_contract_units,
+)
 
 #: Contract key -> internal parameter name, in table order.
 _KEY_ORDER: dict[str, str] = {
-    CONTRACT_KEYS[name][0]: name for name in (*PARAMETER_NAMES, "time_offset")
+    CONTRACT_KEYS[name][0]: name
+    for name in (*PARAMETER_NAMES, "time_offset", *ECCENTRICITY_NAMES)
 }
+#: ``consistency`` (mean reported sigma / actual std) outside this range: the sigmas are
+#: not honest.  A std from 24 runs is itself uncertain by about 15 %.
+CONSISTENCY_RANGE: tuple[float, float] = (0.7, 1.4)
+#: ... and beyond this many of the chance spreads of a std from the runs.
+CONSISTENCY_CHANCE_SIGMAS = 3.0
+#: Fewest runs behind a row for its sigmas and mean to be judged.
+MIN_RUNS_JUDGED = 10
+#: A mean this many standard errors (std / sqrt(n)) off the truth, and more than
+#: :data:`BIAS_STD_FRACTION` of a std, is a bias.
+BIAS_STANDARD_ERRORS = 4.0
+BIAS_STD_FRACTION = 0.5
 
 #: Columns of :attr:`ComparisonResult.table`, in order.
 TABLE_COLUMNS: tuple[str, ...] = (
@@ -400,6 +428,32 @@ def compare(
     )
 
 
+def row_status(base: str, n: int, mean: float, std: float, truth: float,
+               consistency: float) -> str:
+    """A row's status: the method's (``ok``, ``failed in K of N runs``) with what its
+    figures show (module docstring): ``sigma too small (σ̂/std 0.18)``, ``sigma too
+    large``, ``biased (+3.1 std)``; ``ok`` only when nothing is found."""
+    notes = []
+    if n >= MIN_RUNS_JUDGED:
+        # Outside CONSISTENCY_RANGE and beyond the chance spread of a std from n runs
+        # (3 x 1/sqrt(2 (n - 1))): 0.69-1.44 at 24 runs, 0.61-1.64 at 12.
+        chance = CONSISTENCY_CHANCE_SIGMAS / math.sqrt(2.0 * (n - 1))
+        low = min(CONSISTENCY_RANGE[0], 1.0 / (1.0 + chance))
+        high = max(CONSISTENCY_RANGE[1], 1.0 + chance)
+        if math.isfinite(consistency) and consistency < low:
+            notes.append(f"sigma too small (σ̂/std {consistency:.2f})")
+        elif math.isfinite(consistency) and consistency > high:
+            notes.append(f"sigma too large (σ̂/std {consistency:.2f})")
+        if math.isfinite(std) and math.isfinite(truth) and std > 0:
+            off = mean - truth
+            if (abs(off) > BIAS_STANDARD_ERRORS * std / math.sqrt(n)
+                    and abs(off) > BIAS_STD_FRACTION * std):
+                notes.append(f"biased ({off / std:+.1f} std)")
+    if not notes:
+        return base
+    return "; ".join(notes if base == "ok" else [base, *notes])
+
+
 def _summarise(
     name: str, methods: list[str], runs: int, seed: int, results: list[dict[str, Any]]
 ) -> ComparisonResult:
@@ -450,13 +504,15 @@ def _summarise(
             finite_sigmas = sigmas[np.isfinite(sigmas)]
             mean_sigma = float(finite_sigmas.mean()) if finite_sigmas.size else math.nan
             bound = crlb_sigma.get((rid, key), math.nan)
+            consistency = mean_sigma / std if std and np.isfinite(std) else math.nan
             table_rows.append({
                 "method": method, "radar": rid, "parameter": key, "truth": true, "n": n,
                 "mean": mean, "std": std, "rmse": rmse, "mean_sigma": mean_sigma,
-                "consistency": mean_sigma / std if std and np.isfinite(std) else math.nan,
+                "consistency": consistency,
                 "crlb_sigma": bound,
                 "rmse_over_crlb": rmse / bound if bound > 0 else math.nan,
-                "failures": n_failed[method], "status": status[method],
+                "failures": n_failed[method],
+                "status": row_status(status[method], n, mean, std, true, consistency),
             })
         if not groups:  # never an estimate: one row saying so, not silence
             first = next(r["first_error"] for r in fail_rows if r["method"] == method)
@@ -479,4 +535,5 @@ def _summarise(
     )
 
 
-__all__ = ["ComparisonResult", "ESTIMATE_COLUMNS", "TABLE_COLUMNS", "compare"]
+__all__ = ["BIAS_STANDARD_ERRORS", "CONSISTENCY_RANGE", "MIN_RUNS_JUDGED", "ComparisonResult",
+           "ESTIMATE_COLUMNS", "TABLE_COLUMNS", "compare", "row_status"]

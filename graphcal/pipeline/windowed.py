@@ -50,7 +50,7 @@ from graphcal.solvers.windows import (
 )
 
 if TYPE_CHECKING:
-    from graphcal.analysis.fit_verdict import FitVerdict
+    from graphcal.analysis.fit_verdict import FitVerdict, SigmaInflation
 
 Progress = Callable[..., None]
 
@@ -158,6 +158,9 @@ def calibrate_windows(
     except FolderReadAgain:
         # Read as if in time order, and it is not: the windows may lack late rows.
         source, summaries = _first_pass(*first_pass, order="auto")
+    # Residuals beyond their sigmas (pooled over the windows) widen every window's.
+    widened = _sigma_inflation(summaries)
+    summaries = [_widened(s, widened) for s in summaries]
     elapsed = time.perf_counter() - start
     if progress is not None:
         progress("smoothing the chain", 0, 1)
@@ -208,6 +211,7 @@ def calibrate_windows(
                                                  total=len(parts),
                                                  stage="windows holding a step, in parts")
                           if s is not None]
+        part_summaries = [_widened(s, widened) for s in part_summaries]
         summaries = sorted([s for s in summaries if s.index not in cuts] + part_summaries,
                            key=lambda s: (s.t_start_s, s.t_end_s))
         result = smooth_windows(summaries, source.sites, window_s,
@@ -217,6 +221,7 @@ def calibrate_windows(
     result.timing_s["total_s"] = time.perf_counter() - start
     cal = to_calibration(result, source.sites, source.cleaning_warnings)
     _finish(cal, source, scheduler, dataset)
+    _record_inflation(cal, widened)
     verdict = _judge(summaries)
     if verdict is not None:
         if not verdict.passed and check_fit:
@@ -280,6 +285,47 @@ def _judge(summaries: Sequence[WindowSummary]) -> FitVerdict | None:
 
     fits = [(s.t_start_s, s.t_end_s, s.fit) for s in summaries if s.fit is not None]
     return windows_verdict(fits) if fits else None
+
+
+def _sigma_inflation(summaries: Sequence[WindowSummary]) -> dict[str, SigmaInflation]:
+    """The radars whose residuals, pooled over the windows, exceed their sigmas beyond
+    chance (:func:`graphcal.analysis.fit_verdict.sigma_inflation`)."""
+    from graphcal.analysis.fit_verdict import pooled_verdict, sigma_inflation
+
+    fits = [s.fit for s in summaries if s.fit is not None]
+    return sigma_inflation(pooled_verdict(fits)) if fits else {}
+
+
+def _widened(summary: WindowSummary, widened: Mapping[str, SigmaInflation]) -> WindowSummary:
+    """``summary`` with its data's information on each widened term divided by the term's
+    variance factor (``L' = D^-1 L D^-1``, ``D = diag(sqrt(f))``; the weak priors kept), so
+    that the chain weighs the window as its residuals say; the estimate is kept."""
+    scale = np.array([np.sqrt(widened[rid].parameter_factor(name)) if rid in widened
+                      else 1.0 for rid, name in summary.labels])
+    if not len(scale) or np.all(scale == 1.0):
+        return summary
+    information, _ = summary.data_information()
+    covariance = np.linalg.inv(information / np.outer(scale, scale)
+                               + np.diag(summary.prior_sigma ** -2.0))
+    atmosphere = summary.atmosphere
+    if atmosphere is not None and len(atmosphere.cross_labels):
+        by_label = {f"{rid}.{CONTRACT_KEYS[name][0]}": value
+                    for (rid, name), value in zip(summary.labels, scale, strict=True)}
+        rows = np.array([by_label.get(label, 1.0) for label in atmosphere.cross_labels])
+        atmosphere = replace(atmosphere, cross_covariance=np.asarray(
+            atmosphere.cross_covariance) * rows[:, None])
+    return replace(summary, covariance=0.5 * (covariance + covariance.T), atmosphere=atmosphere)
+
+
+def _record_inflation(cal: Calibration, widened: Mapping[str, SigmaInflation]) -> None:
+    """``info["sigma_inflation"]`` and one warning per widened radar."""
+    if not widened:
+        return
+    cal.info["sigma_inflation"] = {
+        rid: {**w.to_dict(name for r, name in cal.labels if r == rid), "pooled_windows": True}
+        for rid, w in widened.items()}
+    cal.warnings.extend(w.message() + " (residuals pooled over the windows)"
+                        for w in widened.values())
 
 
 def _misfit_away_from(verdict: FitVerdict, summaries: Sequence[WindowSummary],

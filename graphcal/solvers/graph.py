@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -77,7 +77,7 @@ from graphcal.model.parameters import (
 from graphcal.model.problem import CROSS_MODES, Problem, build_factors, radars_with_adsb
 from graphcal.model.robust import RobustKernel
 from graphcal.noise import fills_missing_sigmas
-from graphcal.solvers.gtsam_adapter import FactorGraph, symbol
+from graphcal.solvers.gtsam_adapter import FactorGraph, IndeterminateSystemError, symbol
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[..., None]
@@ -378,6 +378,25 @@ def _solve(
                    values.get(HEIGHT))
 
 
+def _joint_covariance(fg: Any, values: Any, joint_keys: list[int],
+                      radar_keys: Mapping[str, int]) -> np.ndarray:
+    """``fg.joint_covariance``; an indeterminate system becomes an :class:`EstimationError`
+    naming the radar whose biases the data leave undetermined (exit 3, not a defect)."""
+    try:
+        return fg.joint_covariance(values, joint_keys)
+    except IndeterminateSystemError as exc:
+        names = {int(k): rid for rid, k in radar_keys.items()}
+        where = (f"{names[exc.key]}'s biases" if exc.key in names
+                 else "the biases")
+        raise EstimationError(
+            f"the sigmas cannot be computed: near {where} the information of the data is "
+            "singular or too poorly conditioned (GTSAM found the linear system "
+            "indeterminate). The data do not determine these biases reliably: too few "
+            "common observations, a geometry that cannot separate them, or a bias far "
+            "beyond its prior (pairs of plots mismatched by kilometres or tens of mrad); "
+            "calibrate with ADS-B, or check that radar's site and data") from None
+
+
 def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
     """Radars whose time offset the data do not determine well, with the reason.
 
@@ -388,7 +407,7 @@ def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
     and an azimuth bias).
     """
     keys = [solved.problem.keys[rid] for rid in solved.radars]
-    marginal = solved.fg.joint_covariance(solved.result.values, keys)
+    marginal = _joint_covariance(solved.fg, solved.result.values, keys, solved.problem.keys)
     solved.joint = (keys, marginal)  # the marginals of the result, when nothing is re-solved
     labels = [(rid, name) for rid in solved.radars for name in solved.terms[rid].free]
     information = np.linalg.inv(marginal)
@@ -568,7 +587,7 @@ def graph(
     if solved.joint is not None and solved.joint[0] == joint_keys:
         marginal = solved.joint[1]  # computed by the time-offset check, same graph and values
     else:
-        marginal = fg.joint_covariance(result.values, joint_keys)
+        marginal = _joint_covariance(fg, result.values, joint_keys, keys)
     labels = [(rid, name) for rid in radars for name in terms[rid].free]
     p = len(labels)
     columns: dict[str, list[int]] = {rid: [] for rid in radar_ids}

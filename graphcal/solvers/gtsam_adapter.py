@@ -15,12 +15,15 @@ module wraps the few pieces the graph calibrator needs:
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 from numpy.typing import NDArray
+
+from graphcal.core.errors import EstimationError
 
 FloatArray = NDArray[np.float64]
 
@@ -172,8 +175,15 @@ class FactorGraph:
                                   final_error=float(self._graph.error(values)), converged=True)
 
     def joint_covariance(self, values: gtsam.Values, keys: Sequence[int]) -> FloatArray:
-        """Joint marginal covariance of ``keys`` at ``values`` (GTSAM ``Marginals``)."""
-        marginals = gtsam.Marginals(self._graph, values)
+        """Joint marginal covariance of ``keys`` at ``values`` (GTSAM ``Marginals``).
+
+        Raises
+        ------
+        IndeterminateSystemError
+            When GTSAM finds the linear system indeterminate (or too poorly
+            conditioned to factorise) near one of the variables.
+        """
+        marginals = _marginals(self._graph, values)
         key_vector = gtsam.KeyVector()
         for k in keys:
             key_vector.append(int(k))
@@ -183,8 +193,32 @@ class FactorGraph:
     def marginal_covariances(self, values: gtsam.Values, keys: Sequence[int]
                              ) -> list[FloatArray]:
         """Each key's own marginal covariance, from one factorisation (GTSAM ``Marginals``)."""
-        marginals = gtsam.Marginals(self._graph, values)
+        marginals = _marginals(self._graph, values)
         return [np.asarray(marginals.marginalCovariance(int(k)), dtype=float) for k in keys]
+
+
+class IndeterminateSystemError(EstimationError):
+    """GTSAM's ``IndeterminateSystemException``: the linear system at the solution is
+    singular, or too poorly conditioned to factorise, near the variable ``key``."""
+
+    def __init__(self, message: str, key: int | None) -> None:
+        super().__init__(message)
+        self.key = key
+
+
+def _marginals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Marginals:
+    """``gtsam.Marginals``, its indeterminate-system error as :class:`IndeterminateSystemError`."""
+    try:
+        return gtsam.Marginals(graph, values)
+    except RuntimeError as exc:
+        text = str(exc)
+        if "Indeterminate" not in text:
+            raise
+        found = re.search(r"variable\s+(\d+)", text)
+        key = int(found.group(1)) if found else None
+        raise IndeterminateSystemError(
+            "the linear system is indeterminate (or too poorly conditioned to factorise) at "
+            "the solution", key) from None
 
 
 class IncrementalGraph(FactorGraph):

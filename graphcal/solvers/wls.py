@@ -99,6 +99,13 @@ def _bias_from_vector(layout: ParameterLayout, radar_id: str, x: FloatArray) -> 
     return RadarBias.from_vector(values)
 
 
+#: ``info["sigma"]`` of wls and wls-pruned: what their sigmas are.
+WLS_SIGMA_NOTE = ("formal (paper 001: the weighted LS covariance from the stated noise, the "
+                  "shared partner-plot noise included; not scaled by chi2_per_dof)")
+#: chi2/dof above which wls warns that its formal sigmas are too small.
+FORMAL_SIGMA_CHI2 = 1.5
+
+
 def _run_wls(
     method: str,
     dataset: Dataset,
@@ -144,6 +151,7 @@ def _run_wls(
         info["chi2_per_dof"] = float(np.sum(residual**2) / dof)
     info["n_observations"] = int(len(h_white))
     info["singular_values"] = sol.singular_values
+    info["sigma"] = WLS_SIGMA_NOTE
     estimate = np.array(
         [biases[rid].value(name) for rid, name in layout.labels], dtype=float
     )
@@ -161,6 +169,20 @@ def _run_wls(
     )
     _drop_unseen(cal, layout, information)
     cal.warnings.extend(describe_weak_directions(cal.labels, cal.observability))
+    chi2 = info.get("chi2_per_dof", 1.0)
+    if chi2 > FORMAL_SIGMA_CHI2:
+        cal.warnings.append(
+            f"{method}: the residuals are {chi2:.2g} times their stated variance "
+            f"(chi2/dof); its sigmas are paper 001's formal ones, from the stated noise, and "
+            f"are then about {np.sqrt(chi2):.2g} times too small (or the noise model is "
+            "wrong: estimate the sigmas with 'graphcal noise')")
+    large = _beyond_one_linearisation(cal)
+    if large:
+        cal.warnings.append(
+            f"{method} linearises once, at the measured plots (paper 001 eq. 10): with biases "
+            f"as large as {', '.join(large)} the linearisation error biases the estimates "
+            "themselves, by several of their sigmas at a few km or tens of mrad; the graph "
+            "method iterates to the solution")
     if dataset.pressure_altitudes and any(not dataset.sites[rid].is_3d for rid in radar_ids):
         cal.warnings.append(
             f"{method} places the 2-D plots at their pressure altitudes as if they were heights "
@@ -169,6 +191,23 @@ def _run_wls(
         )
     _adsb_residuals(cal, dataset)
     return cal
+
+
+#: Biases beyond which one linearisation at the measured plots is not to be trusted
+#: (contract key -> size in contract units): 1 km of range offset, 10 mrad of angle.
+LINEARISATION_LIMITS: dict[str, float] = {
+    "range_offset_m": 1000.0, "azimuth_bias_mrad": 10.0, "elevation_bias_mrad": 10.0}
+
+
+def _beyond_one_linearisation(cal: Calibration) -> list[str]:
+    """``["NORD range_offset_m 3030"]``: the estimates beyond :data:`LINEARISATION_LIMITS`."""
+    found = []
+    for rid in cal.radar_ids:
+        for key, limit in LINEARISATION_LIMITS.items():
+            value = cal.value(rid, key)
+            if value is not None and abs(value) > limit:
+                found.append(f"{rid} {key} {value:,.0f}")
+    return found
 
 
 def _drop_unseen(
@@ -184,7 +223,7 @@ def _drop_unseen(
         )
     cal.labels = [layout.labels[i] for i in keep]
     cal.estimate = cal.estimate[keep]
-    cal.covariance = cal.covariance[np.ix_(keep, keep)]
+    cal.covariance = cal.covariance_si[np.ix_(keep, keep)]
     if dropped:
         cal.observability = observability(information[np.ix_(keep, keep)])
 

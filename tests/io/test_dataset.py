@@ -279,7 +279,7 @@ ADSB_CASES = [
     (3, 1, " ", "target_id", "missing target id"),
     (2, 2, "90.5", "lat_deg", "outside"),
     (1, 3, "-180.5", "lon_deg", "outside"),
-    (3, 4, "", "alt_m", "missing"),
+    (3, 4, "inf", "alt_m", "not finite"),  # empty is allowed: no geometric height
     (2, 5, "0", "sigma_m", "positive"),
     (3, 5, "-3", "sigma_m", "positive"),
     (3, 5, "inf", "sigma_m", "not finite"),

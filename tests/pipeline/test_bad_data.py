@@ -67,6 +67,16 @@ def _z(cal: Calibration, biases: dict[str, RadarBias]) -> np.ndarray:
                      for i, (rid, name) in enumerate(cal.labels)])
 
 
+def _z_clean(dirty: Calibration, clean: Calibration,
+             biases: dict[str, RadarBias] = BIASES) -> np.ndarray:
+    """Errors of ``dirty`` in the sigmas of the same method on the clean data: how far a
+    defect moves the estimate, whatever sigmas the method reports on the dirty data (the
+    paper methods widen theirs when their residuals show the defect)."""
+    sigma = np.sqrt(np.diag(clean.covariance))
+    return np.array([(dirty.estimate[i] - biases[rid].value(name)) / sigma[i]
+                     for i, (rid, name) in enumerate(dirty.labels)])
+
+
 def _assert_within_3_sigma(cal: Calibration, biases: dict[str, RadarBias] = BIASES) -> None:
     z = _z(cal, biases)
     assert np.max(np.abs(z)) < 3.0, dict(zip(cal.contract_labels(), np.round(z, 1), strict=True))
@@ -188,7 +198,7 @@ def test_stale_adsb_reports_are_dropped() -> None:
 
 def test_spoofed_stretch_drops_the_aircraft_with_a_warning() -> None:
     dirty = _spoofed(_dataset())
-    assert np.max(np.abs(_z(fl_ls(dirty), BIASES))) > 10.0
+    assert np.max(np.abs(_z_clean(fl_ls(dirty), fl_ls(_dataset())))) > 10.0
     assert np.max(np.abs(_z(_graph(dirty), BIASES))) > 3.0
     cleaned, report = clean_dataset(dirty)
     assert report.jumping_aircraft == ["4ca003"]
@@ -203,7 +213,7 @@ def test_spoofed_stretch_drops_the_aircraft_with_a_warning() -> None:
 
 def test_isolated_wild_adsb_reports_are_dropped() -> None:
     dirty, n_wild = _wild(_dataset(), np.random.default_rng(6))
-    assert np.max(np.abs(_z(fl_ls(dirty), BIASES))) > 10.0
+    assert np.max(np.abs(_z_clean(fl_ls(dirty), fl_ls(_dataset())))) > 10.0
     cleaned, report = clean_dataset(dirty)
     # A wild report next to the start or end of a track can take a true neighbour along.
     assert n_wild <= report.counts["adsb_wild"] <= n_wild + 4
@@ -388,7 +398,7 @@ def test_all_defects_together(tmp_path: Path) -> None:
     assert len(report.warnings) == 3
 
     raw = load_dataset(tmp_path / "ds", clean=False)
-    assert np.max(np.abs(_z(fl_ls(raw), BIASES))) > 10.0
+    assert np.max(np.abs(_z_clean(fl_ls(raw), fl_ls(dataset)))) > 10.0
     cal = _graph(loaded)
     assert cal.radar_ids == ["A", "B", "C"]
     _assert_within_3_sigma(cal)

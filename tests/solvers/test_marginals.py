@@ -87,7 +87,7 @@ def _cal() -> Calibration:
 def test_marginal_block_is_the_hand_converted_slice(radar: str, idx: list[int]) -> None:
     cal = _cal()
     expected = _expected_block(idx, idx)
-    np.testing.assert_allclose(cal.covariance(radar), expected, rtol=1e-13)
+    np.testing.assert_allclose(cal.marginal(radar), expected, rtol=1e-13)
     np.testing.assert_allclose(cal.marginal(radar), expected, rtol=1e-13)
     np.testing.assert_allclose(cal.covariance_block(radar), expected, rtol=1e-13)
     assert cal.marginal_labels(radar) == [PARAMS[i][2] for i in idx]
@@ -95,16 +95,16 @@ def test_marginal_block_is_the_hand_converted_slice(radar: str, idx: list[int]) 
     data = cal.to_dict()
     rows = [data["covariance"]["labels"].index(f"{radar}.{PARAMS[i][2]}") for i in idx]
     matrix = np.array(data["covariance"]["matrix"])
-    np.testing.assert_allclose(cal.covariance(radar), matrix[np.ix_(rows, rows)], rtol=1e-13)
+    np.testing.assert_allclose(cal.marginal(radar), matrix[np.ix_(rows, rows)], rtol=1e-13)
 
 
 def test_marginal_units_by_hand() -> None:
     """LAEG azimuth variance: (2e-5 rad)^2 -> (0.02 mrad)^2; offset-azimuth cross in m*mrad."""
-    block = _cal().covariance("LAEG")
+    block = _cal().marginal("LAEG")
     assert block[2, 2] == pytest.approx(0.02**2)
     assert block[0, 0] == pytest.approx(0.9**2)
     assert block[0, 1] == pytest.approx(-0.7 * 0.9 * 7.5e-6)
-    cross = _cal().covariance("LAEG", "DOLE")
+    cross = _cal().marginal("LAEG", "DOLE")
     assert cross.shape == (3, 4)
     assert cross[0, 0] == pytest.approx(0.6 * 0.9 * 1.7)  # m * m
     assert cross[2, 1] == pytest.approx(0.3 * 0.02 * 0.03)  # mrad * mrad
@@ -112,19 +112,29 @@ def test_marginal_units_by_hand() -> None:
 
 def test_cross_block_and_its_transpose() -> None:
     cal = _cal()
-    np.testing.assert_allclose(cal.covariance("LAEG", "DOLE"), _expected_block(LAEG, DOLE))
-    np.testing.assert_allclose(cal.covariance("DOLE", "HOLB"), _expected_block(DOLE, HOLB))
-    np.testing.assert_array_equal(cal.covariance("DOLE", "LAEG"), cal.covariance("LAEG", "DOLE").T)
+    np.testing.assert_allclose(cal.marginal("LAEG", "DOLE"), _expected_block(LAEG, DOLE))
+    np.testing.assert_allclose(cal.marginal("DOLE", "HOLB"), _expected_block(DOLE, HOLB))
+    np.testing.assert_array_equal(cal.marginal("DOLE", "LAEG"), cal.marginal("LAEG", "DOLE").T)
     np.testing.assert_array_equal(cal.marginal("HOLB", "DOLE"), cal.marginal("DOLE", "HOLB").T)
-    assert cal.covariance("LAEG", "LAEG").shape == (3, 3)
+    assert cal.marginal("LAEG", "LAEG").shape == (3, 3)
+
+
+def test_calling_covariance_is_deprecated_and_gives_contract_units() -> None:
+    cal = _cal()
+    with pytest.warns(DeprecationWarning, match="marginal"):
+        block = cal.covariance("LAEG")
+    np.testing.assert_array_equal(block, cal.marginal("LAEG"))
+    # the array itself is SI: the LAEG azimuth variance in rad^2
+    assert cal.covariance[LAEG[2], LAEG[2]] == pytest.approx(2e-5**2)
+    np.testing.assert_array_equal(cal.covariance_si, np.asarray(cal.covariance))
 
 
 def test_unknown_radar_raises_key_error() -> None:
     cal = _cal()
     with pytest.raises(KeyError, match="XXXX"):
-        cal.covariance("XXXX")
+        cal.marginal("XXXX")
     with pytest.raises(KeyError, match="XXXX"):
-        cal.covariance("LAEG", "XXXX")
+        cal.marginal("LAEG", "XXXX")
     with pytest.raises(KeyError, match="XXXX"):
         cal.correlation("XXXX")
 
@@ -144,7 +154,7 @@ def test_covariance_attribute_is_still_the_si_array() -> None:
     assert type(cal.covariance * 2.0) is np.ndarray
     assert type(np.sqrt(np.diag(cal.covariance))) is np.ndarray
     assert type(np.linalg.inv(cal.covariance)) is np.ndarray
-    with pytest.raises(TypeError, match="derived"):
+    with pytest.raises(TypeError, match="derived"), pytest.warns(DeprecationWarning):
         cal.covariance.T("LAEG")
 
 
@@ -152,25 +162,25 @@ def test_covariance_assignment_and_in_place_writes() -> None:
     cal = _cal()
     si = _si_covariance()
     cal.covariance = 4.0 * si  # reassignment, as the WLS estimator does when it drops radars
-    np.testing.assert_allclose(cal.covariance("LAEG"), 4.0 * _expected_block(LAEG, LAEG))
+    np.testing.assert_allclose(cal.marginal("LAEG"), 4.0 * _expected_block(LAEG, LAEG))
     assert cal.sigma("LAEG", "azimuth_bias_mrad") == pytest.approx(2 * 0.02)
     cal.covariance[7, 7] = 9e-10  # element write goes to the calibration's matrix
     assert cal.sigma("HOLB", "azimuth_bias_mrad") == pytest.approx(3e-5 * 1e3)
     cal.covariance *= 0.25
-    np.testing.assert_allclose(cal.covariance("DOLE"), _expected_block(DOLE, DOLE))
+    np.testing.assert_allclose(cal.marginal("DOLE"), _expected_block(DOLE, DOLE))
     # pruning labels and covariance together keeps the queries consistent
     keep = LAEG + HOLB
     cal.radar_ids = ["LAEG", "HOLB"]
     cal.labels = [cal.labels[i] for i in keep]
     cal.estimate = cal.estimate[keep]
     cal.covariance = cal.covariance[np.ix_(keep, keep)]
-    np.testing.assert_allclose(cal.covariance("LAEG", "HOLB"), _expected_block(LAEG, HOLB))
+    np.testing.assert_allclose(cal.marginal("LAEG", "HOLB"), _expected_block(LAEG, HOLB))
 
 
 def test_pickle_and_deepcopy_keep_the_queries() -> None:
     cal = _cal()
     for other in (pickle.loads(pickle.dumps(cal)), copy.deepcopy(cal)):
-        np.testing.assert_allclose(other.covariance("DOLE"), _expected_block(DOLE, DOLE))
+        np.testing.assert_allclose(other.marginal("DOLE"), _expected_block(DOLE, DOLE))
 
 
 # ------------------------------------------------------------------ sigma
@@ -180,7 +190,7 @@ def test_sigma_for_every_contract_key(index: int) -> None:
     cal = _cal()
     assert cal.sigma(radar, key) == pytest.approx(sd * factor, rel=1e-12)
     assert cal.value(radar, key) == pytest.approx(value * factor, rel=1e-12)
-    assert cal.sigma(radar, key) == pytest.approx(np.sqrt(cal.covariance(radar).diagonal()[
+    assert cal.sigma(radar, key) == pytest.approx(np.sqrt(cal.marginal(radar).diagonal()[
         cal.marginal_labels(radar).index(key)]))
 
 
@@ -219,7 +229,7 @@ def _assert_same(a: Calibration, b: Calibration) -> None:
         assert a.value(radar, key) == pytest.approx(b.value(radar, key), rel=1e-14)
         assert a.sigma(radar, key) == pytest.approx(b.sigma(radar, key), rel=1e-14)
     for radar in a.radar_ids:
-        np.testing.assert_allclose(a.covariance(radar), b.covariance(radar), rtol=1e-14)
+        np.testing.assert_allclose(a.marginal(radar), b.marginal(radar), rtol=1e-14)
     np.testing.assert_allclose(a.correlation(), b.correlation(), rtol=1e-12, atol=1e-15)
     assert a.n_plots == b.n_plots and a.is_3d == b.is_3d and a.warnings == b.warnings
     assert a.observability.degree == pytest.approx(b.observability.degree)
@@ -300,9 +310,9 @@ def test_from_dict_on_an_estimator_result() -> None:
     for radar in cal.radar_ids:
         rows = [i for i, label in enumerate(data["covariance"]["labels"])
                 if label.startswith(f"{radar}.")]
-        np.testing.assert_allclose(cal.covariance(radar), matrix[np.ix_(rows, rows)])
+        np.testing.assert_allclose(cal.marginal(radar), matrix[np.ix_(rows, rows)])
     back = Calibration.from_dict(json.loads(json.dumps(data)))
-    np.testing.assert_allclose(back.covariance("A", "B"), cal.covariance("A", "B"), rtol=1e-12)
+    np.testing.assert_allclose(back.marginal("A", "B"), cal.marginal("A", "B"), rtol=1e-12)
 
 
 # ------------------------------------------------------------------- CLI
