@@ -7,7 +7,6 @@ environment (``error: out.json: disk full``), never a traceback.
 
 from __future__ import annotations
 
-import functools
 import inspect
 import os
 import sys
@@ -19,7 +18,7 @@ import typer
 from graphcal.cli.calibrate import calibrate_command
 from graphcal.cli.common import (
     EXIT_BAD_INPUT,
-    check_seed,
+    TERMINATED_BY,
     console,
     install_signal_handlers,
     route_warnings,
@@ -78,21 +77,6 @@ def _summary(command: Callable[..., object]) -> str:
     return " ".join((inspect.getdoc(command) or "").split("\n\n")[0].split())
 
 
-def _seed_checked(command: Callable[..., object]) -> Callable[..., object]:
-    """``command``, refusing a negative ``--seed`` first (:func:`check_seed`) when it has
-    one (``simulate``, ``compare``): numpy takes only non-negative seeds."""
-    if "seed" not in inspect.signature(command).parameters:
-        return command
-
-    @functools.wraps(command)
-    def checked(*args: object, **kwargs: object) -> object:
-        seed = kwargs.get("seed")
-        check_seed(seed if isinstance(seed, int) else None)
-        return command(*args, **kwargs)
-
-    return checked
-
-
 for _name, _command in [
     ("simulate", simulate_command), ("calibrate", calibrate_command),
     ("noise", noise_command), ("fuse", fuse_command), ("methods", methods_command),
@@ -100,7 +84,7 @@ for _name, _command in [
     ("import-asterix", import_asterix_command), ("observability", observability_command),
     ("report", report_command), ("correct", correct_command), ("history", history_command),
 ]:
-    app.command(name=_name, short_help=_summary(_command))(_seed_checked(_command))
+    app.command(name=_name, short_help=_summary(_command))(_command)
 
 
 #: Environment variable that lets a defect's traceback through (``GRAPHCAL_DEBUG=1``).
@@ -133,6 +117,10 @@ def main() -> None:  # pragma: no cover - console entry point
         _say("error: out of memory; calibrate a long recording in windows (--window 1h)")
         status = EXIT_BAD_INPUT
     except Exception as exc:  # a defect of graphcal: one line, the traceback on request
+        if TERMINATED_BY:  # SIGTERM's exit, wrapped by the code it interrupted (an import)
+            _say("error: terminated")
+            exit_at_once(128 + TERMINATED_BY[0])
+            return
         if os.environ.get(DEBUG_ENV):
             raise
         _say(f"error: internal error ({type(exc).__name__}: {exc}); please report it with "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated
 
@@ -19,6 +20,7 @@ from graphcal.cli.common import (
     err_console,
     errors_to_exit,
     fail,
+    print_wrapped,
     progress_bar,
 )
 
@@ -231,7 +233,7 @@ def calibrate_command(
         start_reading(dataset_dir, window, clean=clean, force=force)
     from graphcal.io.folder import SITES_FILE, load_dataset, load_epoch_utc, load_sites
     from graphcal.pipeline.calibrate import calibrate as run_calibration
-    from graphcal.reporting.tables import calibration_tables
+    from graphcal.reporting.tables import calibration_tables, sigma_footnote
 
     with errors_to_exit():
         truth_path = truth if truth is not None else dataset_dir / "truth.json"
@@ -254,7 +256,7 @@ def calibrate_command(
                              else dataset.plots["radar_id"].astype(str).unique())
         if dataset is not None and dataset.cleaning is not None:
             for line in dataset.cleaning.summary():
-                err_console.print(f"cleaning: {line}", highlight=False)
+                print_wrapped(line, err_console, label="cleaning:")
         if method is None:
             method = "graph"
         try:
@@ -292,7 +294,7 @@ def calibrate_command(
                 write_cat063(cat063, cal, codes, radar_kinds_from_sites(sites))
             except ValueError as exc:
                 fail(f"--cat063 {cat063}: {exc}", EXIT_BAD_INPUT)
-            err_console.print(f"wrote {cat063}", highlight=False)
+            print_wrapped(str(cat063), err_console, label="wrote")
         if history is not None:
             _append_history(history, cal, sites, dataset, dataset_dir, epoch_utc, {
                 "method": method, "window": window, "cross": cross, "robust": robust,
@@ -305,10 +307,17 @@ def calibrate_command(
             if report.suffix != ".html":
                 fail(f"--report {report}: the file must end in .html", EXIT_BAD_INPUT)
             write_report_for(cal, dataset, report, truth_path=truth, command=command_line())
-            err_console.print(f"wrote {report}", highlight=False)
+            print_wrapped(str(report), err_console, label="wrote")
         if out is not None:
             cal.write_json(out)
-            err_console.print(f"wrote {out}", highlight=False)
+            print_wrapped(str(out), err_console, label="wrote")
+            obs = cal.observability
+            # The table is left out with --out: say so, and where to find it.
+            print_wrapped(f"{out}: method {cal.method}, {len(cal.radar_ids)} radars, "
+                          f"{len(cal.labels)} estimated parameters, observability degree "
+                          f"{obs.degree:.3g}, rank {obs.rank} of {obs.n_parameters}; the "
+                          f"table: graphcal marginals {out} (or calibrate without --out)",
+                          console)
             _print_warnings(cal, dataset, method)
             return
         if truth_data is not None and cal.series is not None:
@@ -321,11 +330,12 @@ def calibrate_command(
             _print_windows(cal)
         for table in calibration_tables(cal, truth_data, console.width):
             console.print(table)
+        footnote = sigma_footnote(cal)
+        if footnote is not None:  # what the sigmas are (the paper methods)
+            print_wrapped(footnote, out=console)
         obs = cal.observability
-        console.print(
-            f"observability degree {obs.degree:.3g}, rank {obs.rank} of {obs.n_parameters}",
-            highlight=False,
-        )
+        print_wrapped(f"observability degree {obs.degree:.3g}, rank {obs.rank} of "
+                      f"{obs.n_parameters}", console)
         _print_warnings(cal, dataset, method)
 
 
@@ -359,7 +369,7 @@ def _print_warnings(cal, dataset, method: str) -> None:
     if dataset is not None and dataset.cleaning is not None and method != "graph":
         warnings = [w for w in dataset.cleaning.warnings if w not in warnings] + warnings
     for warning in warnings:
-        console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False, soft_wrap=True)
+        print_wrapped(warning, label="warning:", style="yellow", out=console)
 
 
 def _append_history(path: Path, cal, sites, dataset, dataset_dir: Path, epoch_utc,
@@ -381,7 +391,7 @@ def _append_history(path: Path, cal, sites, dataset, dataset_dir: Path, epoch_ut
         "sensor_models": {rid: site.model for rid, site in sites.items()
                           if getattr(site, "model", None)},
     })
-    err_console.print(f"appended run {run_id} to {path}", highlight=False)
+    print_wrapped(f"run {run_id} to {path}", err_console, label="appended")
 
 
 def _print_windows(cal) -> None:
@@ -393,11 +403,10 @@ def _print_windows(cal) -> None:
     first = min(e["t_start_s"] for e in entries)
     last = max(e["t_end_s"] for e in entries)
     last_start = max(e["t_start_s"] for e in entries)
-    console.print(
+    print_wrapped(
         f"{cal.info['windows']['n_windows']} windows of {format_duration(series['window_s'])}, "
         f"{first:.0f}-{last:.0f} s. Below: the last window ({last_start:.0f}-{last:.0f} s); "
-        "every window and the steps: --out JSON.",
-        highlight=False)
+        "every window and the steps: --out JSON.", out=console)
 
 
 def _progress_label(method: str, select: str | None) -> str:
@@ -408,14 +417,13 @@ def _progress_label(method: str, select: str | None) -> str:
 
 def _print_selection(summary: dict) -> None:
     """The one-line account of ``calibrate --select``."""
-    err_console.print(
+    print_wrapped(
         f"selection {summary['method']}: kept {summary['observations_kept']} of "
         f"{summary['observations_total']} observations ({summary['units_kept']} of "
         f"{summary['units_total']} {summary['unit']}s), Deg {summary['degree']:.3g} (all: "
-        f"{summary['degree_all']:.3g}), {summary['seconds']:.1f} s", highlight=False,
-    )
+        f"{summary['degree_all']:.3g}), {summary['seconds']:.1f} s", err_console)
     for note in summary.get("notes", []):
-        err_console.print(f"selection: {note}", highlight=False)
+        print_wrapped(note, err_console, label="selection:")
 
 
 def _parse_drift_options(items: list[str]) -> dict[str, float]:
@@ -440,10 +448,13 @@ def _parse_break_options(items: list[str]) -> dict[str, list[float]]:
         if not sep or not rid:
             raise ValueError(f"--break {item!r}: expected RADAR@TIME, e.g. NORD@43200")
         try:
-            breaks.setdefault(rid, []).append(float(text))
+            time_s = float(text)
         except ValueError:
             raise ValueError(f"--break {item!r}: time '{text}' is not a number of "
                              "seconds") from None
+        if not math.isfinite(time_s):
+            raise ValueError(f"--break {item!r}: the time must be a finite number of seconds")
+        breaks.setdefault(rid, []).append(time_s)
     return breaks
 
 
@@ -458,6 +469,8 @@ def _parse_fix_options(items: list[str]) -> dict[str, float]:
             fixed[target] = float(text)
         except ValueError:
             raise ValueError(f"--fix {item!r}: value '{text}' is not a number") from None
+        if not math.isfinite(fixed[target]):
+            raise ValueError(f"--fix {item!r}: the value must be a finite number")
     return fixed
 
 

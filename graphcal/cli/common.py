@@ -64,6 +64,74 @@ def fail(message: str, status: int) -> NoReturn:
     raise typer.Exit(status)
 
 
+#: Indent of the continuation lines of a wrapped message (:func:`print_wrapped`).
+HANGING_INDENT = 2
+
+
+def wrap_words(text: str, width: int, indent: int = HANGING_INDENT) -> list[str]:
+    """``text`` as lines of at most ``width`` characters, broken at spaces only, the lines
+    after the first indented by ``indent`` spaces (a hanging indent).
+
+    A number, a name or a path is never cut: a word longer than a line stays whole on a
+    line of its own.  Line breaks in ``text`` are kept.
+    """
+    import re
+    import textwrap
+
+    width = max(int(width), indent + 20)
+    # "1.2 ± 0.3" and "12.5 s" stay on one line: their spaces become a character that
+    # textwrap does not break at, put back afterwards.
+    glue = "\ue000"
+    text = re.sub(r"(?<=\d) (?=± )|(?<=±) (?=[-+]?\d)", glue, text)
+    text = re.sub(r"(?<=\d) (?=(?:s|ms|m|km|mrad|deg|°|%|m²/s³)(?![\w/]))", glue, text)
+    lines: list[str] = []
+    for k, paragraph in enumerate(text.split("\n")):
+        wrapped = textwrap.wrap(
+            paragraph, width=width, initial_indent=" " * indent if k else "",
+            subsequent_indent=" " * indent, break_long_words=False, break_on_hyphens=False)
+        lines.extend(line.replace(glue, " ") for line in wrapped or [""])
+    return lines
+
+
+def print_wrapped(text: str, out: Console | None = None, *, label: str = "",
+                  style: str | None = None, indent: int = HANGING_INDENT) -> None:
+    """Print ``label text`` (e.g. ``warning: ...``, ``wrote PATH``) wrapped at the width
+    of ``out`` (default :data:`console`; piped: ``COLUMNS`` or :data:`PLAIN_WIDTH`) with a
+    hanging indent, at spaces only (:func:`wrap_words`).
+
+    ``text`` is plain text, never rich markup (square brackets print as they are); only
+    ``label`` takes ``style`` (e.g. ``"yellow"``).
+    """
+    from rich.text import Text
+
+    out = console if out is None else out
+    head = f"{label} " if label else ""
+    for k, line in enumerate(wrap_words(head + text, out.width, indent)):
+        shown = Text(line)
+        if k == 0 and label and style:
+            shown.stylize(style, 0, len(label))
+        out.print(shown, highlight=False, soft_wrap=True)
+
+
+def check_positive(value: float | None, option: str, what: str = "a positive number") -> None:
+    """Refuse (exit 2) a number that is not finite and above zero (``None`` passes):
+    ``--grid-s must be a positive number of seconds, not -1.0``."""
+    import math
+
+    if value is None:
+        return
+    if not (isinstance(value, int | float) and not isinstance(value, bool)
+            and math.isfinite(value) and value > 0):
+        fail(f"{option} must be {what}, not {value}", EXIT_BAD_INPUT)
+
+
+def check_count(value: int | None, option: str, what: str = "a positive integer") -> None:
+    """Refuse (exit 2) an integer below 1 (``None`` passes): ``--runs must be a positive
+    integer, not 0``."""
+    if value is not None and value < 1:
+        fail(f"{option} must be {what}, not {value}", EXIT_BAD_INPUT)
+
+
 def check_choice(value: str | None, option: str, choices: Sequence[str],
                  what: str = "value") -> None:
     """Refuse (exit 2) a ``value`` of ``option`` that is not one of ``choices``:
@@ -300,6 +368,11 @@ def route_warnings() -> None:
     warnings.showwarning = show
 
 
+#: The signal that ended the command, once :func:`install_signal_handlers`' handler ran
+#: (the exit it raises can surface as another exception, e.g. inside an extension's import).
+TERMINATED_BY: list[int] = []
+
+
 def install_signal_handlers() -> None:
     """SIGTERM ends the command as an interruption (``SystemExit(143)`` in the main
     thread), so every ``finally`` and ``with`` block runs and temporary files and
@@ -317,6 +390,7 @@ def install_signal_handlers() -> None:
             os.kill(os.getpid(), signum)
             return
         signal.signal(signum, signal.SIG_DFL)  # a second SIGTERM ends at once
+        TERMINATED_BY.append(signum)
         raise SystemExit(128 + signum)
 
     signal.signal(signal.SIGTERM, terminate)
@@ -481,12 +555,16 @@ __all__ = [
     "EXIT_BAD_INPUT",
     "EXIT_ESTIMATION_FAILED",
     "FORCE_HELP",
+    "HANGING_INDENT",
     "PLAIN_PROGRESS_INTERVAL_S",
     "PLAIN_WIDTH",
+    "TERMINATED_BY",
     "command_line",
     "check_choice",
+    "check_count",
     "check_distinct_outputs",
     "check_input_path",
+    "check_positive",
     "check_seed",
     "foreign_entries",
     "install_signal_handlers",
@@ -500,5 +578,7 @@ __all__ = [
     "parse_sac_sic",
     "route_warnings",
     "plain_width",
+    "print_wrapped",
     "progress_bar",
+    "wrap_words",
 ]

@@ -14,6 +14,7 @@ from graphcal.cli.common import (
     console,
     err_console,
     errors_to_exit,
+    print_wrapped,
     progress_bar,
 )
 
@@ -42,17 +43,14 @@ def correct_command(
                                    force=force)
     if corrected.cleaning is not None:
         for line in corrected.cleaning.summary():
-            err_console.print(f"cleaning: {line} (not written)", highlight=False)
-    console.print(
-        f"wrote {out}: {len(corrected.plots)} corrected plots of {len(corrected.sites)} radars",
-        highlight=False,
-    )
+            print_wrapped(f"{line} (not written)", err_console, label="cleaning:")
+    print_wrapped(f"{out}: {len(corrected.plots)} corrected plots of "
+                  f"{len(corrected.sites)} radars", label="wrote", out=console)
     with errors_to_exit():
         missing = sorted(set(corrected.sites) - set(read_biases(result)))
     if missing:
-        console.print(f"[yellow]warning:[/yellow] {result} has no biases for "
-                      f"{', '.join(missing)}: their plots are written uncorrected",
-                      highlight=False)
+        print_wrapped(f"{result} has no biases for {', '.join(missing)}: their plots are "
+                      "written uncorrected", label="warning:", style="yellow", out=console)
 
 
 __all__ = ["correct_command"]

@@ -16,6 +16,7 @@ from graphcal.cli.common import (
     err_console,
     errors_to_exit,
     fail,
+    print_wrapped,
     progress_bar,
 )
 
@@ -52,7 +53,7 @@ def report_command(
                  EXIT_BAD_INPUT)
         with progress_bar("writing the report"):
             write_report_for(cal, dataset, out, truth_path=truth, command=command_line())
-    err_console.print(f"wrote {out}", highlight=False)
+    print_wrapped(str(out), err_console, label="wrote")
 
 
 __all__ = ["report_command"]

@@ -15,8 +15,13 @@ from graphcal.cli.common import (
     console,
     errors_to_exit,
     fail,
+    print_wrapped,
     progress_bar,
 )
+
+#: Shortest ``--chunk`` [s]: a radar sweeps once in a few seconds; a shorter chunk only
+#: multiplies the files' row groups.
+MIN_CHUNK_S = 1.0
 
 
 def simulate_command(
@@ -47,10 +52,15 @@ def simulate_command(
     check_output_folder(out, "--out", overwrite=overwrite, inputs=[scenario])
     chunk_s = None
     if chunk is not None:
+        if chunk.strip().startswith("-"):
+            fail(f"--chunk must be a positive duration (e.g. 1h), not {chunk}", EXIT_BAD_INPUT)
         try:
             chunk_s = parse_duration(chunk)
         except ValueError as exc:
             fail(f"--chunk: {exc}", EXIT_BAD_INPUT)
+        if chunk_s < MIN_CHUNK_S:  # a chunk per sweep or less: millions of chunks
+            fail(f"--chunk must be a duration of at least {MIN_CHUNK_S:g} s, not {chunk}",
+                 EXIT_BAD_INPUT)
     with errors_to_exit():
         spec = load_scenario(scenario)
         rng = np.random.default_rng(seed)
@@ -67,9 +77,8 @@ def simulate_command(
         else:
             n_radars, n_plots, n_adsb = len(streamed.n_plots), streamed.total_plots, \
                 streamed.n_adsb
-    console.print(
-        f"wrote {out}: {n_radars} radars, {n_plots} plots, {n_adsb} ADS-B reports (seed {seed})"
-    )
+    print_wrapped(f"{out}: {n_radars} radars, {n_plots} plots, {n_adsb} ADS-B reports "
+                  f"(seed {seed})", label="wrote", out=console)
 
 
 __all__ = ["simulate_command"]

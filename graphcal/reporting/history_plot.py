@@ -3,10 +3,11 @@
 One panel per radar (rows) and bias key (columns).  Each window of a run is drawn as
 its estimate, a horizontal segment over the window, inside its shaded ``± 2 sigma``
 band; consecutive windows of a run are joined at their middles.  Dashed lines mark
-the tolerance ``± tol`` when it falls inside the panel's range (otherwise a note in the
-panel's corner gives it), crosses and circles the windows flagged ``outside`` and
-``possibly`` (:func:`graphcal.pipeline.history.flag_tolerances`), and dotted vertical
-lines the detected events with their size.  Times are UTC when every run has an epoch, else
+the tolerance ``± tol`` when it falls inside the panel's range (otherwise a note above
+the panel, right of its title, gives it), crosses and circles the windows flagged
+``outside`` and ``possibly`` (:func:`graphcal.pipeline.history.flag_tolerances`), and
+dotted vertical lines the detected events with their size, labelled in a strip kept free
+above the data.  Range gains are drawn in ppm.  Times are UTC when every run has an epoch, else
 hours on the datasets' time base.  matplotlib's Agg backend; written atomically.
 """
 
@@ -82,7 +83,8 @@ def _draw_reference_lines(ax: Any, rows: pd.DataFrame, unit: str) -> None:
     """Zero and ``± tol`` lines inside the panel's data range; a note for a tolerance beyond.
 
     Drawn after the data, keeping the data's range: a far tolerance would squash the
-    windows into a line.
+    windows into a line.  The note goes above the panel, right of its title, where it
+    cannot cover a window.
     """
     low, high = ax.get_ylim()
     if low <= 0.0 <= high:
@@ -94,25 +96,52 @@ def _draw_reference_lines(ax: Any, rows: pd.DataFrame, unit: str) -> None:
             ax.axhline(tol, color=TOLERANCE_COLOUR, linestyle="--", linewidth=1)
             ax.axhline(-tol, color=TOLERANCE_COLOUR, linestyle="--", linewidth=1)
         else:
-            notes.append(f"±{tol:.3g}{'' if unit == 'fraction' else f' {unit}'}")
+            notes.append(f"±{tol:.3g}{f' {unit}' if unit else ''}")
     if notes:
-        ax.text(0.02, 0.03, f"tolerance {', '.join(notes)}: off scale", transform=ax.transAxes,
-                fontsize=7, color=TOLERANCE_COLOUR, va="bottom", zorder=6,
-                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.5})
+        ax.set_title(f"tolerance {', '.join(notes)} off scale", loc="right", fontsize=7,
+                     color=TOLERANCE_COLOUR)
     ax.set_ylim(low, high)
 
 
-def _draw_events(ax: Any, events: pd.DataFrame, key: str, unit: str, utc: bool) -> None:
-    """Dotted vertical lines at the radar's events that concern ``key``, with their size."""
+#: Share of a panel's height kept free above the data for the events' labels.
+EVENT_HEADROOM = 0.18
+
+
+def _draw_events(ax: Any, events: pd.DataFrame, key: str, unit: str, utc: bool,
+                 scale: float = 1.0) -> None:
+    """Dotted vertical lines at the radar's events that concern ``key``, with their size.
+
+    The labels sit in a strip added above the data (:data:`EVENT_HEADROOM`), left of their
+    line in the right half of the panel and right of it in the left half, so that they
+    cover no window.
+    """
     mine = events[(events["key"] == key) | events["key"].isna()]
+    if mine.empty:
+        return
+    low, high = ax.get_ylim()
+    ax.set_ylim(low, high + (high - low) * EVENT_HEADROOM / (1.0 - EVENT_HEADROOM))
+    left, right = ax.get_xlim()
     for _, event in mine.iterrows():
         utc_value = pd.Series([event["time_utc"]]) if utc else None
         x = _x(pd.Series([event["time_s"]]), utc_value, utc)[0]
         ax.axvline(x, color="black", linestyle=":", linewidth=1.2)
         size = event["size"]
-        label = event["kind"] if pd.isna(size) else f"{event['kind']} {size:+.3g} {unit}"
+        label = (event["kind"] if pd.isna(size)
+                 else f"{event['kind']} {size * scale:+.3g}{f' {unit}' if unit else ''}")
+        position = _axis_number(x)
+        before = position > _axis_number(left) + 0.5 * (_axis_number(right) - _axis_number(left))
         ax.annotate(label, (x, 1.0), xycoords=("data", "axes fraction"), fontsize=7,
-                    ha="left", va="top", xytext=(2, -2), textcoords="offset points")
+                    ha="right" if before else "left", va="top",
+                    xytext=(-3 if before else 3, -2), textcoords="offset points")
+
+
+def _axis_number(x: Any) -> float:
+    """An abscissa as a number (matplotlib's date numbers for datetimes)."""
+    if isinstance(x, (np.datetime64, pd.Timestamp)):
+        from matplotlib.dates import date2num
+
+        return float(date2num(pd.Timestamp(x).to_pydatetime()))
+    return float(x)
 
 
 def _concise_dates(ax: Any) -> None:
@@ -221,10 +250,18 @@ def _panel(ax: Any, rows: pd.DataFrame, events: pd.DataFrame | None, radar: str,
            colours: dict[int, Any], utc: bool) -> None:
     """One radar's bias ``key``: every run's windows, the tolerance and the events."""
     unit = key_unit(key)
+    scale = 1.0
+    if unit == "fraction":  # a range gain reads in ppm: -148 ppm, not -0.000148
+        scale, unit = 1e6, "ppm"
+        rows = rows.copy()
+        for column in ("value", "sigma", "tolerance"):
+            if column in rows:
+                rows[column] = rows[column] * scale
     model = None if rows.empty else rows["sensor_model"].iloc[0]
     ax.set_title(radar if model is None or pd.isna(model) else f"{radar} ({model})",
                  loc="left", fontsize=9)
-    ax.set_ylabel(f"{key} [{unit}]" if unit else key, fontsize=8)
+    name = key.removesuffix(f"_{key_unit(key)}")
+    ax.set_ylabel(f"{name} [{unit}]" if unit else key, fontsize=8)
     ax.tick_params(labelsize=7)
     ax.grid(True, alpha=0.3)
     if rows.empty:
@@ -235,7 +272,7 @@ def _panel(ax: Any, rows: pd.DataFrame, events: pd.DataFrame | None, radar: str,
         _draw_run(ax, run_rows, colours[int(run_id)], utc)
     _draw_reference_lines(ax, rows, unit)
     if events is not None and not events.empty:
-        _draw_events(ax, events, key, unit, utc)
+        _draw_events(ax, events, key, unit, utc, scale)
 
 
 __all__ = ["DPI", "PLOT_FORMATS", "plot_history"]

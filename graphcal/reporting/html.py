@@ -80,6 +80,7 @@ from graphcal.reporting.report_residuals import (
     pair_summaries,
     residual_views,
 )
+from graphcal.reporting.tables import sigma_footnote
 
 #: Section ids, in page order.
 SECTIONS: tuple[tuple[str, str], ...] = (
@@ -280,6 +281,9 @@ def _estimates_section(cal: Calibration, truth: Mapping[str, RadarBias] | None,
                  "azimuth and elevation bias mrad, time offset ms; the result JSON keeps the "
                  "contract units (m, fraction, mrad, s). Decimals follow σ (two significant "
                  f"digits). Method: {_esc(cal.method or '?')}.</p>")
+    footnote = sigma_footnote(cal)
+    if footnote is not None:  # what the sigmas are (the paper methods)
+        parts.append(f'<p class="note sigma">{_esc(footnote)}.</p>')
     if cal.atmosphere is not None:
         parts.append('<p class="note">Height model of pressure altitudes: height above the '
                      "ellipsoid = (1 + height scale) × pressure altitude + height offset.</p>")
@@ -420,7 +424,7 @@ def _residuals_section(views: Mapping[str, ResidualView], emit, rng) -> str:
                 "sd after", "expected σ", "outliers left out"], rows, left=3,
                row_classes=classes),
         f'<p class="note">Each panel\'s vertical axis spans the {lo:g}th–{hi:g}th percentile '
-        "of its residuals (padded by 10 %); points beyond are not drawn and counted in the "
+        "of its residuals (padded by 10 %); points beyond are not drawn and counted above the "
         f"panel. Scatter panels show at most {MAX_SCATTER} randomly chosen points per radar "
         "and stage; statistics use every residual. Dashed: the expected ± 1σ (radar noise "
         "plus the reference's, from sites.toml and the ADS-B accuracy). Outliers: residuals "
@@ -432,7 +436,8 @@ def _residuals_section(views: Mapping[str, ResidualView], emit, rng) -> str:
     return "".join(parts)
 
 
-def _binned_section(views: Mapping[str, ResidualView], emit) -> str:
+def _binned_section(views: Mapping[str, ResidualView], emit,
+                    epoch_utc: datetime | None = None) -> str:
     if not views:
         return "<p>No residuals to bin.</p>"
     parts = ['<p>Corrected residuals in bins of equal counts (azimuth: 30° bins): the line is '
@@ -443,7 +448,8 @@ def _binned_section(views: Mapping[str, ResidualView], emit) -> str:
              "radar's elevation is that of its plot's height at its range.</p>"]
     for rid, view in views.items():
         parts.append(f"<h3>{_esc(rid)}</h3>"
-                     + emit("binned", binned_figure(view), f"{rid} binned residuals"))
+                     + emit("binned", binned_figure(view, epoch_utc),
+                            f"{rid} binned residuals"))
     return "".join(parts)
 
 
@@ -492,7 +498,7 @@ def _histograms_section(views: Mapping[str, ResidualView], emit) -> str:
 
 
 # --------------------------------------------------------------- model checks
-def _model_checks_section(cal: Calibration, emit) -> str:
+def _model_checks_section(cal: Calibration, emit, epoch_utc: datetime | None = None) -> str:
     """The model-checks section from ``info["model_checks"]`` (a note when absent)."""
     checks = cal.info.get("model_checks")
     if not isinstance(checks, Mapping):
@@ -529,8 +535,12 @@ def _model_checks_section(cal: Calibration, emit) -> str:
                 else "",
             ])
     for rid, entry in radars.items():
+        if not entry.get("tests"):  # a small dataset: nothing to draw
+            parts.append(f"<h3>{_esc(rid)}</h3><p>No test: too few residuals to bin "
+                         f"({_esc(entry.get('n_plots', 0))} plots checked).</p>")
+            continue
         parts.append(f"<h3>{_esc(rid)}</h3>"
-                     + emit("model-checks", model_checks_figure(rid, entry),
+                     + emit("model-checks", model_checks_figure(rid, entry, epoch_utc),
                             f"{rid} model checks"))
     parts.append("<details><summary>Every test</summary>" + _table(
         ["radar", "residual", "against", "bins", "χ²", "dof", "p", "threshold", "", "pattern"],
@@ -740,7 +750,7 @@ def build_report(
         body["correlation"] = emit("correlation", correlation_figure(calibration),
                                    "correlation matrix")
     body["residuals"] = _residuals_section(views, emit, rng)
-    body["binned"] = _binned_section(views, emit)
+    body["binned"] = _binned_section(views, emit, dataset.epoch_utc)
     body["pairs"] = _pairs_section(views)
     body["histograms"] = _histograms_section(views, emit)
     body["map"] = emit("map", map_figure(dataset, corrected, radar_ids, rng), "map") + (
@@ -750,7 +760,7 @@ def build_report(
         "plots are placed at the elevation of their Mode C altitude (0 when unknown). Black "
         "lines: ADS-B tracks of the aircraft seen by the most radars; right, the first of "
         "them with each radar's plots before and after correction.</p>")
-    body["model-checks"] = _model_checks_section(calibration, emit)
+    body["model-checks"] = _model_checks_section(calibration, emit, dataset.epoch_utc)
     body["observability"] = _observability_section(calibration)
     body["data"] = _data_section(calibration, dataset, views)
 

@@ -3,7 +3,7 @@
 * :func:`before_after_figure`: one radar's residuals against range, measured
   (left) and corrected (right) in separate panels, each with its own robust
   limits (:func:`graphcal.reporting.report_residuals.robust_limits`) and the
-  count of points beyond them written in the panel.
+  count of points beyond them written above the panel.
 * :func:`binned_figure`: one radar's corrected residuals binned against range,
   azimuth, elevation and time: mean with a band of ± 1 standard deviation per
   bin, and the expected ± 1 sigma dashed.
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from datetime import datetime
 from typing import Any
 
 import numpy as np
@@ -88,16 +89,20 @@ def before_after_figure(view: ResidualView, rng: np.random.Generator):
 
     One row per residual coordinate; each panel has its own y limits (1st-99th
     percentile, padded); points beyond are not drawn and their count is written
-    in the panel.  The corrected panels show the expected ± 1 sigma (dashed).
+    above the panel, with the mean and sd.  The corrected panels show the expected
+    ± 1 sigma (dashed).
     """
     plt = pyplot()
     coords = _drawn(view)
-    fig, axes = plt.subplots(len(coords), 2, figsize=(10.5, 2.25 * len(coords) + 0.7),
+    fig, axes = plt.subplots(len(coords), 2, figsize=(10.5, 2.45 * len(coords) + 0.9),
                              squeeze=False, sharex=True)
     stages = (("measured (before correction)", view.before, BEFORE_COLOUR),
               ("corrected (after correction)", view.after, AFTER_COLOUR))
     for col, (title, side, colour) in enumerate(stages):
-        axes[0, col].set_title(title, fontsize=10, color=colour)
+        # the stage above its column, clear of the panel's own note (its left title)
+        axes[0, col].annotate(title, (0.5, 1.0), xycoords="axes fraction", xytext=(0, 13),
+                              textcoords="offset points", ha="center", va="bottom",
+                              fontsize=10, color=colour)
         for row, c in enumerate(coords):
             ax = axes[row, col]
             ax.axhline(0.0, color="k", lw=0.6)
@@ -114,8 +119,8 @@ def before_after_figure(view: ResidualView, rng: np.random.Generator):
     fig.suptitle(f"{view.radar_id}: residuals against {_reference_text(view)} versus range",
                  fontsize=11)
     height = fig.get_figheight()
-    fig.subplots_adjust(left=0.085, right=0.99, bottom=0.5 / height, top=1 - 0.55 / height,
-                        hspace=0.12, wspace=0.16)
+    fig.subplots_adjust(left=0.085, right=0.99, bottom=0.5 / height, top=1 - 0.8 / height,
+                        hspace=0.25, wspace=0.16)
     return fig
 
 
@@ -141,15 +146,16 @@ def _scatter_panel(ax, side: Side, c: str, colour: str, rng: np.random.Generator
     note = f"mean {mean:.3g}, sd {sd:.3g} {unit}; n {len(y)}"
     if outside:
         note += f"; {outside} ({100 * outside / len(y):.1f} %) beyond the axis"
-    ax.text(0.01, 0.97, note, transform=ax.transAxes, fontsize=7, va="top",
-            bbox={"facecolor": "white", "alpha": 0.75, "lw": 0, "pad": 1.5})
+    ax.set_title(note, loc="left", fontsize=7, pad=2)  # above the panel: over no point
 
 
 # ------------------------------------------------------------------- binned
-def binned_figure(view: ResidualView):
-    """Corrected residuals binned against range, azimuth, elevation and time (module doc)."""
+def binned_figure(view: ResidualView, epoch_utc: datetime | None = None):
+    """Corrected residuals binned against range, azimuth, elevation and time (module doc).
+
+    ``epoch_utc``: the dataset's epoch (``Dataset.epoch_utc``), for the time axis in UTC.
+    """
     plt = pyplot()
-    from matplotlib.ticker import FuncFormatter, MultipleLocator
 
     coords = _drawn(view)
     variables = list(VARIABLES)
@@ -181,9 +187,7 @@ def binned_figure(view: ResidualView):
                         fontsize=8)
             name, unit, _ = VARIABLES[var]
             if var == "time":
-                ax.xaxis.set_major_locator(MultipleLocator(_time_step_s(side.variables[var])))
-                ax.xaxis.set_major_formatter(FuncFormatter(lambda t, _: clock_text(t)[:5]))
-                ax.set_xlabel("time [UTC, HH:MM]", fontsize=8)
+                clock_axis(ax, side.variables[var], epoch_utc)
             else:
                 ax.set_xlabel(f"{name} [{unit}]", fontsize=8)
             if var == "azimuth":
@@ -197,9 +201,26 @@ def binned_figure(view: ResidualView):
     fig.suptitle(f"{view.radar_id}: corrected residuals against {_reference_text(view)}, "
                  "binned (equal counts; azimuth 30° bins)", fontsize=11, x=0.07, ha="left")
     height = fig.get_figheight()
-    fig.subplots_adjust(left=0.07, right=0.99, bottom=0.55 / height, top=1 - 0.5 / height,
+    fig.subplots_adjust(left=0.07, right=0.975, bottom=0.55 / height, top=1 - 0.5 / height,
                         hspace=0.55, wspace=0.08)
     return fig
+
+
+def clock_axis(ax, time_s: NDArray, epoch_utc: datetime | None = None,
+               fontsize: float = 8) -> None:
+    """An x axis of dataset times [s] labelled as UTC clock times ``HH:MM``, at most five
+    ticks on round clock times; ``epoch_utc`` (the UTC time of 0 s) gives the clock and
+    the date, else 0 s is read as 00:00 UTC (:func:`graphcal.reporting.display.clock_text`)."""
+    from matplotlib.ticker import FuncFormatter, MultipleLocator
+
+    step = _time_step_s(np.asarray(time_s, dtype=float))
+    midnight = 0.0 if epoch_utc is None else (
+        epoch_utc.hour * 3600.0 + epoch_utc.minute * 60.0 + epoch_utc.second
+        + epoch_utc.microsecond / 1e6)
+    ax.xaxis.set_major_locator(MultipleLocator(step, offset=(-midnight) % step))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda t, _: clock_text(t, epoch_utc)[:5]))
+    day = "" if epoch_utc is None else f", {epoch_utc.strftime('%Y-%m-%d')}"
+    ax.set_xlabel(f"time [HH:MM UTC{day}]", fontsize=fontsize)
 
 
 def _time_step_s(time_s: NDArray) -> float:
@@ -237,11 +258,15 @@ def histograms_figure(view: ResidualView):
             x = np.linspace(-width, width, 300)
             ax.plot(x, _gauss(x, sigma), "k", lw=1.5, label=f"N(0, {sigma:.3g} {unit})")
         ax.set_xlabel(_coordinate_label(c), fontsize=8)
+        ax.set_ylabel(f"density [1/{unit}]", fontsize=8)
         ax.tick_params(labelsize=7)
         mean, sd = (float(np.mean(values)), float(np.std(values))) if len(values) else (0, 0)
         ax.set_title(f"{view.radar_id} {c}: mean {mean:.3g}, sd {sd:.3g} {unit}", fontsize=9)
-        ax.legend(fontsize=7)
-    fig.subplots_adjust(left=0.05, right=0.99, bottom=0.17, top=0.88, wspace=0.2)
+        ax.set_ylim(0.0, ax.get_ylim()[1] * 1.3)  # headroom: the legend above the bars
+        ax.legend(fontsize=7, loc="upper right")
+    width = fig.get_figwidth()  # room in inches for the tick labels and the density label
+    fig.subplots_adjust(left=0.75 / width, right=1 - 0.1 / width, bottom=0.17, top=0.88,
+                        wspace=0.3)
     return fig
 
 
@@ -292,7 +317,7 @@ def map_figure(dataset: Dataset, corrected: Dataset, radar_ids: list[str],
     def enu_km(ecef: NDArray) -> NDArray:
         return frames.ecef_to_enu(ecef, lat0, lon0, 0.0)[:, :2] / 1e3
 
-    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12.5, 6.2), width_ratios=(1.25, 1.0))
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(12.5, 7.0), width_ratios=(1.25, 1.0))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     color = {rid: colors[i % len(colors)] for i, rid in enumerate(dataset.radar_ids)}
     cloud = []
@@ -305,6 +330,7 @@ def map_figure(dataset: Dataset, corrected: Dataset, radar_ids: list[str],
         ax0.scatter(xy[:, 0], xy[:, 1], s=3, color=color[rid], alpha=0.35, lw=0,
                     rasterized=True)
     handles = []
+    sites: list[tuple[str, float, float]] = []
     for rid, site in dataset.sites.items():
         x, y = enu_km(site.ecef_m[None, :])[0]
         plots = dataset.plots_of(rid)
@@ -321,11 +347,10 @@ def map_figure(dataset: Dataset, corrected: Dataset, radar_ids: list[str],
                                       label=f"{rid}: every {step:.0f} km, farthest plot "
                                             f"{max_km:.0f} km"))
         ax0.plot(x, y, "^", color=color[rid], mec="k", ms=10, zorder=5)
-        ax0.annotate(rid, (x, y), xytext=(6, 4), textcoords="offset points", fontsize=9,
-                     weight="bold", zorder=6)
-    if handles:
-        ax0.legend(handles=handles, fontsize=7, loc="upper left", title="range rings",
-                   title_fontsize=7, framealpha=0.85)
+        sites.append((rid, x, y))
+    if handles:  # under the map, where it covers no ring or plot
+        ax0.legend(handles=handles, fontsize=7, loc="upper center", title="range rings",
+                   title_fontsize=7, bbox_to_anchor=(0.5, -0.1), ncol=2, frameon=False)
     extent = np.concatenate(cloud) if cloud else np.zeros((1, 2))
     lo, hi = extent.min(axis=0), extent.max(axis=0)
     pad = 0.03 * float(max(hi - lo)) + 2.0
@@ -347,8 +372,74 @@ def map_figure(dataset: Dataset, corrected: Dataset, radar_ids: list[str],
         ax.grid(alpha=0.3)
     ax0.set_aspect("equal", adjustable="box")
     ax1.set_aspect("equal", adjustable="datalim")
-    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.09, top=0.93, wspace=0.2)
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.2, top=0.94, wspace=0.2)
+    place_site_labels(ax0, sites)
     return fig
+
+
+#: Offsets [points] tried for a site's label, nearest first: (dx, dy, ha, va).
+_LABEL_OFFSETS = tuple(
+    (sx * r, sy * r, "left" if sx > 0 else "right" if sx < 0 else "center",
+     "bottom" if sy > 0 else "top" if sy < 0 else "center")
+    for r in (7.0, 14.0, 24.0, 36.0)
+    for sx, sy in ((1, 1), (1, -1), (-1, 1), (-1, -1), (0, 1.2), (0, -1.2), (1.2, 0),
+                   (-1.2, 0))
+)
+#: Half-size [points] of a site's marker kept free of labels.
+_MARKER_HALF_PT = 6.0
+
+
+def place_site_labels(ax, sites: list[tuple[str, float, float]], fontsize: float = 9):
+    """Label each site ``(id, x, y)`` where the label covers no other label, no site's
+    marker and not the legend: the first free offset of :data:`_LABEL_OFFSETS` in the Agg
+    renderer's text boxes (greedy, in the order given), with a thin leader line when it is
+    not one of the nearest; the nearest when none is free.  Returns the labels.
+    """
+    from matplotlib.transforms import Bbox
+
+    fig = ax.figure
+    ax.apply_aspect()
+    renderer = fig.canvas.get_renderer()
+    points = fig.dpi / 72.0  # pixels per point
+    taken: list[Any] = []
+    for _, x, y in sites:
+        px, py = ax.transData.transform((x, y))
+        half = _MARKER_HALF_PT * points
+        taken.append(Bbox([[px - half, py - half], [px + half, py + half]]))
+    legend = ax.get_legend()
+    if legend is not None:
+        taken.append(legend.get_window_extent(renderer))
+    axes_box = ax.get_window_extent(renderer)
+    labels = []
+    for rid, x, y in sites:
+        chosen = None
+        for k, (dx, dy, ha, va) in enumerate(_LABEL_OFFSETS):
+            label = ax.annotate(rid, (x, y), xytext=(dx, dy), textcoords="offset points",
+                                fontsize=fontsize, weight="bold", zorder=6, ha=ha, va=va,
+                                annotation_clip=False)
+            box = label.get_window_extent(renderer).expanded(1.05, 1.1)
+            inside = (axes_box.x0 <= box.x0 and box.x1 <= axes_box.x1
+                      and axes_box.y0 <= box.y0 and box.y1 <= axes_box.y1)
+            if inside and not any(box.overlaps(other) for other in taken):
+                chosen = (label, box, k)
+                break
+            label.remove()
+        if chosen is None:  # nowhere free: the nearest place
+            dx, dy, ha, va = _LABEL_OFFSETS[0]
+            label = ax.annotate(rid, (x, y), xytext=(dx, dy), textcoords="offset points",
+                                fontsize=fontsize, weight="bold", zorder=6, ha=ha, va=va)
+            chosen = (label, label.get_window_extent(renderer), 0)
+        label, box, k = chosen
+        if k >= 8:  # away from its marker: a leader line
+            label.remove()
+            dx, dy, ha, va = _LABEL_OFFSETS[k]
+            label = ax.annotate(rid, (x, y), xytext=(dx, dy), textcoords="offset points",
+                                fontsize=fontsize, weight="bold", zorder=6, ha=ha, va=va,
+                                arrowprops={"arrowstyle": "-", "lw": 0.6, "color": "0.3",
+                                            "shrinkA": 0, "shrinkB": 5})
+        taken.append(box)
+        labels.append(label)
+    return labels
 
 
 def _map_targets(dataset: Dataset) -> list[str]:
@@ -389,7 +480,8 @@ def _zoom_panel(ax, dataset: Dataset, corrected: Dataset, radar_ids: list[str], 
                 label=f"{rid} before")
         ax.plot(after[:, 0], after[:, 1], ".-", ms=4, lw=0.6, color=color[rid],
                 label=f"{rid} after")
-    ax.set_title(f"aircraft {target}, {2 * ZOOM_S:.0f} s around {clock_text(t_mid)} UTC: "
+    ax.set_title(f"aircraft {target}, {2 * ZOOM_S:.0f} s around "
+                 f"{clock_text(t_mid, dataset.epoch_utc)} UTC: "
                  "plots before (x) and after (•)", fontsize=9)
     ax.legend(fontsize=7, ncol=2)
 
@@ -433,10 +525,12 @@ def p_value_text(test: Mapping[str, Any]) -> str:
     return f"1e{log10_p:.0f}" if log10_p is not None else "–"
 
 
-def model_checks_figure(radar_id: str, entry: Mapping[str, Any]):
+def model_checks_figure(radar_id: str, entry: Mapping[str, Any],
+                        epoch_utc: datetime | None = None):
     """One radar's binned residual means, a panel per test (rows: residuals; columns: variables).
 
-    ``entry`` is one radar of ``info["model_checks"]["radars"]``.  Each panel:
+    ``entry`` is one radar of ``info["model_checks"]["radars"]``; ``epoch_utc`` (the
+    dataset's epoch) labels a time axis in UTC.  Each panel:
     bin means ± 1 sigma against the bin centres (the bins' ranges as horizontal
     bars), the part the model's own terms absorb (dashed), zero; a test that
     fired has a red frame and title.
@@ -445,6 +539,12 @@ def model_checks_figure(radar_id: str, entry: Mapping[str, Any]):
     tests = list(entry.get("tests") or [])
     rows = list(dict.fromkeys(t["residual"] for t in tests))
     cols = list(dict.fromkeys(t["against"] for t in tests))
+    if not tests:  # too few residuals for any test: a figure that says so
+        fig, ax = plt.subplots(figsize=(4.0, 1.2))
+        ax.set_axis_off()
+        ax.text(0.5, 0.5, f"{radar_id}: no model-check test (too few residuals)",
+                ha="center", va="center", fontsize=9)
+        return fig
     fig, axes = plt.subplots(len(rows), len(cols), figsize=(3.5 * len(cols) + 0.6,
                                                              2.4 * len(rows) + 0.6),
                              squeeze=False, sharey="row")
@@ -475,7 +575,10 @@ def model_checks_figure(radar_id: str, entry: Mapping[str, Any]):
             for spine in ax.spines.values():
                 spine.set_edgecolor("tab:red")
                 spine.set_linewidth(2)
-        ax.set_xlabel(f"{var} [{vunit}]", fontsize=8, labelpad=1)
+        if var == "time" and vunit == "s" and x.size:
+            clock_axis(ax, np.concatenate([x - lo, x + hi]), epoch_utc)
+        else:
+            ax.set_xlabel(f"{var} [{vunit}]", fontsize=8, labelpad=1)
         first = min(cols.index(u["against"]) for u in tests if u["residual"] == t["residual"])
         if j == first:
             ax.set_ylabel(f"{coord} [{unit}]", fontsize=8)
@@ -491,6 +594,6 @@ def model_checks_figure(radar_id: str, entry: Mapping[str, Any]):
 
 
 __all__ = ["MAX_MAP_POINTS", "MAX_SCATTER", "N_MAP_TRACKS", "ZOOM_S", "before_after_figure",
-           "binned_figure", "correlation_figure", "histograms_figure", "map_figure",
-           "model_checks_figure", "network_centre", "p_value_text", "plots_ecef", "pyplot",
-           "subsample"]
+           "binned_figure", "clock_axis", "correlation_figure", "histograms_figure", "map_figure",
+           "model_checks_figure", "network_centre", "p_value_text", "place_site_labels",
+           "plots_ecef", "pyplot", "subsample"]

@@ -49,3 +49,11 @@ def test_memory_error_names_the_remedy(monkeypatch, capsys):
 def test_interrupt_is_status_130(monkeypatch, capsys):
     assert _run_main(monkeypatch, KeyboardInterrupt()) == 130
     assert capsys.readouterr().err == "error: interrupted\n"
+
+
+def test_sigterm_inside_an_import_is_status_143(monkeypatch, capsys):
+    """SIGTERM's exit raised inside an extension's initialisation surfaces as an
+    ImportError: still the termination (143), not a defect."""
+    monkeypatch.setattr(app_module, "TERMINATED_BY", [15])
+    assert _run_main(monkeypatch, ImportError("initialization failed")) == 143
+    assert capsys.readouterr().err == "error: terminated\n"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -29,9 +28,7 @@ def _run(name: str, seed: int = 2024):
     scenario = load_scenario(SCENARIOS / f"{name}.toml")
     if _needs_missing_file(scenario):
         pytest.skip(f"shared OpenSky table not present: {scenario.opensky.file}")
-    start = time.perf_counter()
-    result = simulate(scenario, np.random.default_rng(seed))
-    return result, time.perf_counter() - start
+    return simulate(scenario, np.random.default_rng(seed))
 
 
 # --------------------------------------------------------------------------- shipped files
@@ -52,10 +49,9 @@ def test_all_expected_scenarios_are_shipped():
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_shipped_scenario_parses_and_simulates(name):
-    result, seconds = _run(name)
+    result = _run(name)
     counts = result.n_plots()
     assert all(n > 0 for n in counts.values()), counts
-    assert seconds < 5.0
     plots = result.dataset.plots
     assert np.all(np.diff(plots["time_s"].to_numpy()) >= 0)
     assert plots["azimuth_deg"].between(0.0, 360.0, inclusive="left").all()
@@ -63,7 +59,7 @@ def test_shipped_scenario_parses_and_simulates(name):
 
 @pytest.mark.parametrize("name", ["paper001_path1", "paper001_path2"])
 def test_paper001_counts_and_settings(name):
-    result, _ = _run(name)
+    result = _run(name)
     assert result.dataset.adsb is None
     for radar_id, n in result.n_plots().items():
         assert 798 <= n <= 802, (radar_id, n)
@@ -84,8 +80,8 @@ def _crowding(result) -> float:
 
 
 def test_paper001_path2_is_crowded_and_path1_is_spread():
-    path1, _ = _run("paper001_path1")
-    path2, _ = _run("paper001_path2")
+    path1 = _run("paper001_path1")
+    path2 = _run("paper001_path2")
     assert _crowding(path2) > 0.7
     assert _crowding(path1) < 0.15
     r1 = path1.plot_truth["range_true_m"][path1.dataset.plots["radar_id"] == "R1"]
@@ -93,7 +89,7 @@ def test_paper001_path2_is_crowded_and_path1_is_spread():
 
 
 def test_paper002_radars_see_the_target():
-    result, _ = _run("paper002_three_radars")
+    result = _run("paper002_three_radars")
     counts = result.n_plots()
     assert set(counts) == {"I", "II", "III"}
     for n in counts.values():
@@ -109,7 +105,7 @@ def test_paper002_radars_see_the_target():
 
 def test_paper003_counts():
     for seed in (1, 2, 3):
-        result, _ = _run("paper003_adsb_2d", seed)
+        result = _run("paper003_adsb_2d", seed)
         assert abs(result.n_plots()["R2D"] - 27) <= 3
         assert abs(len(result.dataset.adsb) - 105) <= 5
     site = result.dataset.sites["R2D"]
@@ -122,7 +118,7 @@ def test_paper003_counts():
 
 
 def test_demo_network_counts():
-    result, seconds = _run("demo_network")
+    result = _run("demo_network")
     counts = result.n_plots()
     assert len(counts) == 5
     assert 20_000 <= sum(counts.values()) <= 40_000
@@ -131,7 +127,6 @@ def test_demo_network_counts():
     sites = result.dataset.sites
     assert sum(s.is_3d for s in sites.values()) == 2
     assert {s.model for s in sites.values()} == {"ssr-mode-s", "air-defence-3d", "psr-approach"}
-    assert seconds < 5.0
 
 
 def test_demo_refraction_is_the_demo_with_refraction():
@@ -143,10 +138,9 @@ def test_demo_refraction_is_the_demo_with_refraction():
     assert straight.radars == demo.radars
     assert (straight.traffic, straight.adsb, straight.origin, straight.duration_s) == (
         demo.traffic, demo.adsb, demo.origin, demo.duration_s)
-    result, seconds = _run("demo_refraction")
+    result = _run("demo_refraction")
     assert all(s.refraction == "exponential" for s in result.dataset.sites.values())
     assert 20_000 <= sum(result.n_plots().values()) <= 40_000
-    assert seconds < 5.0
 
 
 def test_benchmark_network_scenario_parses():

@@ -173,11 +173,15 @@ def test_streaming_refuses_a_non_empty_folder_and_leaves_nothing_on_failure(
 
     original = ChunkedSimulation._chunk
     monkeypatch.setattr(ChunkedSimulation, "_chunk", broken)
+    with pytest.raises(DatasetError, match="not a graphcal dataset"):  # overwrite: datasets only
+        simulate_to_folder(scenario, np.random.default_rng(0), target, chunk_s=600.0,
+                           overwrite=True)
+    (target / "sites.toml").write_text("# an earlier dataset\n")
     with pytest.raises(OSError, match="disk full"):
         simulate_to_folder(scenario, np.random.default_rng(0), target, chunk_s=600.0,
                            overwrite=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
-    assert [p.name for p in target.iterdir()] == ["keep.txt"]
+    assert sorted(p.name for p in target.iterdir()) == ["keep.txt", "sites.toml"]
 
 
 def test_cli_simulate_in_chunks(tmp_path) -> None:
