@@ -82,6 +82,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from graphcal.core.errors import GraphcalInputError, SensorModelError
@@ -713,8 +714,46 @@ def _read_frame(db_path: str | os.PathLike[str], sql: str,
         return pd.read_sql_query(sql, con, params=list(params))
 
 
-def _utc_column(values: pd.Series) -> pd.Series:
-    return pd.to_datetime(values, utc=True, format="ISO8601")
+def _utc_column(values: pd.Series, db_path: str | os.PathLike[str] | None = None,
+                field: str = "epoch_utc") -> pd.Series:
+    """UTC timestamps of ISO 8601 texts (NaT for none); a bad text is a HistoryError
+    naming the file and the field (a database edited or damaged by another tool)."""
+    try:
+        return pd.to_datetime(values, utc=True, format="ISO8601")
+    except (ValueError, TypeError) as exc:
+        raise HistoryError(f"a value that is not an ISO 8601 time ({exc}); the database "
+                           "was changed outside graphcal", path=db_path, field=field) from None
+
+
+def _checked_numbers(frame: pd.DataFrame, db_path: str | os.PathLike[str], table: str,
+                     columns: Mapping[str, str]) -> None:
+    """Coerce ``columns`` of ``frame`` to floats in place and refuse what graphcal never
+    writes: text, or infinite values (``columns``: name -> ``"required"``, ``"optional"``
+    or ``"sigma"``, an optional value that must not be negative).
+
+    Raises
+    ------
+    HistoryError
+        Naming the file, the table, the first bad row's run and the column.
+    """
+    for column, kind in columns.items():
+        raw = frame[column]
+        values = pd.to_numeric(raw, errors="coerce").astype(float)
+        given = raw.notna().to_numpy()
+        finite = np.isfinite(values.to_numpy())
+        bad = given & ~finite
+        if kind == "required":
+            bad |= ~given
+        if kind == "sigma":
+            bad |= finite & (values.to_numpy() < 0)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            run = frame["run_id"].iloc[i] if "run_id" in frame else None
+            raise HistoryError(
+                f"{raw.iloc[i]!r} in table {table}" + (f", run {run}" if run is not None else "")
+                + " is not a valid number; the database was changed outside graphcal",
+                path=db_path, field=column)
+        frame[column] = values
 
 
 def read_runs(db_path: str | os.PathLike[str]) -> pd.DataFrame:
@@ -738,10 +777,18 @@ def read_runs(db_path: str | os.PathLike[str]) -> pd.DataFrame:
         "SELECT r.*, (SELECT count(*) FROM run_radars a WHERE a.run_id = r.run_id) AS n_radars "
         "FROM runs r ORDER BY r.run_id",
     )
-    frame["run_time_utc"] = _utc_column(frame["run_time_utc"])
-    frame["epoch_utc"] = _utc_column(frame["epoch_utc"])
-    frame["window_s"] = frame["window_s"].astype(float)
-    frame.insert(5, "options", [json.loads(text) for text in frame.pop("options_json")])
+    frame["run_time_utc"] = _utc_column(frame["run_time_utc"], db_path, "run_time_utc")
+    frame["epoch_utc"] = _utc_column(frame["epoch_utc"], db_path, "epoch_utc")
+    _checked_numbers(frame, db_path, "runs",
+                     {"t_start_s": "required", "t_end_s": "required", "window_s": "sigma"})
+    options = []
+    for run, text in zip(frame["run_id"], frame.pop("options_json"), strict=True):
+        try:
+            options.append(json.loads(text))
+        except (TypeError, ValueError):
+            raise HistoryError(f"run {run}: not JSON; the database was changed outside "
+                               "graphcal", path=db_path, field="options_json") from None
+    frame.insert(5, "options", options)
     return frame
 
 
@@ -823,9 +870,11 @@ def read_series(
         sql += " WHERE e.radar_id = ?"
         params.append(radar)
     frame = _read_frame(db_path, sql, params)
-    frame["n_plots"] = frame["n_plots"].astype("Int64")
-    frame["sigma"] = frame["sigma"].astype(float)
-    _add_utc(frame, frame.pop("epoch_utc"), ("t_start_s", "t_end_s"))
+    _checked_numbers(frame, db_path, "estimates",
+                     {"t_start_s": "required", "t_end_s": "required", "value": "required",
+                      "sigma": "sigma", "n_plots": "sigma"})
+    frame["n_plots"] = frame["n_plots"].round().astype("Int64")
+    _add_utc(frame, _utc_column(frame.pop("epoch_utc"), db_path), ("t_start_s", "t_end_s"))
     frame = _since(frame, "t_end_s", since)
     rank = frame["key"].map(key_rank)
     order = frame.assign(_rank=rank).sort_values(["radar_id", "t_start_s", "run_id", "_rank"],
@@ -858,9 +907,9 @@ def read_events(
         sql += " WHERE v.radar_id = ?"
         params.append(radar)
     frame = _read_frame(db_path, sql + " ORDER BY v.radar_id, v.time_s, v.event_id", params)
-    for column in ("size", "sigma"):
-        frame[column] = frame[column].astype(float)
-    _add_utc(frame, frame.pop("epoch_utc"), ("time_s",))
+    _checked_numbers(frame, db_path, "events",
+                     {"time_s": "required", "size": "optional", "sigma": "sigma"})
+    _add_utc(frame, _utc_column(frame.pop("epoch_utc"), db_path), ("time_s",))
     return _since(frame, "time_s", since).reset_index(drop=True)
 
 
