@@ -20,6 +20,7 @@ from graphcal.cli.common import (
     err_console,
     errors_to_exit,
     fail,
+    outputs_published_together,
     print_wrapped,
     progress_bar,
 )
@@ -287,30 +288,40 @@ def calibrate_command(
         cal.info.setdefault("timing_s", {})["load_s"] = load_s
         if "selection" in cal.info:
             _print_selection(cal.info["selection"])
-        if cat063 is not None:
-            from graphcal.io.asterix.cat063 import radar_kinds_from_sites, write_cat063
-
-            try:
-                write_cat063(cat063, cal, codes, radar_kinds_from_sites(sites))
-            except ValueError as exc:
-                fail(f"--cat063 {cat063}: {exc}", EXIT_BAD_INPUT)
-            print_wrapped(str(cat063), err_console, label="wrote")
-        if history is not None:
-            _append_history(history, cal, sites, dataset, dataset_dir, epoch_utc, {
-                "method": method, "window": window, "cross": cross, "robust": robust,
-                "adsb": adsb, "fix": fix or [], "drift": drift or [], "break": breaks or [],
-                "steps": steps, "clean": clean})
-        if report is not None:
+        report_text = None
+        if report is not None:  # built first (the slow part), published with the rest
             from graphcal.cli.common import command_line
-            from graphcal.reporting.html import write_report_for
+            from graphcal.reporting.html import build_report_for
 
             if report.suffix != ".html":
                 fail(f"--report {report}: the file must end in .html", EXIT_BAD_INPUT)
-            write_report_for(cal, dataset, report, truth_path=truth, command=command_line())
-            print_wrapped(str(report), err_console, label="wrote")
+            report_text = build_report_for(cal, dataset, truth_path=truth,
+                                           command=command_line())
+        # Every output at once: a SIGTERM or Ctrl-C meanwhile waits for the last one, so
+        # an interruption never leaves some outputs (or a history run) without the others.
+        with outputs_published_together():
+            if cat063 is not None:
+                from graphcal.io.asterix.cat063 import radar_kinds_from_sites, write_cat063
+
+                try:
+                    write_cat063(cat063, cal, codes, radar_kinds_from_sites(sites))
+                except ValueError as exc:
+                    fail(f"--cat063 {cat063}: {exc}", EXIT_BAD_INPUT)
+                print_wrapped(str(cat063), err_console, label="wrote")
+            if report is not None and report_text is not None:
+                from graphcal.core.atomic import atomic_write_text
+
+                atomic_write_text(report, report_text)
+                print_wrapped(str(report), err_console, label="wrote")
+            if out is not None:
+                cal.write_json(out)
+                print_wrapped(str(out), err_console, label="wrote")
+            if history is not None:  # last: a run in the history means every file is there
+                _append_history(history, cal, sites, dataset, dataset_dir, epoch_utc, {
+                    "method": method, "window": window, "cross": cross, "robust": robust,
+                    "adsb": adsb, "fix": fix or [], "drift": drift or [], "break": breaks or [],
+                    "steps": steps, "clean": clean})
         if out is not None:
-            cal.write_json(out)
-            print_wrapped(str(out), err_console, label="wrote")
             obs = cal.observability
             # The table is left out with --out: say so, and where to find it.
             print_wrapped(f"{out}: method {cal.method}, {len(cal.radar_ids)} radars, "

@@ -399,6 +399,30 @@ def install_signal_handlers() -> None:
 
 
 @contextmanager
+def outputs_published_together() -> Iterator[None]:
+    """Hold back SIGTERM and SIGINT while a command publishes its outputs.
+
+    A command that writes several files (``calibrate --out --report --cat063
+    --history``) builds them first and publishes them in this block; a termination
+    asked for meanwhile takes effect when the block ends, so an interruption never
+    leaves some of the outputs without the others.  Outside the main thread (or
+    where signals cannot be masked) it does nothing.
+    """
+    import signal
+
+    held = {signal.SIGTERM, signal.SIGINT}
+    if (threading.current_thread() is not threading.main_thread()
+            or not hasattr(signal, "pthread_sigmask")):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+@contextmanager
 def progress_bar(description: str) -> Iterator[Callable[..., None]]:
     """A progress display yielding ``callback([stage,] done, total)``.
 
@@ -568,6 +592,7 @@ __all__ = [
     "check_seed",
     "foreign_entries",
     "install_signal_handlers",
+    "outputs_published_together",
     "check_output_file",
     "check_output_folder",
     "console",

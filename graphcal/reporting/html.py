@@ -825,6 +825,17 @@ def _write_pdf(path: Path, figures: dict[str, list[Any]]) -> None:
                 plt.close(fig)
 
 
+def build_report_for(cal: Calibration, dataset: Dataset,
+                     truth_path: str | Path | None = None, *,
+                     command: str | None = None) -> str:
+    """The report text :func:`write_report_for` writes, built without writing anything
+    (the slow part: a command builds it first, then publishes all its outputs at once)."""
+    if truth_path is None and dataset.path is not None:
+        candidate = Path(dataset.path) / "truth.json"
+        truth_path = candidate if candidate.exists() else None
+    return build_report(cal, dataset, truth=truth_path, command=command)
+
+
 def write_report_for(cal: Calibration, dataset: Dataset, path: str | Path,
                      truth_path: str | Path | None = None, *,
                      command: str | None = None) -> Path:
