@@ -6,7 +6,12 @@ returns the cleaned table and a :class:`CleaningReport` with the number of rows
 it removed or changed (per reason) and plain-English warnings for what the
 user should know about.  :func:`clean_dataset` runs them all, in this order:
 
-1. rows with NaN or infinite values in required columns (plots and ADS-B);
+1. rows with NaN or infinite values in required columns (plots and ADS-B), and plots
+   whose range is negative or beyond :data:`MAX_PLOT_RANGE_M` (2,000 km: a corrupt
+   value, with a warning naming the first such row); ADS-B reports whose only missing
+   value is ``alt_m`` (a source without a geometric height, such as CAT021 without
+   I021/140) are counted apart, with a warning; a table none of whose reports has a
+   geometric height leaves the calibration without ADS-B, with a warning;
 2. exact duplicate rows (plots and ADS-B);
 3. stale ADS-B reports: the previous horizontal position of the same aircraft
    repeated at a later time;
@@ -19,7 +24,11 @@ user should know about.  :func:`clean_dataset` runs them all, in this order:
    those plots lose their ``target_id``;
 6. coverage checks that only warn: radars without plots, 2-D radars whose
    plots carry no altitude when there is no ADS-B, and groups of radars with
-   no aircraft in common when there is no ADS-B.
+   no aircraft in common when there is no ADS-B;
+7. time-stamp checks that only warn (:func:`time_stamp_warnings`): a table whose
+   times are quantised (whole seconds, or multiples of a step of at least
+   0.1 s: timing noise the stated sigmas leave out), and times of the day that
+   wrap at midnight in both tables alike.
 
 Tables keep the contract's columns and units (degrees, metres, seconds); the
 rows kept are in their original order with a fresh ``RangeIndex``.  Nothing is
@@ -68,13 +77,17 @@ DEFAULT_IDENTITY_MIN_AIRCRAFT = 4
 DEFAULT_IDENTITY_MIN_PLOTS = 5
 #: Longest gap [s] between two ADS-B reports bridged when interpolating to plot times.
 DEFAULT_MAX_GAP_S = 10.0
+#: Longest slant range [m] a plot may have: beyond any radar's reach (a radar 9 km up
+#: sees a target 30 km up at under 1,000 km; paper 002's scenario, without earth
+#: masking, reaches 1,111 km).  A larger range is a corrupt value or another unit.
+MAX_PLOT_RANGE_M = 2_000_000.0
 #: ADS-B horizontal sigma [m] used when the table has no ``sigma_m`` column.
 _FALLBACK_SIGMA_M = 30.0
 
 #: Plot columns that must be finite (``elevation_deg`` only for 3-D radars).
 _PLOT_REQUIRED = ("time_s", "range_m", "azimuth_deg")
-#: ADS-B columns that must be finite.
-_ADSB_REQUIRED = ("time_s", "lat_deg", "lon_deg", "alt_m")
+#: ADS-B columns that must be finite (``alt_m`` is counted apart when only it is missing).
+_ADSB_REQUIRED = ("time_s", "lat_deg", "lon_deg")
 #: Columns that identify a plot (exact duplicates agree on all of them).
 _PLOT_KEY = ("radar_id", "time_s", "range_m", "azimuth_deg", "elevation_deg", "target_id")
 #: Columns that identify an ADS-B report.
@@ -83,9 +96,11 @@ _ADSB_KEY = ("target_id", "time_s", "lat_deg", "lon_deg", "alt_m")
 #: Plain-English description of each count, for :meth:`CleaningReport.summary`.
 REASONS: dict[str, str] = {
     "plots_non_finite": "plots with a missing or infinite required value dropped",
+    "plots_out_of_range": "plots with a range beyond any radar's reach (or negative) dropped",
     "plots_duplicate": "exact duplicate plots dropped",
     "plots_identity_cleared": "plots whose target_id disagrees with its ADS-B: id cleared",
     "adsb_non_finite": "ADS-B reports with a missing or infinite required value dropped",
+    "adsb_no_height": "ADS-B reports without a geometric height (alt_m) not used",
     "adsb_duplicate": "exact duplicate ADS-B reports dropped",
     "adsb_stale": "stale ADS-B reports (previous horizontal position repeated) dropped",
     "adsb_wild": "isolated wild ADS-B reports (impossible speed or turn) dropped",
@@ -111,12 +126,16 @@ class CleaningReport:
         ``(radar_id, target_id, offset_m)`` of each aircraft whose plots had
         their ``target_id`` cleared; ``offset_m`` is its distance from the
         radar's consensus [m].
+    notes : list of str
+        Warnings that :meth:`summary` repeats after the counts, because they change
+        what the calibration can do (no ADS-B left); also in ``warnings``.
     """
 
     counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REASONS, 0))
     warnings: list[str] = field(default_factory=list)
     jumping_aircraft: list[str] = field(default_factory=list)
     mislabelled: list[tuple[str, str, float]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     def merge(self, other: CleaningReport) -> None:
         """Add ``other``'s counts, warnings and findings to this report."""
@@ -125,6 +144,7 @@ class CleaningReport:
         self.warnings.extend(other.warnings)
         self.jumping_aircraft.extend(other.jumping_aircraft)
         self.mislabelled.extend(other.mislabelled)
+        self.notes.extend(other.notes)
 
     @property
     def n_changed(self) -> int:
@@ -132,13 +152,15 @@ class CleaningReport:
         return int(sum(self.counts.values()))
 
     def summary(self) -> list[str]:
-        """One plain-English line per non-zero count, e.g. ``"12 exact duplicate plots dropped"``.
+        """One plain-English line per non-zero count, e.g. ``"12 exact duplicate plots dropped"``,
+        then the :attr:`notes`.
 
         Returns
         -------
         list of str
         """
-        return [f"{n} {REASONS.get(key, key)}" for key, n in self.counts.items() if n]
+        counts = [f"{n} {REASONS.get(key, key)}" for key, n in self.counts.items() if n]
+        return counts + list(self.notes)
 
     def to_dict(self) -> dict[str, object]:
         """JSON-ready form (for a result's ``info``)."""
@@ -209,17 +231,53 @@ def drop_non_finite_plots(
     return out, _report(plots_non_finite=int(bad.sum()))
 
 
-def drop_non_finite_adsb(adsb: pd.DataFrame) -> tuple[pd.DataFrame, CleaningReport]:
-    """Drop ADS-B reports with a NaN or infinite time or position, or no ``target_id``.
+def drop_out_of_range_plots(
+    plots: pd.DataFrame, max_range_m: float = MAX_PLOT_RANGE_M
+) -> tuple[pd.DataFrame, CleaningReport]:
+    """Drop plots whose range is negative or beyond ``max_range_m`` (beyond any radar).
 
-    A non-finite or non-positive ``sigma_m`` also drops the report.
+    Loading a folder refuses such rows (:mod:`graphcal.io.table_checks`); a dataset
+    built in memory may still have them, and one range of 1e300 m would overflow
+    every sum it enters.  The warning names the first such row (its position in
+    ``plots``), its radar and its value.
+
+    Returns
+    -------
+    plots : pandas.DataFrame
+        The plots kept.
+    report : CleaningReport
+        ``counts["plots_out_of_range"]`` and one warning when any were dropped.
+    """
+    r = _column(plots, "range_m")
+    bad = np.isfinite(r) & ((r < 0.0) | (r > max_range_m))
+    report = _report(plots_out_of_range=int(bad.sum()))
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        report.warnings.append(
+            f"{int(bad.sum())} plot(s) with a range beyond any radar's reach "
+            f"({max_range_m / 1e3:,.0f} km) or negative dropped, the first row "
+            f"{plots.index[first]} of radar {plots['radar_id'].iloc[first]} "
+            f"(range_m {r[first]:.6g}): corrupt values?")
+    return _keep(plots, ~bad), report
+
+
+def drop_non_finite_adsb(adsb: pd.DataFrame) -> tuple[pd.DataFrame, CleaningReport]:
+    """Drop ADS-B reports with a NaN or infinite time, position or height, or no ``target_id``.
+
+    A non-finite or non-positive ``sigma_m`` also drops the report.  A report whose
+    only missing value is its geometric height ``alt_m`` (NaN: a source that carries
+    none, such as a CAT021 report without I021/140) is dropped too, but counted apart
+    and explained in a warning that says how many of them carry a pressure altitude
+    (``baro_alt_m``): a calibration places an ADS-B report by its height above the
+    ellipsoid, which a flight level is not.
 
     Returns
     -------
     adsb : pandas.DataFrame
         The reports kept.
     report : CleaningReport
-        ``counts["adsb_non_finite"]``.
+        ``counts["adsb_non_finite"]``, ``counts["adsb_no_height"]`` and, when the
+        latter is not zero, one warning.
     """
     bad = np.zeros(len(adsb), dtype=bool)
     for name in _ADSB_REQUIRED:
@@ -228,7 +286,19 @@ def drop_non_finite_adsb(adsb: pd.DataFrame) -> tuple[pd.DataFrame, CleaningRepo
         sigma = _column(adsb, "sigma_m")
         bad |= ~(np.isfinite(sigma) & (sigma > 0.0))
     bad |= adsb["target_id"].astype(str).str.strip().eq("").to_numpy(dtype=bool)
-    return _keep(adsb, ~bad), _report(adsb_non_finite=int(bad.sum()))
+    alt = _column(adsb, "alt_m")
+    bad |= np.isinf(alt)
+    no_height = np.isnan(alt) & ~bad
+    report = _report(adsb_non_finite=int(bad.sum()), adsb_no_height=int(no_height.sum()))
+    if no_height.any():
+        baro = (np.isfinite(_column(adsb, "baro_alt_m")) & no_height if "baro_alt_m" in adsb
+                else np.zeros(len(adsb), dtype=bool))
+        report.warnings.append(
+            f"{int(no_height.sum())} ADS-B reports without a geometric height (alt_m) not "
+            "used: a calibration needs the height above the ellipsoid to place a report "
+            "(a source such as CAT021 without I021/140 gives none, and a pressure altitude "
+            f"is not one); {int(baro.sum())} of them carry baro_alt_m")
+    return _keep(adsb, ~(bad | no_height)), report
 
 
 # --------------------------------------------------------------------------- duplicates
@@ -915,6 +985,115 @@ def traffic_groups(plots: pd.DataFrame, radar_ids: list[str]) -> list[list[str]]
     return list(groups.values())
 
 
+# --------------------------------------------------------------------------- time stamps
+#: Steps [s] of quantised time stamps that are warned about, largest first.
+TIME_QUANTA_S: tuple[float, ...] = (1.0, 0.5, 0.25, 0.2, 0.1)
+#: Fraction of a table's (a radar's) times on a multiple of the step that means quantised.
+TIME_QUANTUM_FRACTION = 0.95
+#: Times judged per table (a block from its middle).
+TIME_QUANTUM_ROWS = 20_000
+#: Fraction of one interval among an aircraft's ADS-B reports that makes a regular grid.
+ADSB_GRID_FRACTION = 0.8
+#: Ground speed [m/s] of the along-track error a warning quotes.
+TYPICAL_SPEED_MPS = 250.0
+
+
+def _time_quanta(time_s: FloatArray, groups: NDArray | None = None
+                 ) -> tuple[float | None, dict[object, float]]:
+    """The largest step of :data:`TIME_QUANTA_S` that nearly all ``time_s`` are multiples
+    of (:data:`TIME_QUANTUM_FRACTION`), or ``None``; without one, the same per group
+    (``groups`` a label per time; groups of fewer than 50 times are not judged)."""
+    ok = np.isfinite(time_s)
+    t = time_s[ok]
+    if t.size < 50:
+        return None, {}
+    codes, labels = pd.factorize(groups[ok]) if groups is not None else (None, [])
+    size = np.bincount(codes, minlength=len(labels)) if codes is not None else None
+    per_group: dict[object, float] = {}
+    for step in TIME_QUANTA_S:
+        q = t / step
+        on = np.abs(q - np.rint(q)) < 1e-3
+        if float(on.mean()) >= TIME_QUANTUM_FRACTION:
+            return step, {}
+        if codes is None or size is None:
+            continue
+        fraction = np.bincount(codes, weights=on, minlength=len(labels)) / np.maximum(size, 1)
+        for k in np.flatnonzero((fraction >= TIME_QUANTUM_FRACTION) & (size >= 50)):
+            per_group.setdefault(labels[k], step)
+    return None, per_group
+
+
+def _regular(adsb: pd.DataFrame, time_s: FloatArray) -> bool:
+    """Whether the successive reports of one aircraft lie on a regular grid (as a source
+    resampled onto whole seconds gives): at least :data:`ADSB_GRID_FRACTION` of the
+    intervals the same, and no two different positions at one time (a rounded stamp)."""
+    code = adsb["target_id"].factorize()[0]
+    order = np.lexsort((time_s, code))
+    same = code[order][1:] == code[order][:-1]
+    dt = np.diff(time_s[order])[same]
+    lat = _column(adsb, "lat_deg")[order]
+    lon = _column(adsb, "lon_deg")[order]
+    moved = ((lat[1:] != lat[:-1]) | (lon[1:] != lon[:-1]))[same]
+    if dt.size < 50 or float(np.mean((dt == 0) & moved)) > 1.0 - ADSB_GRID_FRACTION:
+        return False
+    dt = dt[dt > 0]
+    if dt.size < 50:
+        return False
+    return float(np.mean(np.abs(dt - np.median(dt)) < 1e-6)) >= ADSB_GRID_FRACTION
+
+
+def _quantum_warning(what: str, step: float) -> str:
+    noise = step / np.sqrt(12.0)
+    unit = "whole seconds" if step == 1.0 else f"multiples of {step:g} s"
+    return (f"{what} time_s are {unit}: quantised time stamps add up to {noise:.2g} s "
+            f"({step:g}/sqrt(12) s) of timing noise, about {noise * TYPICAL_SPEED_MPS:.0f} m "
+            f"along track at {TYPICAL_SPEED_MPS:.0f} m/s, which the stated sigmas do not "
+            "include; biases and time offsets may be off by several sigma")
+
+
+def time_stamp_warnings(plots: pd.DataFrame, adsb: pd.DataFrame | None) -> list[str]:
+    """Warnings about time stamps (nothing is removed).
+
+    * quantised times (:data:`TIME_QUANTA_S`): per table, and for the plots per
+      radar when only some radars' are; ADS-B reports on a regular grid of whole
+      seconds (a resampled source: exact there) only when the plots are quantised
+      too;
+    * times of the day that wrap at midnight in both tables (or in the plots
+      without ADS-B; one table wrapping alone is refused by
+      :mod:`graphcal.data.plausibility`).
+
+    Looks at a block of :data:`TIME_QUANTUM_ROWS` rows from each table's middle.
+    """
+    from graphcal.data.plausibility import midnight_wrap, wrap_text
+
+    warnings: list[str] = []
+    start = max(0, (len(plots) - TIME_QUANTUM_ROWS) // 2)
+    block = plots.iloc[start:start + TIME_QUANTUM_ROWS]
+    step, per_radar = _time_quanta(_column(block, "time_s"), block["radar_id"].to_numpy())
+    if step is not None:
+        warnings.append(_quantum_warning("the plots'", step))
+    for name, radar_step in per_radar.items():
+        warnings.append(_quantum_warning(f"radar {name}'s plots'", radar_step))
+    if adsb is not None and len(adsb):
+        start = max(0, (len(adsb) - TIME_QUANTUM_ROWS) // 2)
+        part = adsb.iloc[start:start + TIME_QUANTUM_ROWS]
+        t = _column(part, "time_s")
+        adsb_step, _ = _time_quanta(t)
+        # Reports resampled onto a regular grid of whole seconds are exact there; only
+        # rounded ones (irregular, or the plots' rounded too) are warned about.
+        if adsb_step is not None and (warnings or not _regular(part, t)):
+            warnings.append(_quantum_warning("the ADS-B reports'", adsb_step))
+    parts = midnight_wrap(_column(plots, "time_s"))
+    if parts is not None and (adsb is None or not len(adsb)
+                              or midnight_wrap(_column(adsb, "time_s")) is not None):
+        warnings.append(
+            f"time_s wrap at midnight (plots {wrap_text(parts)}): seconds of the day over a "
+            "recording across midnight; aircraft seen across "
+            "it are split in two and biases over time (--window) run out of order: add "
+            "86,400 s to the times after midnight")
+    return warnings
+
+
 # --------------------------------------------------------------------------- everything
 def clean_dataset(
     dataset: Dataset,
@@ -949,7 +1128,10 @@ def clean_dataset(
     report : CleaningReport
     """
     report = CleaningReport()
+    report.warnings.extend(time_stamp_warnings(dataset.plots, dataset.adsb))
     plots, step = drop_non_finite_plots(dataset.plots, dataset.sites)
+    report.merge(step)
+    plots, step = drop_out_of_range_plots(plots)
     report.merge(step)
     plots, step = drop_duplicate_plots(plots)
     report.merge(step)
@@ -976,7 +1158,14 @@ def clean_dataset(
             report.merge(step)
     if adsb is not None and len(adsb) == 0:
         if dataset.adsb is not None and len(dataset.adsb):
-            report.warnings.append("every ADS-B report was dropped; calibrating without ADS-B")
+            if not np.isfinite(_column(dataset.adsb, "alt_m")).any():
+                note = ("no ADS-B report has a geometric height (alt_m): the calibration "
+                        "proceeds as without ADS-B (ls, fl and fl-ls cannot run)")
+            else:
+                note = ("every ADS-B report was dropped; calibrating without ADS-B (ls, fl "
+                        "and fl-ls cannot run)")
+            report.warnings.append(note)
+            report.notes.append(note)
         adsb = None
     has_adsb = adsb is not None
     report.warnings.extend(coverage_warnings(plots, dataset.sites, has_adsb))

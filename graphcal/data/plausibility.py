@@ -29,9 +29,33 @@ field                 fires when (per radar with at least :data:`MIN_PLOTS` plot
                       their slant range allows (plus :data:`GEOMETRY_MARGIN_M`;
                       a chord of the earth is never shorter than the difference
                       of its ends' heights)
+``elevation_deg``     every elevation of a 3-D radar is below pi/2 and they are about
+                      pi/180 (:data:`ELEVATION_RADIANS_RATIO`) times those its plots'
+                      ``altitude_m`` (else the ADS-B of its aircraft) imply at their
+                      ranges; without heights, 90 % of its plots at 10-150 km within
+                      :data:`ELEVATION_FLAT_DEG` of the horizon: radians (this finding
+                      replaces the antenna height one, which a radian elevation fakes)
+``time_s``            the plots of one aircraft at a radar are :data:`MS_SCAN_RATIO`
+                      (200) or more times its scan period apart (median); the ADS-B
+                      reports of one moving aircraft over :data:`MS_ADSB_GAP_S` apart at
+                      under :data:`MS_ADSB_SPEED_MPS` between them: milliseconds
+``time_s``            one table's times of the day wrap at midnight
+                      (:func:`midnight_wrap`), the other's do not: seconds of the day
+                      against a time that runs on
 ``time_s`` (ADS-B)    the ADS-B reports and the plots do not overlap in time
                       (:func:`check_time_overlap`; another time base: the ADS-B
-                      would go unused)
+                      would go unused); or they overlap, but every radar's plots
+                      match the ADS-B of their aircraft best when the ADS-B is
+                      moved by the same :data:`TIME_BASE_LIMIT_S` (2 s) or more
+                      (:func:`adsb_geometry`; another clock: a shared offset a
+                      calibration would put into every radar's ``time_offset_s``)
+``alt_m`` (site),     a 3-D radar's plots match the ADS-B best with its antenna
+                      :data:`ANTENNA_LIMIT_M` (150 m) or more higher or lower than
+                      ``alt_m`` says, beyond :data:`ANTENNA_SIGMAS` sigmas (the
+                      elevation residual ``-dh cos(el) / range`` and range
+                      residual ``-dh sin(el)`` of a wrong height; feet named
+                      when ``alt_m`` is 2.8-3.8 times the height the plots
+                      give)
 ====================  ============================================================
 
 The thresholds leave real data far inside: on every scenario of ``scenarios/``
@@ -99,6 +123,61 @@ SAMPLE_ROWS = 50_000
 COVERAGE_SAMPLE_ROWS = 10_000
 #: Mean earth radius [m] for ground distances.
 EARTH_RADIUS_M = 6_371_008.8
+#: Every radar's plots this far [s] from the ADS-B in time, all alike: another clock.
+#: Sensor models give time-stamping biases of 0.05-0.1 s.
+TIME_BASE_LIMIT_S = 2.0
+#: Radars whose time offsets differ by more than this [s] (plus a fifth of their
+#: mean) do not share one clock error.
+TIME_BASE_SPREAD_S = 1.0
+#: An antenna this far [m] from the height the plots give fires (a geoid height, the
+#: mean sea level for the ellipsoid, is under 110 m anywhere).
+ANTENNA_LIMIT_M = 150.0
+#: ... and this many of its sigmas away.
+ANTENNA_SIGMAS = 10.0
+#: Named plots per radar the ADS-B geometry fit looks at (every k-th).
+GEOMETRY_SAMPLE_PLOTS = 2000
+#: Span [s] of a recording the geometry fit looks at (around its median plot time).
+GEOMETRY_SPAN_S = 1800.0
+#: Longest gap [s] between two ADS-B reports bridged by the geometry fit.
+GEOMETRY_MAX_GAP_S = 20.0
+#: Residuals beyond this many robust sigmas are left out of the geometry fit.
+GEOMETRY_REJECT_SIGMAS = 5.0
+#: Noise assumed when a site leaves its sigmas out (range m, azimuth rad, elevation rad).
+GEOMETRY_DEFAULT_SIGMAS = (50.0, 2e-3, 3e-3)
+#: A 3-D radar's elevations this many times those the geometry implies: radians (pi/180
+#: is 0.0175).
+ELEVATION_RADIANS_RATIO = (0.005, 0.06)
+#: Elevations [deg] the geometry implies below this are not judged (near the horizon
+#: the height error of a pressure altitude dominates).
+ELEVATION_MIN_DEG = 1.0
+#: Without heights to compare: plots at these slant ranges [m] ...
+ELEVATION_RANGE_M = (10_000.0, 150_000.0)
+#: ... 90 % of them within this many "degrees" of the horizon: radians (an aircraft 2 km
+#: above the antenna at 150 km is 0.26 deg up, one at 10 km altitude 3.3 deg).
+ELEVATION_FLAT_DEG = 0.2
+#: Effective earth radius [m] of the elevation heuristic (the 4/3 earth of standard
+#: refraction).
+EFFECTIVE_EARTH_RADIUS_M = 4.0 / 3.0 * EARTH_RADIUS_M
+#: Rows of a table (one contiguous block from its middle, so that successive plots of an
+#: aircraft stay together) the time-unit heuristics look at.
+TIME_SAMPLE_ROWS = 20_000
+#: The plots of one aircraft at one radar this many times the scan period apart (median):
+#: time_s in milliseconds.
+MS_SCAN_RATIO = 200.0
+#: Scan period [s] assumed when neither the site nor its sensor model gives one.
+DEFAULT_SCAN_PERIOD_S = 5.0
+#: The ADS-B reports of one moving aircraft this far apart [s] (median; reports come every
+#: 0.5-10 s) ...
+MS_ADSB_GAP_S = 100.0
+#: ... at a median speed below this [m/s] between them (aircraft fly at 50-300 m/s): ms.
+MS_ADSB_SPEED_MPS = 1.0
+#: A step [m] between successive reports that counts as moving.
+MS_ADSB_MOVE_M = 100.0
+#: Seconds in a day.
+DAY_S = 86_400.0
+#: A table of seconds of the day wraps at midnight when it holds times this close [s] to
+#: both ends of the day with an empty half day between them.
+WRAP_EDGE_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -177,6 +256,29 @@ def _heights_feet(values: pd.Series, table: str, field: str) -> Finding | None:
     return Finding(table, field,
                    f"{above:.0%} of the heights are above {FEET_HEIGHT_M / 1e3:.0f} km (median "
                    f"{_fmt(float(np.median(h)))}): heights in feet instead of metres?")
+
+
+#: Flight levels given as altitude_m: nearly all values whole numbers below this ...
+FLIGHT_LEVEL_MAX = 600.0
+#: ... with aircraft seen at this median level or above (FL 50: 1,524 m; metres of real
+#: heights that low would be a network of approach radars under 600 m, with decimals).
+FLIGHT_LEVEL_MEDIAN_MIN = 50.0
+
+
+def _flight_levels(values: pd.Series) -> Finding | None:
+    """Mode C altitudes written as flight levels (hundreds of feet), not metres."""
+    h = values.to_numpy(dtype=float, na_value=np.nan)
+    h = h[np.isfinite(h)]
+    if h.size < MIN_PLOTS:
+        return None
+    whole = float(np.mean(h == np.round(h)))
+    if (float(np.max(np.abs(h))) > FLIGHT_LEVEL_MAX or whole < 0.95
+            or float(np.median(h)) < FLIGHT_LEVEL_MEDIAN_MIN):
+        return None
+    return Finding("plots", "altitude_m",
+                   f"every altitude is a whole number at most {_fmt(float(np.max(h)))} (median "
+                   f"{_fmt(float(np.median(h)))}): flight levels (hundreds of feet) instead of "
+                   "metres? (FL 350 is 10,668 m)")
 
 
 def _median_height(frame: pd.DataFrame, column: str) -> pd.Series:
@@ -313,6 +415,503 @@ def _coverage(sites: Mapping[str, Site], plots: pd.DataFrame, adsb: pd.DataFrame
                    "latitude and longitude swapped, or a sign lost?")
 
 
+@dataclass(frozen=True)
+class GeometryFit:
+    """One radar's plots against the ADS-B of their aircraft (:func:`adsb_geometry`).
+
+    Attributes
+    ----------
+    n : int
+        Plots used (aligned, outliers left out).
+    time_offset_s, time_sigma_s : float
+        The radar's time offset against the ADS-B clock (``time_reported = time_true +
+        offset``, as ``time_offset_s`` of the contract) and its 1-sigma.
+    antenna_dh_m, antenna_sigma_m : float
+        What to add to the site's ``alt_m`` for the plots to fit the ADS-B best, and
+        its 1-sigma (NaN when not judged: a 2-D radar).
+    elevation_ratio : float
+        Median ratio of the plots' elevations to those the ADS-B gives (at first
+        alignment, elevations of at least :data:`ELEVATION_MIN_DEG`); NaN when not
+        judged.  About pi/180 for elevations in radians.
+    """
+
+    n: int
+    time_offset_s: float
+    time_sigma_s: float
+    antenna_dh_m: float = math.nan
+    antenna_sigma_m: float = math.nan
+    elevation_ratio: float = math.nan
+
+
+#: An aircraft whose plots lie this far from its ADS-B (median range residual [m], or
+#: azimuth residual [rad]) is another aircraft under its address, not a bias: even ADS-B
+#: a minute off the radars' clock moves an aircraft by under 20 km.
+GEOMETRY_FAR_RANGE_M = 20e3
+GEOMETRY_FAR_AZIMUTH_RAD = 0.2
+
+
+def _far_aircraft(code: NDArray[np.int64], res_r: NDArray[np.float64],
+                  res_a: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Codes of aircraft whose plots lie beyond :data:`GEOMETRY_FAR_RANGE_M` or
+    :data:`GEOMETRY_FAR_AZIMUTH_RAD` from their ADS-B (median over their plots): a
+    mislabelled aircraft, which the cleaning clears later, must not read as an antenna
+    height or a clock error."""
+    if not len(code):
+        return np.zeros(0, dtype=np.int64)
+    frame = pd.DataFrame({"code": code, "r": np.abs(res_r), "a": np.abs(res_a)})
+    medians = frame.groupby("code").median()
+    far = (medians["r"] > GEOMETRY_FAR_RANGE_M) | (medians["a"] > GEOMETRY_FAR_AZIMUTH_RAD)
+    return medians.index[far.to_numpy()].to_numpy(dtype=np.int64)
+
+
+def _geometry_one(site: Site, time_s: NDArray[np.float64], range_m: NDArray[np.float64],
+                  azimuth_rad: NDArray[np.float64], elevation_rad: NDArray[np.float64],
+                  code: NDArray[np.int64], tracks: object) -> GeometryFit | None:
+    """Fit one radar's biases, time offset and antenna height against ADS-B (linearised,
+    robust, re-aligned at the time offset found)."""
+    from graphcal.core import frames
+    from graphcal.core.refraction import refracted_polar_jacobian
+
+    three_d = site.is_3d and np.isfinite(elevation_rad).all()
+    sigmas = np.where(np.isfinite(site.measurement_sigmas()), site.measurement_sigmas(),
+                      np.array(GEOMETRY_DEFAULT_SIGMAS))
+    scale = sigmas.copy()
+    tau = 0.0
+    keep = None
+    result = None
+    el_ratio = math.nan
+    for iteration in range(6):
+        j, w, ok = tracks.bracket(code, time_s - tau, GEOMETRY_MAX_GAP_S)  # type: ignore[attr-defined]
+        if ok.sum() < MIN_PLOTS:
+            return None
+        j, w = j[ok], w[ok]
+        ecef = tracks.ecef_m  # type: ignore[attr-defined]
+        t = tracks.time_s  # type: ignore[attr-defined]
+        ref = (1.0 - w)[:, None] * ecef[j] + w[:, None] * ecef[j + 1]
+        vel = (ecef[j + 1] - ecef[j]) / (t[j + 1] - t[j])[:, None]
+        enu = site.enu_from_ecef(ref)
+        v_enu = frames.rotate(vel, site.ecef_to_enu)
+        ground = np.hypot(enu[:, 0], enu[:, 1])
+        good = ground > 1000.0
+        if site.atmosphere is not None:
+            polar, jac = refracted_polar_jacobian(site.atmosphere, site.lat_rad, site.alt_m,
+                                                  np.where(good[:, None], enu, [1e3, 1e3, 0.0]))
+        else:
+            polar = np.stack(frames.enu_to_polar(enu), axis=-1)
+            jac = frames.enu_to_polar_jacobian(np.where(good[:, None], enu, [1e3, 1e3, 0.0]))
+        rate = np.einsum("nij,nj->ni", jac, v_enu)
+        up = jac[:, :, 2]
+        res_r = range_m[ok] - polar[:, 0]
+        res_a = frames.wrap_to_pi(azimuth_rad[ok] - polar[:, 1])
+        n = int(ok.sum())
+        if iteration == 0:  # aircraft labelled with another's address: left out
+            far_codes = _far_aircraft(code[ok], res_r, res_a)
+        good = good & ~np.isin(code[ok], far_codes)
+        zero, one = np.zeros(n), np.ones(n)
+        # Unknowns: range offset, gain, azimuth bias, [elevation bias, refraction
+        # nuisance,] time-offset step, antenna height correction.
+        rows_r = [one, polar[:, 0], zero]
+        rows_a = [zero, zero, one]
+        blocks = [(res_r, rows_r, -rate[:, 0], -up[:, 0], scale[0]),
+                  (res_a, rows_a, -rate[:, 1], -up[:, 1], scale[1])]
+        if three_d:
+            el = polar[:, 2]
+            if iteration == 0:
+                judged = good & (np.abs(el) >= math.radians(ELEVATION_MIN_DEG))
+                if judged.sum() >= MIN_PLOTS // 2:
+                    el_ratio = float(np.median(elevation_rad[ok][judged] / el[judged]))
+            bend = np.cos(el) / (np.sin(np.abs(el)) + 0.02)
+            rows_r += [zero, zero]
+            rows_a += [zero, zero]
+            blocks.append((elevation_rad[ok] - el, [zero, zero, zero, one, bend],
+                           -rate[:, 2], -up[:, 2], scale[2]))
+        design, target, weight = [], [], []
+        for res, rows, d_tau, d_h, sig in blocks:
+            columns = [*rows, d_tau, d_h]
+            design.append(np.stack(columns, axis=1))
+            target.append(res)
+            weight.append(np.full(n, 1.0 / sig))
+        a_mat = np.concatenate(design)
+        b_vec = np.concatenate(target)
+        wts = np.concatenate(weight)
+        use = np.concatenate([good] * len(blocks))
+        if keep is not None and keep.shape == use.shape:
+            use &= keep
+        if use.sum() < a_mat.shape[1] * 5:
+            return None
+        aw = a_mat[use] * wts[use, None]
+        bw = b_vec[use] * wts[use]
+        # Normal equations on unit-norm columns (an SVD of the tall matrix costs 10x).
+        norm = np.sqrt(np.sum(aw**2, axis=0))
+        if not np.all(norm > 0):
+            return None
+        an = aw / norm
+        with np.errstate(all="ignore"):
+            try:
+                cov = np.linalg.inv(an.T @ an) / np.outer(norm, norm)
+            except np.linalg.LinAlgError:
+                return None
+        x = cov @ (aw.T @ bw)
+        if not np.all(np.isfinite(x)):
+            return None
+        z = (b_vec - a_mat @ x) * wts
+        robust = []
+        for k in range(len(blocks)):
+            part = z[k * n:(k + 1) * n][use[k * n:(k + 1) * n]]
+            mad = float(np.median(np.abs(part - np.median(part)))) * 1.4826 if part.size else 1.0
+            robust.append(max(mad, 1e-9))
+        # Rescale each coordinate's weight to its robust scatter, reject outliers.
+        scale = scale * np.array(robust + [1.0] * (3 - len(robust)))
+        keep = np.concatenate([np.abs(z[k * n:(k + 1) * n]) <= GEOMETRY_REJECT_SIGMAS * robust[k]
+                               for k in range(len(blocks))])
+        i_tau = 3 + (2 if three_d else 0)
+        step = float(x[i_tau])
+        tau += step
+        chi2 = float(np.sum(z[use] ** 2) / max(use.sum() - len(x), 1))
+        sig_tau = float(np.sqrt(cov[i_tau, i_tau] * chi2))
+        dh = float(x[i_tau + 1])
+        sig_h = float(np.sqrt(cov[i_tau + 1, i_tau + 1] * chi2))
+        result = GeometryFit(int(use.sum() // len(blocks)), tau, sig_tau, dh, sig_h, el_ratio)
+        if abs(step) < 0.01 and iteration >= 1:
+            break
+    return result
+
+
+def adsb_geometry(sites: Mapping[str, Site], plots: pd.DataFrame,
+                  adsb: pd.DataFrame) -> dict[str, GeometryFit]:
+    """Each radar's time offset against the ADS-B clock and antenna height correction.
+
+    A quick linearised fit of every radar's named plots (at most
+    :data:`GEOMETRY_SAMPLE_PLOTS`) against the ADS-B of their aircraft, interpolated
+    to the plot times: range offset and gain, azimuth bias, for a 3-D radar the
+    elevation bias and a refraction-like term growing towards the horizon, the time
+    offset (re-aligned at it, so that offsets of a minute converge), and for a 3-D
+    radar the correction ``dh`` to its antenna height, whose signature is an
+    elevation residual ``-dh cos(el) / range`` and a range residual ``-dh sin(el)``.
+
+    Returns
+    -------
+    dict of str to GeometryFit
+        Radars with at least :data:`MIN_PLOTS` plots aligned; empty without named
+        plots.
+    """
+    from graphcal.data.align import adsb_track_table
+
+    named = plots[plots["target_id"] != ""]
+    if named.empty or adsb is None or adsb.empty:
+        return {}
+    # A long recording: the half hour around its median plot time is plenty.
+    t = named["time_s"].to_numpy(dtype=float)
+    middle = float(np.median(t))
+    half = GEOMETRY_SPAN_S / 2.0
+    named = named[(t >= middle - half) & (t <= middle + half)]
+    a_t = adsb["time_s"].to_numpy(dtype=float)
+    margin = half + TIME_MARGIN_S + GEOMETRY_MAX_GAP_S
+    adsb = adsb[(a_t >= middle - margin) & (a_t <= middle + margin)]
+    if named.empty or adsb.empty:
+        return {}
+    tracks = adsb_track_table(adsb)
+    out: dict[str, GeometryFit] = {}
+    for rid, rows in named.groupby("radar_id", sort=False).indices.items():
+        site = sites.get(str(rid))
+        if site is None or len(rows) < MIN_PLOTS:
+            continue
+        rows = rows[:: max(1, len(rows) // GEOMETRY_SAMPLE_PLOTS)]
+        part = named.iloc[rows]
+        code = tracks.codes(part["target_id"].to_numpy(dtype=object))
+        if (code >= 0).sum() < MIN_PLOTS:
+            continue
+        fit = _geometry_one(
+            site, part["time_s"].to_numpy(dtype=float), part["range_m"].to_numpy(dtype=float),
+            np.radians(part["azimuth_deg"].to_numpy(dtype=float)),
+            np.radians(part["elevation_deg"].to_numpy(dtype=float, na_value=np.nan)),
+            code, tracks)
+        if fit is not None:
+            out[str(rid)] = fit
+    return out
+
+
+def _time_base(fits: Mapping[str, GeometryFit]) -> Finding | None:
+    """Every radar's plots off the ADS-B clock by the same amount, beyond any sensor's."""
+    judged = {rid: f for rid, f in fits.items() if f.time_sigma_s < 0.5}
+    if not judged:
+        return None
+    offsets = np.array([f.time_offset_s for f in judged.values()])
+    mean = float(np.median(offsets))
+    if not (np.all(np.abs(offsets) >= TIME_BASE_LIMIT_S) and np.all(np.sign(offsets) ==
+                                                                  np.sign(mean))):
+        return None
+    if float(np.ptp(offsets)) > TIME_BASE_SPREAD_S + 0.2 * abs(mean):
+        return None
+    detail = ", ".join(f"{rid} {f.time_offset_s:+.2f} s" for rid, f in judged.items())
+    direction = "ahead of" if mean < 0 else "behind"
+    who = ("every radar's plots" if len(judged) > 1 else f"radar {next(iter(judged))}'s plots")
+    hint = (" (a time-zone, leap-second or GPS-UTC offset, time of reception instead of "
+            "applicability?)")
+    return Finding("adsb", "time_s",
+                   f"the ADS-B reports run {abs(mean):.1f} s {direction} the plots: "
+                   f"{who} match the ADS-B of their aircraft at a time offset of "
+                   f"{mean:+.2f} s ({detail}; a radar's time-stamping bias is typically under "
+                   f"0.1 s): the ADS-B time_s on another clock{hint}"
+                   + ("" if len(judged) > 1 else ", or this radar's clock"))
+
+
+def _antenna_height(sites: Mapping[str, Site], fits: Mapping[str, GeometryFit]
+                    ) -> Finding | None:
+    """A 3-D radar whose plots put its antenna far from its ``alt_m``."""
+    bad = []
+    for rid, f in fits.items():
+        dh, sig = f.antenna_dh_m, f.antenna_sigma_m
+        if not (math.isfinite(dh) and math.isfinite(sig)):
+            continue
+        if abs(dh) >= ANTENNA_LIMIT_M and abs(dh) >= ANTENNA_SIGMAS * sig:
+            bad.append((rid, dh, sig))
+    if not bad:
+        return None
+    shared = _shared_height_error(bad, fits)
+    if shared is not None:
+        return shared
+    parts = []
+    for rid, dh, sig in bad:
+        given = sites[rid].alt_m
+        implied = given + dh
+        text = (f"the antenna height (alt_m) of {rid} looks wrong by about {abs(dh):,.0f} m "
+                f"(± {sig:.0f}): its plots fit the ADS-B with the antenna at {implied:,.0f} m, "
+                f"not {given:,.0f} m")
+        if implied > 1.0 and 2.5 <= given / implied <= 4.0:  # near 3.28, with the fit's error
+            text += (f" (alt_m is {given / implied:.2f} times that height: feet instead of "
+                     "metres?)")
+        parts.append(text)
+    return Finding("sites", "alt_m",
+                   "; ".join(parts) + ". An error of the antenna height would bias the "
+                   "elevation and range offsets (elevation residual -dh cos(el)/range, range "
+                   "residual -dh sin(el))", tuple(rid for rid, _, _ in bad))
+
+
+def _shared_height_error(bad: list[tuple[str, float, float]],
+                         fits: Mapping[str, GeometryFit]) -> Finding | None:
+    """Every judged radar's antenna "wrong" by about the same height, the same way: the
+    common reference, the ADS-B heights, is what is off (barometric altitudes, or heights
+    above mean sea level, given as ``alt_m``), not every antenna's survey."""
+    judged = [f for f in fits.values()
+              if math.isfinite(f.antenna_dh_m) and math.isfinite(f.antenna_sigma_m)]
+    if len(bad) < 3 or len(bad) < len(judged):
+        return None
+    values = np.array([dh for _, dh, _ in bad])
+    if not (np.all(values > 0) or np.all(values < 0)):
+        return None
+    mean = float(np.mean(values))
+    if float(np.ptp(values)) > 0.6 * abs(mean):
+        return None
+    detail = ", ".join(f"{rid} {dh:+,.0f} m" for rid, dh, _ in bad)
+    return Finding(
+        "adsb", "alt_m",
+        f"every radar's plots fit the ADS-B only with its antenna about {abs(mean):,.0f} m "
+        f"{'higher' if mean > 0 else 'lower'} than sites.toml says ({detail}): one error "
+        "shared by every radar is the ADS-B heights' own. alt_m must be the geometric "
+        "height above the WGS-84 ellipsoid (ADS-B 'geoaltitude', CAT021 I140); barometric "
+        "altitudes (OpenSky 'baroaltitude', flight levels) or heights above mean sea level "
+        "are not. Put barometric altitudes in baro_alt_m",
+        tuple(rid for rid, _, _ in bad))
+
+
+def _elevation_radians(sites: Mapping[str, Site], plots: pd.DataFrame,
+                       fits: Mapping[str, GeometryFit] | None = None) -> Finding | None:
+    """A 3-D radar whose elevations look like radians (:data:`ELEVATION_RADIANS_RATIO`).
+
+    With ``fits``, judged on the ADS-B's elevations (:attr:`GeometryFit.elevation_ratio`);
+    else on the plots' ``altitude_m`` (or, without it, on how flat they lie).
+    """
+    three_d = [rid for rid, s in sites.items() if s.is_3d]
+    if not three_d:
+        return None
+    low, high = ELEVATION_RADIANS_RATIO
+    bad: list[tuple[str, str]] = []
+    rid_code, rid_names = plots["radar_id"].factorize()
+    elevation = plots["elevation_deg"].to_numpy(dtype=float, na_value=np.nan)
+    for rid in three_d:
+        where = np.flatnonzero(rid_names == rid)
+        if not where.size:
+            continue
+        mine = rid_code == where[0]
+        el = elevation[mine]
+        el = el[np.isfinite(el)]
+        if el.size < MIN_PLOTS or np.abs(el).max() >= math.pi / 2:
+            continue
+        if fits is not None:
+            fit = fits.get(rid)
+            ratio = math.nan if fit is None else fit.elevation_ratio
+            if low <= ratio <= high:
+                bad.append((rid, f"{ratio:.3g} times those the ADS-B positions of its "
+                                 f"aircraft give"))
+            continue
+        slant = plots["range_m"].to_numpy(dtype=float)[mine]
+        meas = elevation[mine]
+        height = (plots["altitude_m"].to_numpy(dtype=float, na_value=np.nan)[mine]
+                  if "altitude_m" in plots else np.full(int(mine.sum()), np.nan))
+        ok = np.isfinite(height) & np.isfinite(meas) & (slant > 5000.0)
+        if ok.sum() >= MIN_PLOTS:
+            sin_el = ((height[ok] - sites[rid].alt_m) / slant[ok]
+                      - slant[ok] / (2.0 * EFFECTIVE_EARTH_RADIUS_M))
+            expected = np.degrees(np.arcsin(np.clip(sin_el, -1.0, 1.0)))
+            judged = np.abs(expected) >= ELEVATION_MIN_DEG
+            if judged.sum() >= MIN_PLOTS // 2:
+                ratio = float(np.median(meas[ok][judged] / expected[judged]))
+                if low <= ratio <= high:
+                    bad.append((rid, f"{ratio:.3g} times those its plots' altitude_m give "
+                                     "at their ranges"))
+                continue
+        near, far = ELEVATION_RANGE_M
+        inside = np.isfinite(meas) & (slant >= near) & (slant <= far)
+        if inside.sum() < MIN_PLOTS:
+            continue
+        flat = float(np.quantile(np.abs(meas[inside]), 0.9))
+        if flat < ELEVATION_FLAT_DEG:
+            bad.append((rid, f"within {flat:.2g} of the horizon for 90 % of its plots at "
+                             f"{near / 1e3:.0f}-{far / 1e3:.0f} km (aircraft there are seen "
+                             "at 0.3-30 deg)"))
+    if not bad:
+        return None
+    detail = "; ".join(f"radar {rid} are {what}" for rid, what in bad)
+    return Finding("plots", "elevation_deg",
+                   f"the elevations of 3-D {detail}, and every |elevation| is below pi/2 "
+                   "(pi/180 is 0.0175): elevation_deg in radians instead of degrees?",
+                   tuple(rid for rid, _ in bad))
+
+
+def _middle_block(table: pd.DataFrame, rows: int = TIME_SAMPLE_ROWS) -> pd.DataFrame:
+    """At most ``rows`` successive rows from the middle of ``table`` (rows of one aircraft
+    stay together, unlike :func:`_thinned`)."""
+    if len(table) <= rows:
+        return table
+    start = (len(table) - rows) // 2
+    return table.iloc[start:start + rows]
+
+
+def _successive(key: NDArray[np.int64], time_s: NDArray[np.float64]
+                ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Row pairs ``(i, j)``: ``j`` the next row in time with ``i``'s key (keys < 0: none)."""
+    order = np.lexsort((time_s, key))
+    ordered = key[order]
+    same = (ordered[1:] == ordered[:-1]) & (ordered[1:] >= 0)
+    return order[:-1][same], order[1:][same]
+
+
+def _plot_time_unit(sites: Mapping[str, Site], plots: pd.DataFrame) -> Finding | None:
+    """Plots of one aircraft at one radar :data:`MS_SCAN_RATIO` scan periods apart: ms."""
+    block = _middle_block(plots)
+    tid, aircraft = block["target_id"].factorize()
+    rid, names = block["radar_id"].factorize()
+    unnamed = np.flatnonzero(aircraft == "")
+    key = rid.astype(np.int64) * (len(aircraft) + 1) + tid
+    key[tid < 0] = -1
+    if unnamed.size:
+        key[tid == unnamed[0]] = -1
+    if (key >= 0).sum() < MIN_PLOTS:
+        return None
+    t = block["time_s"].to_numpy(dtype=float)
+    i, j = _successive(key, t)
+    dt = t[j] - t[i]
+    ok = dt > 0
+    code, dt = rid[i][ok], dt[ok]
+    bad = []
+    for k, name in enumerate(names):
+        site = sites.get(str(name))
+        mine = dt[code == k]
+        if site is None or mine.size < MIN_PLOTS:
+            continue
+        gap = float(np.median(mine))
+        period = float(site.scan_period_s or DEFAULT_SCAN_PERIOD_S)
+        if gap >= MS_SCAN_RATIO * period:
+            bad.append((str(name), gap, period))
+    if not bad:
+        return None
+    bad.sort()
+    ratio = float(np.median([gap / period for _, gap, period in bad]))
+    detail = ", ".join(f"{name} {_fmt(gap)} s (scan {period:g} s)"
+                       for name, gap, period in bad)
+    return Finding("plots", "time_s",
+                   f"the successive plots of one aircraft at a radar are about {ratio:,.0f} "
+                   f"times its scan period apart (median; {detail}): time_s in milliseconds "
+                   "instead of seconds?", tuple(n for n, _, _ in bad))
+
+
+def _adsb_time_unit(adsb: pd.DataFrame) -> Finding | None:
+    """ADS-B reports of moving aircraft far apart in time, at a snail's pace: ms."""
+    block = _middle_block(adsb)
+    t = block["time_s"].to_numpy(dtype=float)
+    i, j = _successive(block["target_id"].factorize()[0].astype(np.int64), t)
+    dt = t[j] - t[i]
+    lat = np.radians(block["lat_deg"].to_numpy(dtype=float))
+    lon = np.radians(block["lon_deg"].to_numpy(dtype=float))
+    step = EARTH_RADIUS_M * np.hypot(lat[j] - lat[i],
+                                     (lon[j] - lon[i]) * np.cos(lat[i]))
+    moving = (dt > 0) & (step > MS_ADSB_MOVE_M)
+    if moving.sum() < MIN_PLOTS:
+        return None
+    gap = float(np.median(dt[moving]))
+    speed = float(np.median(step[moving] / dt[moving]))
+    if gap < MS_ADSB_GAP_S or speed >= MS_ADSB_SPEED_MPS:
+        return None
+    return Finding("adsb", "time_s",
+                   f"the successive ADS-B reports of one moving aircraft are {_fmt(gap)} s "
+                   f"apart (median; reports come every 0.5-10 s), and the aircraft move at "
+                   f"{speed:.2g} m/s between them (aircraft fly at 50-300 m/s): time_s in "
+                   "milliseconds instead of seconds?")
+
+
+def midnight_wrap(time_s: NDArray[np.float64]) -> tuple[tuple[float, float],
+                                                        tuple[float, float]] | None:
+    """The two parts of times of the day that wrap at midnight, or ``None``.
+
+    Times all within one day (0..86,400 s), some within :data:`WRAP_EDGE_S` of its
+    start and some of its end, with no time at all in the half day between them: a
+    recording across midnight stamped with seconds of the day.
+
+    Returns
+    -------
+    ((float, float), (float, float)) or None
+        The span before midnight and the span after it [s].
+    """
+    t = time_s[np.isfinite(time_s)]
+    if t.size < 2:
+        return None
+    t0, t1 = float(t.min()), float(t.max())
+    if t0 < 0.0 or t1 >= DAY_S or t0 > WRAP_EDGE_S or t1 < DAY_S - WRAP_EDGE_S:
+        return None
+    s = np.sort(t[:: max(1, t.size // SAMPLE_ROWS)])
+    k = int(np.argmax(np.diff(s)))
+    if s[k + 1] - s[k] < DAY_S / 2:
+        return None
+    return (float(s[k + 1]), t1), (t0, float(s[k]))
+
+
+def wrap_text(parts: tuple[tuple[float, float], tuple[float, float]]) -> str:
+    """The two parts of :func:`midnight_wrap` for a message (tenths, cut, not rounded)."""
+    b0, b1, a0, a1 = (f"{math.floor(v * 10.0) / 10.0:,.1f}" for pair in parts for v in pair)
+    return f"{b0}..{b1} s, then {a0}..{a1} s"
+
+
+def _midnight(plots: pd.DataFrame, adsb: pd.DataFrame) -> Finding | None:
+    """One table's seconds of the day wrap at midnight, the other's do not."""
+    tp = plots["time_s"].to_numpy(dtype=float)
+    ta = adsb["time_s"].to_numpy(dtype=float)
+    wp, wa = midnight_wrap(tp), midnight_wrap(ta)
+    if (wp is None) == (wa is None):
+        return None
+    wrapped, other, table = (("plots'", "ADS-B's", "plots") if wp is not None
+                             else ("ADS-B's", "plots'", "adsb"))
+    parts = wp if wp is not None else wa
+    t = ta if wp is not None else tp
+    if parts is None or not np.nanmax(t) >= DAY_S:  # the other does not run on past midnight
+        return None
+    return Finding(table, "time_s",
+                   f"the {wrapped} time_s wrap at midnight ({wrap_text(parts)}), the "
+                   f"{other} do not ({np.nanmin(t):,.1f}..{np.nanmax(t):,.1f} s): seconds "
+                   "of the day in one table, a time that runs on in the other? "
+                   f"(add {_fmt(DAY_S)} s to the {wrapped} times after midnight)")
+
+
 def _thinned(table: pd.DataFrame, rows: int = SAMPLE_ROWS) -> pd.DataFrame:
     """Every k-th row, at most about ``rows`` rows (deterministic)."""
     step = max(1, len(table) // rows)
@@ -372,13 +971,25 @@ def check_tables(sites: Mapping[str, Site], plots: pd.DataFrame,
     if plots.empty:
         return []
     findings: list[Finding | None] = []
+    antenna: Finding | None = None
     plots_sample = _thinned(plots)
     stats = _per_radar(plots)
     azimuth, ranges = _azimuth_radians(stats), _range_km(stats)
     findings += [azimuth, ranges]
+    # Elevations in radians fake a wrong antenna height: judged first, and it replaces
+    # that finding.  On the plots' heights here, on the ADS-B below when they have none.
+    elevation = _elevation_radians(sites, plots_sample)
+    findings.append(elevation)
+    time_unit = [_plot_time_unit(sites, plots)]
+    if adsb is not None and len(adsb):
+        time_unit.append(_adsb_time_unit(adsb))
+        if time_overlap:
+            time_unit.append(_midnight(plots, adsb))
+    time_unit = [f for f in time_unit if f is not None]
+    findings += time_unit
     skip = set(ranges.radars) if ranges is not None else set()
     plot_feet = (_heights_feet(plots["altitude_m"], "plots", "altitude_m")
-                 if "altitude_m" in plots else None)
+                 or _flight_levels(plots["altitude_m"]) if "altitude_m" in plots else None)
     findings.append(plot_feet)
     if adsb is not None and len(adsb):
         adsb_feet = _heights_feet(adsb["alt_m"], "adsb", "alt_m")
@@ -390,17 +1001,28 @@ def check_tables(sites: Mapping[str, Site], plots: pd.DataFrame,
         findings.append(adsb_feet)
         if "baro_alt_m" in adsb:
             findings.append(_heights_feet(adsb["baro_alt_m"], "adsb", "baro_alt_m"))
-        if time_overlap:
+        if time_overlap and not time_unit:
             a = adsb["time_s"]
             findings.append(check_time_overlap(
                 (float(plots["time_s"].min()), float(plots["time_s"].max())),
                 (float(a.min()), float(a.max()))))
-        findings.append(_coverage(sites, plots_sample, _thinned(adsb, COVERAGE_SAMPLE_ROWS),
-                                  stats, skip))
+        coverage = _coverage(sites, plots_sample, _thinned(adsb, COVERAGE_SAMPLE_ROWS),
+                             stats, skip)
+        findings.append(coverage)
+        if coverage is None and azimuth is None and ranges is None and adsb_feet is None \
+                and plot_feet is None and elevation is None and not time_unit:
+            with np.errstate(all="ignore"):
+                fits = adsb_geometry(sites, plots, adsb)
+            elevation = _elevation_radians(sites, plots_sample, fits)
+            findings.append(elevation)
+            findings.append(_time_base(fits))
+            antenna = None if elevation is not None else _antenna_height(sites, fits)
     if plot_feet is None:
-        findings.append(_site_altitude(sites, plots, skip))
+        site_altitude = _site_altitude(sites, plots, skip)
     else:
-        findings.append(_site_altitude(sites, plots.iloc[:0], skip))
+        site_altitude = _site_altitude(sites, plots.iloc[:0], skip)
+    # One finding per field: the bounds and reach of alt_m first, then its fit to ADS-B.
+    findings.append(site_altitude if site_altitude is not None else antenna)
     return [f for f in findings if f is not None]
 
 
@@ -443,11 +1065,17 @@ __all__ = [
     "FEET_RATIO",
     "FORCE_HINT",
     "MAX_KM_RANGE_M",
+    "ANTENNA_LIMIT_M",
+    "TIME_BASE_LIMIT_S",
+    "GeometryFit",
+    "adsb_geometry",
     "MIN_PLOTS",
     "SITE_ALT_RANGE_M",
     "Finding",
     "check_tables",
     "check_time_overlap",
     "ground_distance_m",
+    "midnight_wrap",
+    "wrap_text",
     "raise_if_implausible",
 ]
