@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated
 
@@ -12,10 +13,12 @@ from graphcal.cli.common import (
     FORCE_HELP,
     check_input_path,
     check_output_file,
+    check_positive,
     console,
     err_console,
     errors_to_exit,
     fail,
+    print_wrapped,
     progress_bar,
 )
 
@@ -45,12 +48,13 @@ def fuse_command(
     """Track every aircraft with every radar, fuse the tracks, score them against ADS-B."""
     from graphcal.core.atomic import atomic_write_table
     from graphcal.io.folder import load_dataset
-    from graphcal.reporting.tables import fusion_table
+    from graphcal.reporting.tables import fusion_layouts, print_tables
     from graphcal.tracking.fusion import DEFAULT_Q_M2_S3, fuse_dataset, fusion_comparison
 
     q = DEFAULT_Q_M2_S3 if q_m2_s3 is None else q_m2_s3
-    if not (q >= 0.0 and grid_s > 0.0):
-        fail("--q-m2-s3 must be >= 0 and --grid-s > 0", EXIT_BAD_INPUT)
+    if not (math.isfinite(q) and q >= 0.0):
+        fail(f"--q-m2-s3 must be a finite number >= 0 [m^2/s^3], not {q}", EXIT_BAD_INPUT)
+    check_positive(grid_s, "--grid-s", "a positive number of seconds")
     if out is not None and out.suffix not in (".csv", ".parquet"):
         fail(f"--out {out}: the suffix must be .csv or .parquet", EXIT_BAD_INPUT)
     check_input_path(calibration, "--calibration")
@@ -66,25 +70,25 @@ def fuse_command(
                 corrected = fuse_dataset(dataset, calibration, q_m2_s3=q, grid_s=grid_s,
                                          progress=callback)
     counts = raw.counts
-    console.print(
+    print_wrapped(
         f"{dataset_dir}: {counts.get('targets', 0)} aircraft, "
         f"{counts.get('grid_points', 0)} fused points every {grid_s:g} s "
         f"({counts.get('grid_points_multi', 0)} from two radars or more); tracker q {q:g} m²/s³",
-        highlight=False,
-    )
+        console)
     if dataset.adsb is None:
-        console.print("no ADS-B table: the tracks cannot be scored", highlight=False)
+        print_wrapped("no ADS-B table: the tracks cannot be scored", out=console)
     elif corrected is None:
-        console.print(fusion_table(raw.summary))
+        print_tables(console, fusion_layouts(raw.summary))
     else:
-        console.print(fusion_table(raw.summary, fusion_comparison(raw, corrected)))
+        print_tables(console, fusion_layouts(raw.summary, fusion_comparison(raw, corrected)))
         missing = sorted(set(dataset.sites) - set(corrected.calibrated_radars))
         if missing:
-            console.print(f"[yellow]warning:[/yellow] {calibration} has no biases for "
-                          f"{', '.join(missing)}: their plots stay raw")
+            print_wrapped(f"{calibration} has no biases for {', '.join(missing)}: their "
+                          "plots stay raw", label="warning:", style="yellow", out=console)
     if out is not None:
-        atomic_write_table((corrected or raw).tracks, out)
-        err_console.print(f"wrote {out}", highlight=False)
+        with errors_to_exit():
+            atomic_write_table((corrected or raw).tracks, out)
+        print_wrapped(str(out), err_console, label="wrote")
 
 
 __all__ = ["fuse_command"]

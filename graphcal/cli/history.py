@@ -23,6 +23,7 @@ from graphcal.cli.common import (
     err_console,
     errors_to_exit,
     fail,
+    print_wrapped,
 )
 
 if TYPE_CHECKING:
@@ -76,10 +77,13 @@ def parse_tolerances(items: list[str] | None) -> dict[str, float]:
         try:
             value = float(text)
         except ValueError:
-            value = math.nan
-        if not sep or not key.strip() or not math.isfinite(value) or value <= 0.0:
+            value = None
+        if not sep or not key.strip() or value is None:
             raise ValueError(f"--tolerance {item}: expected KEY=VALUE with a positive number "
                              "in the key's unit, e.g. range_offset_m=50")
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(f"--tolerance {item}: expected KEY=VALUE with a positive number "
+                             f"in the key's unit (e.g. range_offset_m=50), not {text.strip()}")
         out[key.strip()] = value
     return out
 
@@ -177,15 +181,19 @@ def _runs_table(runs: pd.DataFrame) -> Table:
 
 
 def _print_runs(db: Path, runs: pd.DataFrame, n_radars: int) -> None:
-    console.print(f"{db}: {len(runs)} run{'s' if len(runs) != 1 else ''}, {n_radars} "
+    print_wrapped(f"{db}: {len(runs)} run{'s' if len(runs) != 1 else ''}, {n_radars} "
                   f"radar{'s' if n_radars != 1 else ''}; values ± 2σ in contract units "
-                  "(m, fraction, mrad, s)", highlight=False, markup=False)
-    console.print(_runs_table(runs))
+                  "(m, fraction, mrad, s)", out=console)
+    from graphcal.reporting.tables import print_tables
+
+    print_tables(console, _runs_table(runs))
 
 
 def _print_tables(db: Path, runs: pd.DataFrame, flagged: pd.DataFrame,
                   events: pd.DataFrame) -> None:
     """The runs, one table per radar with its events, and the flags' meaning."""
+    from graphcal.reporting.tables import print_tables
+
     shown = runs[runs["run_id"].isin(flagged["run_id"])]
     radars = list(dict.fromkeys(flagged["radar_id"]))
     _print_runs(db, shown, len(radars))
@@ -194,19 +202,18 @@ def _print_tables(db: Path, runs: pd.DataFrame, flagged: pd.DataFrame,
         utc = bool(rows["t_start_utc"].notna().all())  # UTC when all its runs have an epoch
         radar_events = events[events["radar_id"] == radar]
         console.print()
-        console.print(_radar_table(radar, rows, utc))
+        print_tables(console, _radar_table(radar, rows, utc))
         lines = _event_lines(radar_events, utc and bool(radar_events["time_utc"].notna().all()))
         if lines:
             console.print("events:", highlight=False)
             for line in lines:
-                console.print(line, highlight=False, markup=False)
+                print_wrapped(line, indent=4, out=console)
     counts = flagged["status"].value_counts()
-    console.print(
-        f"\n{counts.get('outside', 0)} OUT (|value| - 2σ > tolerance), "
+    console.print()
+    print_wrapped(
+        f"{counts.get('outside', 0)} OUT (|value| - 2σ > tolerance), "
         f"{counts.get('possibly', 0)} out? (|value| > tolerance, within 2σ of it). "
-        "Tolerances: --tolerance, else twice the sensor model's typical bias.",
-        highlight=False,
-    )
+        "Tolerances: --tolerance, else twice the sensor model's typical bias.", out=console)
 
 
 def _print_csv(flagged: pd.DataFrame) -> None:
@@ -285,13 +292,13 @@ def history_command(
         flagged = flag_tolerances(series, tolerances)
     if isinstance(when, datetime) and runs["epoch_utc"].isna().any():
         left_out = ", ".join(str(r) for r in runs.loc[runs["epoch_utc"].isna(), "run_id"])
-        err_console.print(f"note: --since {since} leaves out the runs without a UTC epoch "
-                          f"({left_out})", highlight=False)
+        print_wrapped(f"--since {since} leaves out the runs without a UTC epoch "
+                      f"({left_out})", err_console, label="note:")
     if csv:
         _print_csv(flagged)
     elif flagged.empty:
-        console.print(f"{db}: no windows{'' if radar is None else f' of {radar}'}"
-                      f"{'' if since is None else f' after {since}'}", highlight=False)
+        print_wrapped(f"{db}: no windows{'' if radar is None else f' of {radar}'}"
+                      f"{'' if since is None else f' after {since}'}", out=console)
     else:
         _print_tables(db, runs, flagged, events)
     if plot is not None:
@@ -303,8 +310,9 @@ def _write_plot(db: Path, flagged: pd.DataFrame, events: pd.DataFrame, plot: Pat
 
     if flagged.empty:
         fail(f"--plot {plot}: no windows to draw", EXIT_BAD_INPUT)
-    plot_history(flagged, plot, events=events, title=f"{db.name}: biases over time, ± 2σ")
-    err_console.print(f"wrote {plot}", highlight=False)
+    with errors_to_exit():
+        plot_history(flagged, plot, events=events, title=f"{db.name}: biases over time, ± 2σ")
+    print_wrapped(str(plot), err_console, label="wrote")
 
 
 __all__ = ["CSV_COLUMNS", "FLAGS", "history_command", "parse_since", "parse_tolerances"]

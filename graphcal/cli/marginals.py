@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from graphcal.cli.common import EXIT_BAD_INPUT, console, errors_to_exit, fail
+from graphcal.cli.common import EXIT_BAD_INPUT, console, errors_to_exit, fail, print_wrapped
 
 
 def marginals_command(
@@ -25,11 +25,12 @@ def marginals_command(
     """Marginal covariance blocks, value ± sigma and correlations from a result JSON."""
     from graphcal.data.calibration import Calibration
     from graphcal.reporting.tables import (
-        correlation_block_table,
+        correlation_block_tables,
         correlation_matrix_tables,
-        marginal_table,
+        marginal_tables,
+        print_tables,
         strong_correlations,
-        strong_correlations_table,
+        strong_correlations_layouts,
     )
 
     if not 0.0 <= min_rho < 1.0:
@@ -42,18 +43,23 @@ def marginals_command(
             EXIT_BAD_INPUT,
         )
     radar_ids = cal.radar_ids if radar is None else [radar]
-    console.print(
-        f"{result}: method {cal.method or '?'}, {len(cal.radar_ids)} radars, "
-        f"{len(cal.labels)} estimated parameters; units m, fraction, mrad, s",
-        highlight=False,
-    )
+    heading = (f"{result}: method {cal.method or '?'}, {len(cal.radar_ids)} radars, "
+               f"{len(cal.labels)} estimated parameters")
+    units = "units m, fraction, mrad, s"
+    if len(heading) + 2 + len(units) <= console.width:
+        heading, units = f"{heading}; {units}", ""
+    print_wrapped(heading, out=console)
+    if units:
+        print_wrapped(units, out=console)
     for rid in radar_ids:
         if not cal.marginal_labels(rid):
-            console.print(f"{rid}: no estimated parameters", highlight=False)
+            print_wrapped(f"{rid}: no estimated parameters", out=console)
             continue
-        console.print(marginal_table(cal, rid))
+        for table in marginal_tables(cal, rid, console.width):
+            console.print(table)
         if correlation and radar is not None:
-            console.print(correlation_block_table(cal, rid))
+            for table in correlation_block_tables(cal, rid, console.width):
+                console.print(table)
     if not correlation:
         return
     if radar is None:
@@ -65,9 +71,10 @@ def marginals_command(
         pairs = strong_correlations(cal, min_rho, radar)
         what = f"of {radar} with other radars' parameters"
     if pairs:
-        console.print(strong_correlations_table(pairs, f"correlations {what}, |ρ| > {min_rho:g}"))
+        print_tables(console, strong_correlations_layouts(
+            pairs, f"correlations {what}, |ρ| > {min_rho:g}"))
     else:
-        console.print(f"no correlations {what} with |ρ| > {min_rho:g}", highlight=False)
+        print_wrapped(f"no correlations {what} with |ρ| > {min_rho:g}", out=console)
 
 
 __all__ = ["marginals_command"]

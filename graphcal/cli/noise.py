@@ -12,10 +12,13 @@ from graphcal.cli.common import (
     FORCE_HELP,
     check_distinct_outputs,
     check_output_file,
+    check_positive,
     console,
     err_console,
     errors_to_exit,
     fail,
+    outputs_published_together,
+    print_wrapped,
     progress_bar,
 )
 
@@ -55,7 +58,7 @@ def noise_command(
     from graphcal.core.atomic import atomic_write_table
     from graphcal.io.folder import load_dataset, write_sites
     from graphcal.noise import estimate_noise, sites_with_estimated_sigmas, variance_table
-    from graphcal.reporting.tables import noise_table
+    from graphcal.reporting.tables import noise_layouts, print_tables
 
     modes = {"auto": "auto", "adsb": True, "line-fit": False}
     if method not in modes:
@@ -65,8 +68,10 @@ def noise_command(
     check_output_file(sites_out, "--write-sites", overwrite=overwrite, inputs=[dataset_dir])
     check_output_file(table, "--table", overwrite=overwrite, inputs=[dataset_dir])
     check_distinct_outputs(("--write-sites", sites_out), ("--table", table))
-    if not (range_bin_km > 0 and 0 < azimuth_bin_deg <= 360):
-        fail("--range-bin-km must be > 0 and --azimuth-bin-deg in (0, 360]", EXIT_BAD_INPUT)
+    check_positive(range_bin_km, "--range-bin-km", "a positive number of kilometres")
+    if not 0 < azimuth_bin_deg <= 360:  # NaN and infinity too
+        fail(f"--azimuth-bin-deg must be a positive number of degrees up to 360, not "
+             f"{azimuth_bin_deg}", EXIT_BAD_INPUT)
     with errors_to_exit():
         with progress_bar("loading"):
             dataset = load_dataset(dataset_dir, force=force)
@@ -75,32 +80,43 @@ def noise_command(
                 estimates = estimate_noise(dataset, use_adsb=modes[method], progress=callback)
         except ValueError as exc:
             fail(f"{dataset_dir}: {exc}", EXIT_BAD_INPUT)
-    console.print(noise_table(dataset.sites, estimates))
+    print_tables(console, noise_layouts(dataset.sites, estimates))
     for est in estimates.values():
         if not est.estimated:
-            console.print(f"[yellow]warning:[/yellow] {est.radar_id}: not estimated: {est.reason}")
-    if sites_out is not None:
-        rounded = {rid: _rounded_sigmas(est) for rid, est in estimates.items()}
-        sites = sites_with_estimated_sigmas(dataset.sites, rounded, only_missing=only_missing)
-        still = [f"{rid} ({', '.join(site.missing_sigmas)})"
-                 for rid, site in sites.items() if site.missing_sigmas]
-        write_sites(sites, sites_out, plot_altitude=dataset.plot_altitude,
-                    epoch_utc=dataset.epoch_utc)  # the [dataset] table kept
-        err_console.print(f"wrote {sites_out}", highlight=False)
-        if still:
-            console.print(f"[yellow]warning:[/yellow] still missing in {sites_out}: "
-                          f"{', '.join(still)}")
-    if table is not None:
-        frames = []
+            print_wrapped(f"{est.radar_id}: not estimated: {est.reason}", label="warning:",
+                          style="yellow", out=console)
+        elif "time_offset_s" in est.details:
+            tau, sigma = est.details["time_offset_s"], est.details["time_offset_sigma_s"]
+            print_wrapped(f"{est.radar_id}: its plots run {tau:+.3f} ± {sigma:.3f} s off the "
+                          "ADS-B clock (a time-stamping bias, or the ADS-B's): removed before "
+                          "the sigmas were estimated; calibrate estimates it as time_offset_s",
+                          label="note:", out=console)
+    frames = []
+    if table is not None:  # built before any output is written
         for rid in dataset.sites:
             try:
                 frames.append(variance_table(dataset, rid, range_bin_m=range_bin_km * 1e3,
                                              azimuth_bin_deg=azimuth_bin_deg))
             except ValueError as exc:
-                console.print(f"[yellow]warning:[/yellow] {rid}: no lookup table: {exc}")
-        if frames:
+                print_wrapped(f"{rid}: no lookup table: {exc}", label="warning:",
+                              style="yellow", out=console)
+    still: list[str] = []
+    with outputs_published_together():  # both outputs or neither, whatever the signals
+        if sites_out is not None:
+            rounded = {rid: _rounded_sigmas(est) for rid, est in estimates.items()}
+            sites = sites_with_estimated_sigmas(dataset.sites, rounded,
+                                                only_missing=only_missing)
+            still = [f"{rid} ({', '.join(site.missing_sigmas)})"
+                     for rid, site in sites.items() if site.missing_sigmas]
+            write_sites(sites, sites_out, plot_altitude=dataset.plot_altitude,
+                        epoch_utc=dataset.epoch_utc)  # the [dataset] table kept
+            print_wrapped(str(sites_out), err_console, label="wrote")
+        if table is not None and frames:
             atomic_write_table(pd.concat(frames, ignore_index=True), table)
-            err_console.print(f"wrote {table}", highlight=False)
+            print_wrapped(str(table), err_console, label="wrote")
+    if still:
+        print_wrapped(f"still missing in {sites_out}: {', '.join(still)}",
+                      label="warning:", style="yellow", out=console)
 
 
 def _rounded_sigmas(est):

@@ -11,12 +11,16 @@ from graphcal.cli.common import (
     EXIT_BAD_INPUT,
     FORCE_HELP,
     check_choice,
+    check_count,
     check_distinct_outputs,
     check_output_file,
+    check_positive,
+    check_seed,
     console,
     err_console,
     errors_to_exit,
     fail,
+    print_wrapped,
     progress_bar,
 )
 
@@ -62,19 +66,27 @@ def observability_command(
     import json
 
     import numpy as np
-    from rich.table import Table
 
-    from graphcal.analysis.observability import analyse, degree_curve, observation_blocks
+    from graphcal.analysis.observability import (
+        analyse,
+        degree_curve,
+        excluded_parameters_note,
+        observation_blocks,
+    )
     from graphcal.core.atomic import atomic_write_text
-    from graphcal.data.bias import CONTRACT_KEYS
     from graphcal.io.folder import load_dataset
     from graphcal.noise import fill_missing_sigmas
+    from graphcal.reporting.tables import print_tables
 
     for path, suffix in ((plot, ".png"), (out, ".json")):
         if path is not None and path.suffix.lower() != suffix:
             fail(f"{path}: the file must end in {suffix}", EXIT_BAD_INPUT)
     check_choice(method, "--method", ("graph", "wls"), "method")
     check_choice(unit, "--unit", ("observation", "segment", "track"), "selection unit")
+    check_count(budget, "--budget", "a positive number of observations")
+    check_positive(segment_s, "--segment-s", "a positive number of seconds")
+    check_count(random_draws, "--random-draws", "a positive number of draws")
+    check_seed(seed)
     if method == "wls" and not adsb:
         fail("--no-adsb: the wls observations are the radars' common ones; it never uses "
              "ADS-B", EXIT_BAD_INPUT)
@@ -91,28 +103,20 @@ def observability_command(
                 report = analyse(blocks)
         except ValueError as exc:
             fail(str(exc), EXIT_BAD_INPUT)
-    table = Table(title=f"observability of {dataset_dir} ({method}, {report.n_observations} "
-                        "observations)")
-    for column in ("radar", "parameter", "σ if the others were known", "σ jointly",
-                   "inflation ×"):
-        table.add_column(column, justify="left" if column in ("radar", "parameter") else "right")
-    previous = None
-    for i, (rid, name) in enumerate(report.labels):
-        key, scale = CONTRACT_KEYS[name]
-        alone, joint = report.sigma_alone[i] * scale, report.sigma_joint[i] * scale
-        inflation = np.sqrt(report.inflation[i])
-        table.add_row(rid if rid != previous else "", key, f"{alone:.4g}",
-                      f"{joint:.4g}" if np.isfinite(joint) else "not determined",
-                      f"{inflation:.1f}" if np.isfinite(inflation) else "inf")
-        previous = rid
-    console.print(table)
-    console.print(
+    print_tables(console, _sigma_layouts(
+        report, f"observability of {dataset_dir} ({method}, {report.n_observations} "
+        "observations)"))
+    print_wrapped(
         f"rank {report.rank} of {len(report.labels)}, condition {report.condition:.3g}, "
-        f"observability degree Deg = {report.degree:.3g} (paper 001 eq. 11)", highlight=False,
-    )
+        f"observability degree Deg = {report.degree:.3g} (paper 001 eq. 11)", out=console)
+    note = excluded_parameters_note(dataset, method, use_adsb=adsb)
+    if note is not None:
+        print_wrapped(f"{len(report.labels)} parameters: {note}", out=console)
     for line in report.weak_directions() + report.confounded():
-        console.print(f"[yellow]warning:[/yellow] {line}", highlight=False)
+        print_wrapped(line, label="warning:", style="yellow", out=console)
     document = report.to_dict()
+    if note is not None:
+        document["excluded"] = note
     if budget is not None:
         with errors_to_exit():
             try:
@@ -121,7 +125,7 @@ def observability_command(
                                           random_draws, seed, callback)
             except ValueError as exc:
                 fail(str(exc), EXIT_BAD_INPUT)
-        console.print(_comparison_table(comparison, budget))
+        print_tables(console, _comparison_table(comparison, budget))
         document["selection"] = [
             {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
              for k, v in row.items() if not (isinstance(v, float) and np.isnan(v))}
@@ -129,10 +133,40 @@ def observability_command(
         ]
     if out is not None:
         atomic_write_text(out, json.dumps(document, indent=2) + "\n")
-        err_console.print(f"wrote {out}", highlight=False)
+        print_wrapped(str(out), err_console, label="wrote")
     if plot is not None:
         _plot_degree(plot, *degree_curve(blocks), title=f"{dataset_dir.name} ({method})")
-        err_console.print(f"wrote {plot}", highlight=False)
+        print_wrapped(str(plot), err_console, label="wrote")
+
+
+def _sigma_layouts(report, title: str) -> list:
+    """The table of sigmas per radar and parameter, in two layouts for
+    :func:`graphcal.reporting.tables.terminal_tables` (headers on one line; on two or three);
+    every number on one line."""
+    import numpy as np
+    from rich.table import Table
+
+    from graphcal.data.bias import CONTRACT_KEYS
+
+    layouts = []
+    for headers in (("σ if the others were known", "σ jointly", "inflation ×"),
+                    ("σ if the others\nwere known", "σ\njointly", "inflation\n×")):
+        table = Table(title=title)
+        table.add_column("radar", no_wrap=True)
+        table.add_column("parameter", no_wrap=True)
+        for header in headers:
+            table.add_column(header, justify="right", no_wrap=True)
+        previous = None
+        for i, (rid, name) in enumerate(report.labels):
+            key, scale = CONTRACT_KEYS[name]
+            alone, joint = report.sigma_alone[i] * scale, report.sigma_joint[i] * scale
+            inflation = np.sqrt(report.inflation[i])
+            table.add_row(rid if rid != previous else "", key, f"{alone:.4g}",
+                          f"{joint:.4g}" if np.isfinite(joint) else "not determined",
+                          f"{inflation:.1f}" if np.isfinite(inflation) else "inf")
+            previous = rid
+        layouts.append(table)
+    return layouts
 
 
 def _compare(dataset, method: str, adsb: bool, budget: int, unit: str, segment_s: float,
@@ -155,14 +189,20 @@ def _comparison_table(comparison, budget: int):
     import numpy as np
     from rich.table import Table
 
-    table = Table(title=f"selections of {budget} observations")
-    columns = [("method", "method"), ("units", "units"), ("observations", "observations"),
-               ("degree_full_scaling", "Deg"), ("degree", "Deg, own scaling"),
+    table = Table(title=f"selections of {budget} observations (obs.: observations kept)")
+    columns = [("method", "method"), ("units", "units"), ("observations", "obs."),
+               ("degree_full_scaling", "Deg"), ("degree", "Deg,\nown\nscaling"),
                ("lambda_min", "λmin"),
-               ("mean_sigma_ratio", "σ / σ(all), mean"), ("seconds", "time (s)")]
-    for _, title in columns:
-        table.add_column(title, justify="left" if title == "method" else "right")
-    for row in comparison.to_dict("records"):
+               ("mean_sigma_ratio", "σ/σ(all),\nmean"), ("seconds", "time\n\\[s]")]
+    records = comparison.to_dict("records")
+    longest_word = max((len(word) for row in records for word in str(row.get("method")).split()),
+                       default=6)
+    for key, title in columns:
+        # numbers whole on one line; the method and a range "(a-b)" may wrap at a space
+        table.add_column(title, justify="left" if key == "method" else "right",
+                         no_wrap=key not in ("method", "degree"),
+                         min_width=longest_word if key == "method" else None)
+    for row in records:
         cells = []
         for key, _ in columns:
             value = row.get(key)

@@ -81,15 +81,21 @@ def value_text(value: float | None, decimals: int) -> str:
     return text.replace(",", "\u2009")  # a thin space between thousands
 
 
-def clock_text(time_s: float) -> str:
+def clock_text(time_s: float, epoch_utc: datetime | None = None) -> str:
     """A dataset time as ``HH:MM:SS`` UTC, with ``+Nd`` beyond the first day.
 
-    The contract's ``time_s`` is seconds on the ADS-B time base; recordings
-    imported from ASTERIX count it from 00:00 UTC of their first day, which this
-    reading assumes.
+    The contract's ``time_s`` is seconds on the ADS-B time base.  With the dataset's
+    epoch (the UTC time of 0 s, ``[dataset] epoch_utc``) the time is the epoch plus
+    ``time_s`` (``+Nd``: days after the epoch's date); without it, the time is read as
+    counted from 00:00 UTC of the first day, as recordings imported from ASTERIX count it.
     """
     if not math.isfinite(time_s):
         return "–"
+    if epoch_utc is not None:
+        when = utc_at(epoch_utc, round(time_s))
+        day = (when.date() - epoch_utc.astimezone(when.tzinfo).date()).days
+        text = when.strftime("%H:%M:%S")
+        return text if day == 0 else f"{text} {day:+d}d"
     day, rest = divmod(round(time_s), 86400)
     hours, rest = divmod(rest, 3600)
     minutes, seconds = divmod(rest, 60)
