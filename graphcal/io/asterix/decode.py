@@ -9,8 +9,13 @@ A UDP payload may hold several data blocks.
 Categories decoded (item definitions from ``libasterix``, import name ``asterix``):
 
 - CAT048 (monoradar target reports), edition 1.32,
-- CAT021 (ADS-B target reports), edition 2.6 (a block that does not parse with
-  it is tried with edition 0.26, still found in older recordings),
+- CAT021 (ADS-B target reports), editions 2.x (read with edition 2.6, whose
+  user application profile (UAP) has the items of 2.1 to 2.5 at the same
+  places), 0.26 (also read for 0.24 and 0.25, whose UAPs it extends) and 0.23
+  (the one with a 6-byte I021/130), all still sent by ground stations; the
+  edition is chosen per data block from its content ("Choosing the CAT021
+  edition" below) unless forced (:func:`decoder_specs`; 2.7, whose I090 has
+  more parts, only so),
 - CAT034 (monoradar service messages), edition 1.29.
 
 Every other category is counted and skipped.  Only the items graphcal needs are
@@ -27,23 +32,47 @@ reads start.  The fields are then extracted with numpy over all records at once
 decoder (:mod:`graphcal.io.asterix.reference`, which the tests compare with),
 at about 30-50 times its speed.
 
+Choosing the CAT021 edition: the editions share no marker, and a block of one
+edition may well parse, with other record boundaries, under another (a 0.26
+record read as 2.6 splits into two records, the second without I010).  So each
+block is walked with 2.6, then 0.26, then 0.23, and given a grade under each
+edition that parses the whole block: *plausible* when every record has the data
+source identifier I010, the target address I080 and a time of day (2.x: I071,
+I073 or I077; 0.2x: I030), its times are below 86401 s, every position it
+carries is within +-90 deg latitude and +-180 deg longitude (2.x: I130 and
+I131; 0.2x: I130, whose size and LSB differ between 0.23 and 0.26), and its
+geometric height (I140) and flight level (I145), when there, are within the
+ranges of the specifications (-1500 to 150000 ft, -15 to 1500 FL); *with
+source* when every record has I010 but some lack the rest; else *without
+source*.  The first edition with the best grade is used (a block's values are
+only read when they can change the choice, :func:`_choose`); a block whose best
+grade is "without source" is rejected as :data:`REJECT_NO_SOURCE`.
+:attr:`DecodeStats.editions` counts the blocks decoded with each edition.  A
+forced edition (``cat021_edition``) is the only one tried.
+
 Robustness: a block is rejected as a whole when its header is inconsistent with
 the bytes that follow, when its records do not parse, or when the decoder
 raises anything.  The rest of the input is kept; :class:`DecodeStats` counts
-what was rejected and why.  After a block whose ``LEN`` cannot be right, the
+what was rejected and why.  A block's ``LEN`` is accepted only when the block
+headers after it confirm it, and after a block whose ``LEN`` cannot be right the
 splitter looks for the next offset where a plausible chain of block headers
-starts (see :func:`split_blocks`), so one corrupted byte does not lose a whole
-raw file.  Nothing raises on arbitrary input bytes except :class:`AsterixError`
+starts (see :func:`split_blocks`), so one corrupted byte loses a block or a few,
+not the rest of a raw file; ``DecodeStats.bytes_unsplit`` counts the bytes left
+out of the blocks.  Nothing raises on arbitrary input bytes except :class:`AsterixError`
 for a file that cannot be read at all.
 """
 
 from __future__ import annotations
 
+import functools
 import io
 import math
+import re
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass, field
+from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -66,17 +95,87 @@ class AsterixError(GraphcalInputError):
     """An ASTERIX recording that cannot be read (missing, empty, no usable data)."""
 
 
-#: Decoder specifications by category (the first that parses a block wins).
+#: CAT021 editions that can be forced (``cat021_edition``), by name; ``"2.x"`` is 2.6,
+#: which reads 2.1 to 2.5 too.
+CAT021_EDITIONS: dict[str, Any] = {
+    "0.23": gen.Cat_021_0_23, "0.24": gen.Cat_021_0_24, "0.25": gen.Cat_021_0_25,
+    "0.26": gen.Cat_021_0_26, "2.x": gen.Cat_021_2_6, "2.1": gen.Cat_021_2_1,
+    "2.2": gen.Cat_021_2_2,
+    "2.3": gen.Cat_021_2_3, "2.4": gen.Cat_021_2_4, "2.5": gen.Cat_021_2_5,
+    "2.6": gen.Cat_021_2_6, "2.7": gen.Cat_021_2_7,
+}
+#: The ``cat021_edition`` that chooses per block from the content.
+CAT021_AUTO = "auto"
+#: Values of ``cat021_edition`` (``graphcal import-asterix --cat021-edition``).
+CAT021_EDITION_CHOICES: tuple[str, ...] = (CAT021_AUTO, *CAT021_EDITIONS)
+
+#: Decoder specifications by category, in the order they are tried (module docstring,
+#: "Choosing the CAT021 edition").
 SPECS: dict[int, tuple[Any, ...]] = {
     48: (gen.Cat_048_1_32,),
-    21: (gen.Cat_021_2_6, gen.Cat_021_0_26),
+    21: (gen.Cat_021_2_6, gen.Cat_021_0_26, gen.Cat_021_0_23),
     34: (gen.Cat_034_1_29,),
 }
 #: Categories that are decoded; others are counted in ``DecodeStats.skipped_categories``.
 DECODED_CATEGORIES: tuple[int, ...] = tuple(SPECS)
 
+#: Largest plausible time of day [s] (86400 s and a leap second).
+MAX_TIME_OF_DAY_S = 86401.0
+#: Range of I021/140 geometric height [ft] and of I021/145 flight level [FL] in the
+#: CAT021 specifications (editions 0.23 to 2.7).
+GEO_HEIGHT_RANGE_FT = (-1500.0, 150000.0)
+FLIGHT_LEVEL_RANGE_FL = (-15.0, 1500.0)
+#: Grades of a block walked with an edition (the higher the better).
+GRADE_NO_SOURCE, GRADE_SOURCE, GRADE_PLAUSIBLE = 0, 1, 2
+
+
+def decoder_specs(cat021_edition: str = CAT021_AUTO) -> dict[int, tuple[Any, ...]]:
+    """The specifications tried, by category: :data:`SPECS`, or with CAT021 forced.
+
+    Parameters
+    ----------
+    cat021_edition : str, optional
+        ``"auto"`` (choose per block, the default) or a key of
+        :data:`CAT021_EDITIONS` (``"0.23"``, ``"0.26"``, ``"2.x"``, ``"2.6"``, ...).
+
+    Raises
+    ------
+    ValueError
+        For an unknown edition.
+    """
+    if cat021_edition == CAT021_AUTO:
+        return SPECS
+    if cat021_edition not in CAT021_EDITIONS:
+        raise ValueError(f"unknown CAT021 edition '{cat021_edition}'; use one of: "
+                         + ", ".join(CAT021_EDITION_CHOICES))
+    return {**SPECS, 21: (CAT021_EDITIONS[cat021_edition],)}
+
+
+def edition_name(spec: Any) -> str:
+    """``"0.26"``, ``"2.6"``, ... of a ``libasterix`` category edition."""
+    major, minor = spec.cv_edition
+    return f"{major}.{minor}"
+
+
 #: Size of a data block header (CAT + LEN) [bytes].
 HEADER_BYTES = 3
+#: Categories ASTERIX defines (EUROCONTROL's list: those ``libasterix`` describes, and
+#: 003, 022, 024, 030, 031, 252).  A block whose ``LEN`` the next headers do not confirm
+#: is kept only when its category is one of these or was seen in the stream, and a
+#: resynchronisation lands only on these or the categories seen (:func:`split_blocks`).
+ASTERIX_CATEGORIES: frozenset[int] = frozenset({
+    1, 2, 3, 4, 7, 8, 9, 10, 11, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 30, 31, 32,
+    34, 48, 62, 63, 65, 150, 205, 240, 247, 252,
+})
+#: Headers after a block that confirm its ``LEN``, or after a header inside a block
+#: that show the block's ``LEN`` corrupted (:func:`split_blocks`).
+CHAIN_DEPTH = 3
+#: Headers after a header where the splitter resynchronises (the first block after a
+#: resynchronisation is then checked as one whose ``LEN`` is not confirmed).
+RESYNC_DEPTH = 2
+#: Smallest limit on the ``LEN`` of a header that confirms a block or starts a
+#: resynchronisation [bytes]; the limit is twice the largest block accepted, when more.
+MIN_LENGTH_LIMIT = 1024
 
 # Rejection reasons (keys of DecodeStats.rejected).
 #: Fewer than 3 bytes left where a block header should start.
@@ -87,6 +186,10 @@ REJECT_BAD_LENGTH = "LEN < 3"
 REJECT_TRUNCATED = "truncated (LEN past end)"
 #: Bytes skipped while looking for the next plausible block header.
 REJECT_RESYNC = "bytes skipped to resync"
+#: A block whose ``LEN`` fits but is not confirmed by the headers after it, while a
+#: plausible chain of headers starts inside it (its ``LEN`` is corrupted), or whose
+#: category has not been seen in the stream (:func:`split_blocks`).
+REJECT_UNCONFIRMED = "LEN not followed by a block header"
 #: The records of a block do not parse (bad FSPEC, item past the end, trailing bytes).
 REJECT_RECORDS = "records do not parse"
 #: The decoder raised an exception on the block.
@@ -243,6 +346,9 @@ class DecodeStats:
         Files read; packets (UDP datagrams) read from captures.
     bytes_read : int
         Bytes of ASTERIX payload seen.
+    bytes_unsplit : int
+        Of them, bytes in no data block: skipped to resynchronise, in rejected
+        headers or unconfirmed blocks, or a short tail (:func:`split_blocks`).
     blocks : int
         Data blocks with a consistent header.
     blocks_decoded : int
@@ -253,16 +359,20 @@ class DecodeStats:
         Records decoded, by category.
     skipped_categories : Counter
         Blocks of categories that are not decoded, by category.
+    editions : Counter
+        Blocks decoded, by ``(category, edition)`` (``(21, "0.26")``).
     """
 
     files: int = 0
     packets: int = 0
     bytes_read: int = 0
+    bytes_unsplit: int = 0
     blocks: int = 0
     blocks_decoded: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
     records: Counter[int] = field(default_factory=Counter)
     skipped_categories: Counter[int] = field(default_factory=Counter)
+    editions: Counter[tuple[int, str]] = field(default_factory=Counter)
 
     @property
     def n_rejected(self) -> int:
@@ -274,11 +384,13 @@ class DecodeStats:
         self.files += other.files
         self.packets += other.packets
         self.bytes_read += other.bytes_read
+        self.bytes_unsplit += other.bytes_unsplit
         self.blocks += other.blocks
         self.blocks_decoded += other.blocks_decoded
         self.rejected.update(other.rejected)
         self.records.update(other.records)
         self.skipped_categories.update(other.skipped_categories)
+        self.editions.update(other.editions)
 
 
 #: Column kinds of each category: float (NaN for ``None``), int (-1 for ``None``), str.
@@ -388,21 +500,83 @@ class Decoded:
 # --------------------------------------------------------------------------- block splitting
 
 
-def _plausible_header(data: bytes, pos: int, end: int) -> bool:
-    """True when a block header at ``pos`` fits in ``[pos, end)`` and is followed by
-    the end or by another header that fits."""
-    if pos + HEADER_BYTES > end:
-        return False
-    length = (data[pos + 1] << 8) | data[pos + 2]
-    if length < HEADER_BYTES or pos + length > end:
-        return False
-    nxt = pos + length
-    if nxt == end:
-        return True
-    if nxt + HEADER_BYTES > end:
-        return False
-    next_length = (data[nxt + 1] << 8) | data[nxt + 2]
-    return HEADER_BYTES <= next_length <= end - nxt
+def _chain(data: bytes, pos: int, end: int, categories: AbstractSet[int], limit: int,
+           bound: int, depth: int) -> bool:
+    """True when ``depth`` block headers chain from ``pos``, each of a category
+    in ``categories`` with a ``LEN`` from 3 to ``limit`` that fits, each starting before
+    ``bound``; or fewer up to ``bound`` exactly, or to the end of the data (or a tail too
+    short for a header, or a header of such a category whose ``LEN`` runs past the end:
+    a block cut off at the end of a recording)."""
+    for _ in range(depth):
+        rest = end - pos
+        if rest < HEADER_BYTES or pos == bound:
+            return True
+        if pos > bound:
+            return False
+        length = (data[pos + 1] << 8) | data[pos + 2]
+        if not HEADER_BYTES <= length <= limit or data[pos] not in categories:
+            return False
+        if length > rest:
+            return True
+        pos += length
+    return True
+
+
+def _confirmed(data: bytes, pos: int, end: int, categories: AbstractSet[int], limit: int
+               ) -> bool:
+    """True when the headers from ``pos`` confirm the ``LEN`` that leads there: the end of
+    the data (or a tail too short for a header), or :data:`CHAIN_DEPTH` headers as in
+    :func:`_chain` with at most one more header among them of another category (a new
+    category in the stream, or a corrupted ``CAT`` byte) whose ``LEN`` fits."""
+    odd = False
+    good = 0
+    while good < CHAIN_DEPTH:
+        rest = end - pos
+        if rest < HEADER_BYTES:
+            return True
+        length = (data[pos + 1] << 8) | data[pos + 2]
+        if not HEADER_BYTES <= length <= limit:
+            return False
+        if data[pos] in categories:
+            if length > rest:
+                return True
+            good += 1
+        elif odd or length > rest:
+            return False
+        else:
+            odd = True
+        pos += length
+    return True
+
+
+def _chain_start(data: bytes, lo: int, hi: int, end: int, categories: AbstractSet[int],
+                 limit: int, depth: int = CHAIN_DEPTH) -> int:
+    """The first offset in ``[lo, hi)`` where a plausible chain of headers starts: a
+    header of a category in ``categories`` whose ``LEN`` (3 to ``limit``) fits, followed
+    by ``depth`` more such headers that start before ``hi`` or chain to ``hi`` exactly
+    (:func:`_chain`); ``hi`` when there is none."""
+    search = _category_finder(frozenset(categories))
+    last = min(hi, end - HEADER_BYTES + 1)  # a header starts before end - 2
+    while lo < last:
+        found = search(data, lo, last)
+        if found is None:
+            break
+        pos = found.start()
+        length = (data[pos + 1] << 8) | data[pos + 2]
+        if HEADER_BYTES <= length <= min(limit, end - pos) and _chain(
+                data, pos + length, end, categories, limit, hi, depth):
+            return pos
+        lo = pos + 1
+    return hi
+
+
+@functools.lru_cache(maxsize=64)
+def _category_finder(categories: frozenset[int]) -> Callable[..., re.Match[bytes] | None]:
+    """``search(data, lo, hi)``: the first byte in ``data[lo:hi]`` of ``categories``."""
+    if not categories:
+        return lambda data, lo, hi: None
+    pattern = b"[" + b"".join(re.escape(bytes([c])) for c in sorted(categories)) + b"]"
+    return re.compile(pattern).search
 
 
 def split_blocks(
@@ -415,7 +589,7 @@ def split_blocks(
     data : bytes
         A UDP payload or a whole raw file.
     stats : DecodeStats
-        Updated in place: ``blocks``, ``bytes_read`` and ``rejected``.
+        Updated in place: ``blocks``, ``bytes_read``, ``bytes_unsplit`` and ``rejected``.
     start, end : int, optional
         Byte range of ``data`` to split (default: all of it).
 
@@ -427,31 +601,99 @@ def split_blocks(
 
     Notes
     -----
-    A header whose ``LEN`` is below 3 or runs past ``end`` is rejected.  The
-    splitter then skips forward to the next offset where a header fits and
-    is followed by the end or by another header that fits, counting the bytes
-    skipped under :data:`REJECT_RESYNC`.  Fewer than 3 bytes at the end are
-    rejected as :data:`REJECT_SHORT_HEADER`.  The work is linear in the input size.
+    A ``LEN`` that fits is not enough: after a corrupted one, the bytes the splitter
+    lands on are record bytes, which read as headers of random categories and
+    lengths (up to 64 KiB each), and it would walk them to the end of a raw file.
+    So a block is accepted when its ``LEN`` (3 or more, fitting in the data) is
+    *confirmed* by what follows it (:func:`_confirmed`): the end of the data (or a
+    tail too short for a header), or a chain of :data:`CHAIN_DEPTH` headers, each of
+    a category already accepted in the stream or this block's (when ASTERIX defines
+    it, :data:`ASTERIX_CATEGORIES`, or no block was accepted yet: a garbage ``CAT``
+    byte such as 0 would otherwise confirm itself), and with a ``LEN`` that fits and
+    is at most twice the largest accepted so far (at least
+    :data:`MIN_LENGTH_LIMIT`).  One more header of another category may sit in the
+    chain (a new category in the stream, or a corrupted ``CAT`` byte).
+
+    A ``LEN`` that is not confirmed, or that exceeds that size limit, or that of the
+    first block after skipped bytes, is checked against the block's own bytes: when
+    a plausible chain of headers starts inside them and stays inside them (a header
+    as above followed by :data:`CHAIN_DEPTH` more, found by a search for the
+    categories' bytes, :func:`_chain_start`), the ``LEN`` is taken as corrupted, the
+    block is rejected as :data:`REJECT_UNCONFIRMED` and the splitter resumes there:
+    a corrupted ``LEN`` loses its own block and rarely more.  Otherwise the block is
+    accepted when it was confirmed, or its category has been accepted before or is
+    one ASTERIX defines (a block followed by garbage), and rejected as
+    :data:`REJECT_UNCONFIRMED` when not.
+
+    A header whose ``LEN`` is below 3 or runs past ``end`` is rejected
+    (:data:`REJECT_BAD_LENGTH`, :data:`REJECT_TRUNCATED`).  The splitter then skips
+    to the next offset where a plausible chain of headers starts: a header followed
+    by :data:`RESYNC_DEPTH` more, of the categories accepted so far or of
+    :data:`ASTERIX_CATEGORIES` (the block found there is checked as an unconfirmed
+    one, above, so a false start that jumps over real blocks gives way to them).
+    The bytes skipped are counted under :data:`REJECT_RESYNC` (up to the end of the
+    data only in ``stats.bytes_unsplit``, which counts every byte left out of the
+    blocks).
+    Fewer than 3 bytes at the end are rejected as :data:`REJECT_SHORT_HEADER`.
+
+    A valid stream (every ``LEN`` leading to the next header, the last to the end)
+    splits into the blocks a check of ``LEN`` alone gives, but for two unlikely
+    cases: a block of a category that ASTERIX does not define and the stream has not
+    shown before, not confirmed by the headers after it (several new categories in a
+    row), and a block larger than the size limit inside whose records a chain of
+    headers happens to start and stay.  The work is linear in the input size.
     """
     end = len(data) if end is None else end
     stats.bytes_read += max(0, end - start)
+    seen: set[int] = set()
+    limit = MIN_LENGTH_LIMIT
+    rejected = stats.rejected
+    suspect = False  # the block at pos follows skipped bytes
     pos = start
     while pos < end:
-        if end - pos < HEADER_BYTES:
-            stats.rejected[REJECT_SHORT_HEADER] += 1
+        rest = end - pos
+        if rest < HEADER_BYTES:
+            rejected[REJECT_SHORT_HEADER] += 1
+            stats.bytes_unsplit += rest
             return
+        category = data[pos]
         length = (data[pos + 1] << 8) | data[pos + 2]
-        if HEADER_BYTES <= length <= end - pos:
-            stats.blocks += 1
-            yield data[pos], pos, pos + length
-            pos += length
-            continue
-        stats.rejected[REJECT_BAD_LENGTH if length < HEADER_BYTES else REJECT_TRUNCATED] += 1
-        resync = pos + 1
-        while resync < end and not _plausible_header(data, resync, end):
-            resync += 1
+        if HEADER_BYTES <= length <= rest:
+            nxt = pos + length
+            if category in seen:
+                categories: AbstractSet[int] = seen
+            elif category in ASTERIX_CATEGORIES or not seen:
+                categories = seen | {category}
+            else:  # a garbage CAT byte would confirm itself
+                categories = seen
+            confirmed = _confirmed(data, nxt, end, categories, limit)
+            if confirmed and length <= limit and not suspect:
+                accept = True
+            else:  # does a chain of headers start inside the block (a corrupted LEN)?
+                resync = _chain_start(data, pos + 1, nxt, end, categories, limit)
+                accept = resync >= nxt and (confirmed or category in seen
+                                            or category in ASTERIX_CATEGORIES)
+            if accept:
+                seen.add(category)
+                if length > limit >> 1:
+                    limit = 2 * length
+                suspect = False
+                stats.blocks += 1
+                yield category, pos, nxt
+                pos = nxt
+                continue
+            rejected[REJECT_UNCONFIRMED] += 1
+            if resync >= nxt:
+                resync = _chain_start(data, nxt, end, end, seen | ASTERIX_CATEGORIES, limit,
+                                      RESYNC_DEPTH)
+        else:
+            rejected[REJECT_BAD_LENGTH if length < HEADER_BYTES else REJECT_TRUNCATED] += 1
+            resync = _chain_start(data, pos + 1, end, end, seen | ASTERIX_CATEGORIES, limit,
+                                  RESYNC_DEPTH)
         if resync < end:
-            stats.rejected[REJECT_RESYNC] += resync - pos
+            rejected[REJECT_RESYNC] += resync - pos
+        stats.bytes_unsplit += resync - pos
+        suspect = True
         pos = resync
 
 
@@ -484,10 +726,21 @@ _FIELDS_034 = {
     "sac": ("010", "SAC"), "sic": ("010", "SIC"), "type": ("000", None),
     "tod": ("030", None), "hgt": ("120", "HGT"), "lat": ("120", "LAT"), "lon": ("120", "LON"),
 }
-_FIELDS_BY_SPEC: dict[Any, dict[str, tuple[str, str | None]]] = {
-    gen.Cat_048_1_32: _FIELDS_048, gen.Cat_021_2_6: _FIELDS_021_V2,
-    gen.Cat_021_0_26: _FIELDS_021_V0, gen.Cat_034_1_29: _FIELDS_034,
-}
+_FIELDS_BY_CATEGORY = {48: _FIELDS_048, 34: _FIELDS_034}
+#: CAT021 columns checked for a plausible block, by edition family (2.x: True).
+_TIME_COLUMNS_021 = {True: ("t071", "t073", "t077"), False: ("t030",)}
+_POSITION_COLUMNS_021 = {True: (("lat131", "lon131"), ("lat130", "lon130")),
+                         False: (("lat130", "lon130"),)}
+#: CAT021 height columns checked, with their ranges (both families).
+_HEIGHT_COLUMNS_021 = (("geo", GEO_HEIGHT_RANGE_FT), ("fl", FLIGHT_LEVEL_RANGE_FL))
+
+
+def _fields_of(spec: Any) -> dict[str, tuple[str, str | None]]:
+    """Columns read of an edition: column -> (item, subfield)."""
+    category = int(spec.cv_category)
+    if category == 21:
+        return _FIELDS_021_V2 if spec.cv_edition[0] >= 2 else _FIELDS_021_V0
+    return _FIELDS_BY_CATEGORY[category]
 
 
 @dataclass(frozen=True)
@@ -507,12 +760,14 @@ class _Compiled:
     fields: dict[str, FieldLayout]
     #: Part sizes of the extended items read, by item name.
     parts: dict[str, tuple[int, ...]]
+    #: The edition's name (``"2.6"``).
+    edition: str
 
 
 def _compile(spec: Any) -> _Compiled:
     record = record_layout(spec)
     fields = {name: locate(spec, item, sub)
-              for name, (item, sub) in _FIELDS_BY_SPEC[spec].items()}
+              for name, (item, sub) in _fields_of(spec).items()}
     slot_items = tuple(dict.fromkeys(f.item for f in fields.values()))
     slots = tuple(slot_items.index(name) if name in slot_items else -1
                   for name in record.names)
@@ -525,7 +780,8 @@ def _compile(spec: Any) -> _Compiled:
         for k in range(record.max_fspec))
     parts = {item: record.items[record.position(item)].sizes for item in slot_items
              if isinstance(record.items[record.position(item)], ExtendedLayout)}
-    return _Compiled(spec, tables, record.items, slots, slot_items, fields, parts)
+    return _Compiled(spec, tables, record.items, slots, slot_items, fields, parts,
+                     edition_name(spec))
 
 
 _COMPILED: dict[Any, _Compiled] = {}
@@ -642,6 +898,128 @@ def _walk_records(data: bytes, pos: int, end: int, compiled: _Compiled, base: in
             return _BAD_RECORD
         out += row
     return out
+
+
+#: Bounds of a field in its item's bytes: (right shift, mask, sign bit (0: unsigned),
+#: lowest and highest raw count allowed).
+_Bounds = tuple[int, int, int, int, int]
+
+
+def _bounds(layout: FieldLayout, last_bit: int, low: float | None, high: float | None,
+            *, strict_high: bool = False) -> _Bounds:
+    """``low <= raw * LSB <= high`` (``< high`` when ``strict_high``) as bounds on the raw
+    count of a field ending ``last_bit`` bits into the bytes read; exact (the LSBs are
+    binary fractions of small integers, so ``raw * LSB`` is exact in floating point)."""
+    assert layout.lsb is not None
+    lsb = Fraction(layout.lsb)
+    sign = 1 << (layout.bit_size - 1) if layout.signed else 0
+    lowest = -sign if sign else 0
+    highest = (sign - 1) if sign else (1 << layout.bit_size) - 1
+    if low is not None:
+        lowest = max(lowest, math.ceil(Fraction(low) / lsb))
+    if high is not None:
+        bound = Fraction(high) / lsb
+        highest = min(highest, math.ceil(bound) - 1 if strict_high else math.floor(bound))
+    return (last_bit - layout.bit_offset - layout.bit_size, (1 << layout.bit_size) - 1, sign,
+            lowest, highest)
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What :func:`_presence_grade` and :func:`_values_grade` check in the records of a
+    CAT021 edition.
+
+    Attributes
+    ----------
+    address_slot : int
+        Offset slot of I080.
+    time_slots : tuple of int
+        Offset slots of the time items (one must be present).
+    items : tuple
+        ``(slot, bytes to read, bounds of its fields)`` of every item whose values are
+        checked when present (times, positions, heights).
+    """
+
+    address_slot: int
+    time_slots: tuple[int, ...]
+    items: tuple[tuple[int, int, tuple[_Bounds, ...]], ...]
+
+
+_PLANS: dict[Any, _Plan] = {}
+
+
+def _plan(compiled: _Compiled) -> _Plan:
+    """The :class:`_Plan` of a compiled CAT021 edition (built once)."""
+    if compiled.spec in _PLANS:
+        return _PLANS[compiled.spec]
+    fields = compiled.fields
+    family = "t071" in fields
+    limits: dict[str, tuple[float | None, float | None, bool]] = {
+        name: (None, MAX_TIME_OF_DAY_S, True) for name in _TIME_COLUMNS_021[family]}
+    for pair in _POSITION_COLUMNS_021[family]:
+        for name, limit in zip(pair, (90.0, 180.0), strict=True):
+            limits[name] = (-limit, limit, False)
+    for name, (low, high) in _HEIGHT_COLUMNS_021:
+        limits[name] = (low, high, False)
+    by_item: dict[str, list[str]] = {}
+    for name in limits:
+        by_item.setdefault(fields[name].item, []).append(name)
+    items = []
+    for item, names in by_item.items():
+        n_bytes = max(fields[n].bit_offset + fields[n].bit_size + 7 for n in names) // 8
+        items.append((compiled.slot_items.index(item), n_bytes, tuple(
+            _bounds(fields[n], 8 * n_bytes, limits[n][0], limits[n][1],
+                    strict_high=limits[n][2]) for n in names)))
+    plan = _Plan(compiled.slot_items.index("080"),
+                 tuple(compiled.slot_items.index(fields[n].item)
+                       for n in _TIME_COLUMNS_021[family]),
+                 tuple(items))
+    _PLANS[compiled.spec] = plan
+    return plan
+
+
+#: Presence grade of a CAT021 block whose values are still to be checked.
+_GRADE_UNCHECKED = GRADE_PLAUSIBLE + 1
+
+
+def _presence_grade(category: int, walked: list[int], compiled: _Compiled) -> int:
+    """The grade of a walked block from the items present: :data:`GRADE_NO_SOURCE`,
+    :data:`GRADE_SOURCE`, :data:`GRADE_PLAUSIBLE` (not CAT021), or, for a CAT021 block
+    that has every item wanted, :data:`_GRADE_UNCHECKED` (:func:`_values_grade` tells)."""
+    width = len(compiled.slot_items)
+    if -1 in walked[compiled.slot_items.index("010")::width]:
+        return GRADE_NO_SOURCE
+    if category != 21:
+        return GRADE_PLAUSIBLE
+    plan = _plan(compiled)
+    if -1 in walked[plan.address_slot::width]:
+        return GRADE_SOURCE
+    times = [walked[slot::width] for slot in plan.time_slots]
+    if min(map(max, *times) if len(times) > 1 else times[0]) < 0:
+        return GRADE_SOURCE  # a record without a time of day
+    return _GRADE_UNCHECKED
+
+
+def _values_grade(data: bytes, walked: list[int], compiled: _Compiled, base: int) -> int:
+    """:data:`GRADE_PLAUSIBLE` when the times, positions and heights of a CAT021 block
+    with every item wanted are within their bounds, else :data:`GRADE_SOURCE`."""
+    width = len(compiled.slot_items)
+    for slot, n_bytes, bounds in _plan(compiled).items:
+        offsets = walked[slot::width]
+        if max(offsets) < 0:
+            continue  # the item is in no record
+        for offset in offsets:
+            if offset < 0:
+                continue
+            offset -= base
+            word = int.from_bytes(data[offset:offset + n_bytes], "big")
+            for shift, mask, sign, lowest, highest in bounds:
+                raw = (word >> shift) & mask
+                if raw & sign:
+                    raw -= sign << 1
+                if not lowest <= raw <= highest:
+                    return GRADE_SOURCE
+    return GRADE_PLAUSIBLE
 
 
 # --------------------------------------------------------------------------- field extraction
@@ -772,11 +1150,35 @@ def _columns_034(f: _Fields, capture: np.ndarray) -> dict[str, np.ndarray]:
 _COLUMN_BUILDERS = {48: _columns_048, 21: _columns_021, 34: _columns_034}
 
 
+def _choose(parsed: list[tuple[_Compiled, list[int], int]], data: bytes, base: int
+            ) -> tuple[_Compiled, list[int], int]:
+    """The first edition with the best grade (module docstring), from the editions that
+    parsed a block with their presence grades (:func:`_presence_grade`).
+
+    The values of a block are only checked when they can change the choice: a single
+    edition with every item wanted, after editions without source only, is chosen
+    whether its values are plausible (the best grade) or not (then it is still the first
+    with the best grade, "with source").  This is what the usual 2.x block is: the
+    0.2x walks fail on it within a record or two."""
+    unchecked = [k for k, entry in enumerate(parsed) if entry[2] == _GRADE_UNCHECKED]
+    if len(unchecked) == 1 and all(entry[2] == GRADE_NO_SOURCE
+                                   for entry in parsed[:unchecked[0]]):
+        compiled, walked, _ = parsed[unchecked[0]]
+        return compiled, walked, GRADE_SOURCE  # or plausible: the same choice
+    graded = [(compiled, walked, _values_grade(data, walked, compiled, base)
+               if grade == _GRADE_UNCHECKED else grade)
+              for compiled, walked, grade in parsed]
+    best = max(grade for _, _, grade in graded)
+    return next(entry for entry in graded if entry[2] == best)
+
+
 class _Collector:
     """Item offsets of the records of accepted blocks, turned into columns at the end."""
 
-    def __init__(self, stats: DecodeStats) -> None:
+    def __init__(self, stats: DecodeStats, specs: dict[int, tuple[Any, ...]] | None = None
+                 ) -> None:
         self.stats = stats
+        self.specs = SPECS if specs is None else specs
         self.chunks: list[bytes] = []
         self.base = 0
         self.n_reports = 0
@@ -796,28 +1198,29 @@ class _Collector:
     def block(self, category: int, data: bytes, begin: int, stop: int,
               capture_s: float | None, base: int) -> int:
         """Walk the block ``data[begin:stop]`` (header included); returns its record count."""
-        if category not in SPECS:
+        specs = self.specs.get(category)
+        if specs is None:
             self.stats.skipped_categories[category] += 1
             return 0
-        walked: list[int] | int = _BAD_RECORD
-        compiled = None
-        for spec in SPECS[category]:
+        parsed: list[tuple[_Compiled, list[int], int]] = []
+        failed = False
+        for spec in specs:
             compiled = _compiled(spec)
             walked = _walk_records(data, begin + HEADER_BYTES, stop, compiled, base)
             if walked == _DECODER_FAILURE:
-                self.stats.rejected[REJECT_DECODER] += 1
-                return 0
-            if isinstance(walked, list) and walked:
-                break
-        if not isinstance(walked, list) or not walked:
-            self.stats.rejected[REJECT_RECORDS] += 1
+                failed = True
+            elif isinstance(walked, list) and walked:
+                parsed.append((compiled, walked, _presence_grade(category, walked, compiled)))
+                if parsed[-1][2] == GRADE_PLAUSIBLE:
+                    break
+        if not parsed:
+            self.stats.rejected[REJECT_DECODER if failed else REJECT_RECORDS] += 1
             return 0
-        assert compiled is not None
-        width = len(compiled.slot_items)
-        if -1 in walked[compiled.slot_items.index("010")::width]:
+        compiled, walked, best = _choose(parsed, data, base)
+        if best == GRADE_NO_SOURCE:
             self.stats.rejected[REJECT_NO_SOURCE] += 1
             return 0
-        n = len(walked) // width
+        n = len(walked) // len(compiled.slot_items)
         spec = compiled.spec
         self.offsets.setdefault(spec, []).extend(walked)
         self.numbers.setdefault(spec, []).extend(range(self.n_reports, self.n_reports + n))
@@ -827,6 +1230,7 @@ class _Collector:
         self.n_reports += n
         self.stats.blocks_decoded += 1
         self.stats.records[category] += n
+        self.stats.editions[category, compiled.edition] += 1
         return n
 
     def finish(self) -> Decoded:
@@ -836,7 +1240,7 @@ class _Collector:
         if not self.n_reports:
             return out
         buffer = np.frombuffer(b"".join(self.chunks), dtype=np.uint8)
-        for category, specs in SPECS.items():
+        for category, specs in self.specs.items():
             parts, numbers = [], []
             for spec in specs:
                 if spec not in self.offsets:
@@ -857,7 +1261,7 @@ class _Collector:
 
 
 def decode_block(category: int, block: bytes, capture_s: float | None,
-                 stats: DecodeStats) -> list[Report]:
+                 stats: DecodeStats, *, cat021_edition: str = CAT021_AUTO) -> list[Report]:
     """Decode one data block (header included) into reports.
 
     Parameters
@@ -870,6 +1274,9 @@ def decode_block(category: int, block: bytes, capture_s: float | None,
         Capture time of the packet [unix s], copied to each report.
     stats : DecodeStats
         Updated in place.
+    cat021_edition : str, optional
+        ``"auto"`` (default: chosen per block) or a CAT021 edition to force
+        (:data:`CAT021_EDITION_CHOICES`).
 
     Returns
     -------
@@ -877,7 +1284,7 @@ def decode_block(category: int, block: bytes, capture_s: float | None,
         Empty for a skipped category or a rejected block.  All reports of a
         block are kept or none: a block with one bad record is rejected.
     """
-    collector = _Collector(stats)
+    collector = _Collector(stats, decoder_specs(cat021_edition))
     base = collector.add_chunk(block)
     collector.block(category, block, 0, len(block), capture_s, base)
     return collector.finish().sequence
@@ -891,7 +1298,8 @@ def _decode_into(collector: _Collector, data: bytes, capture_s: float | None) ->
 
 
 def decode_payload(data: bytes, capture_s: float | None = None,
-                   into: Decoded | None = None) -> Decoded:
+                   into: Decoded | None = None, *, cat021_edition: str = CAT021_AUTO
+                   ) -> Decoded:
     """Split a UDP payload or raw byte stream into blocks and decode them.
 
     Parameters
@@ -902,13 +1310,16 @@ def decode_payload(data: bytes, capture_s: float | None = None,
         Capture time [unix s] given to every report.
     into : Decoded, optional
         Append to this result instead of a new one.
+    cat021_edition : str, optional
+        ``"auto"`` (default: chosen per block) or a CAT021 edition to force
+        (:data:`CAT021_EDITION_CHOICES`).
 
     Returns
     -------
     Decoded
         ``into`` or a new result.
     """
-    collector = _Collector(DecodeStats())
+    collector = _Collector(DecodeStats(), decoder_specs(cat021_edition))
     _decode_into(collector, data, capture_s)
     decoded = collector.finish()
     if into is None:
@@ -986,8 +1397,8 @@ def _packets(stream: io.BufferedIOBase, kind: str, stats: DecodeStats
         yield float(timestamp), payload
 
 
-def decode_bytes(data: bytes, *, progress: Callable[[int, int], None] | None = None
-                 ) -> Decoded:
+def decode_bytes(data: bytes, *, progress: Callable[[int, int], None] | None = None,
+                 cat021_edition: str = CAT021_AUTO) -> Decoded:
     """Decode a whole recording held in memory (raw blocks, pcap or pcapng).
 
     Parameters
@@ -997,6 +1408,9 @@ def decode_bytes(data: bytes, *, progress: Callable[[int, int], None] | None = N
         (:func:`detect_format`).
     progress : callable, optional
         Called as ``progress(bytes_done, bytes_total)`` now and then.
+    cat021_edition : str, optional
+        ``"auto"`` (default: chosen per block) or a CAT021 edition to force
+        (:data:`CAT021_EDITION_CHOICES`).
 
     Returns
     -------
@@ -1009,7 +1423,7 @@ def decode_bytes(data: bytes, *, progress: Callable[[int, int], None] | None = N
         If a capture's global header cannot be read.
     """
     stats = DecodeStats(files=1)
-    collector = _Collector(stats)
+    collector = _Collector(stats, decoder_specs(cat021_edition))
     total = len(data)
     kind = detect_format(data[:12])
     if kind == "raw":
@@ -1033,8 +1447,8 @@ def decode_bytes(data: bytes, *, progress: Callable[[int, int], None] | None = N
     return out
 
 
-def decode_file(path: str | Path, *, progress: Callable[[int, int], None] | None = None
-                ) -> Decoded:
+def decode_file(path: str | Path, *, progress: Callable[[int, int], None] | None = None,
+                cat021_edition: str = CAT021_AUTO) -> Decoded:
     """Decode an ASTERIX recording file (raw blocks, pcap or pcapng).
 
     Parameters
@@ -1043,6 +1457,9 @@ def decode_file(path: str | Path, *, progress: Callable[[int, int], None] | None
         The recording.
     progress : callable, optional
         Called as ``progress(bytes_done, bytes_total)``.
+    cat021_edition : str, optional
+        ``"auto"`` (default: chosen per block) or a CAT021 edition to force
+        (:data:`CAT021_EDITION_CHOICES`).
 
     Returns
     -------
@@ -1064,17 +1481,20 @@ def decode_file(path: str | Path, *, progress: Callable[[int, int], None] | None
     if not data:
         raise AsterixError("empty file", path=path)
     try:
-        return decode_bytes(data, progress=progress)
+        return decode_bytes(data, progress=progress, cat021_edition=cat021_edition)
     except AsterixError as exc:
         raise AsterixError(exc.detail, path=path) from None
 
 
 def decode_files(paths: Iterable[str | Path], *,
-                 progress: Callable[[int, int], None] | None = None) -> Decoded:
+                 progress: Callable[[int, int], None] | None = None,
+                 cat021_edition: str = CAT021_AUTO) -> Decoded:
     """Decode several recordings, in the given order, into one result.
 
-    ``progress`` is called as ``progress(bytes_done, bytes_total)`` over all files.
+    ``progress`` is called as ``progress(bytes_done, bytes_total)`` over all files;
+    ``cat021_edition`` as in :func:`decode_file`.
     """
+    decoder_specs(cat021_edition)  # an unknown edition fails before any file is read
     paths = [Path(p) for p in paths]
     sizes = [p.stat().st_size if p.is_file() else 0 for p in paths]
     total = sum(sizes)
@@ -1085,6 +1505,6 @@ def decode_files(paths: Iterable[str | Path], *,
             if progress is not None:
                 progress(offset + n, total)
 
-        out.extend(decode_file(path, progress=partial))
+        out.extend(decode_file(path, progress=partial, cat021_edition=cat021_edition))
         done += size
     return out

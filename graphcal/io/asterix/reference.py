@@ -8,7 +8,9 @@ both and require the same reports and the same rejection counts, and
 ``benchmarks/bench_asterix.py`` times both.
 
 Only raw byte streams (data blocks back to back) are read here; block splitting
-and the report types are those of :mod:`graphcal.io.asterix.decode`.
+and the report types are those of :mod:`graphcal.io.asterix.decode`.  The CAT021
+edition of a block is chosen by the same rule (that module's docstring, "Choosing
+the CAT021 edition"), here judged on the items ``libasterix`` parsed.
 """
 
 from __future__ import annotations
@@ -19,16 +21,24 @@ from typing import Any
 from asterix.base import Bits
 
 from graphcal.io.asterix.decode import (
+    CAT021_AUTO,
+    FLIGHT_LEVEL_RANGE_FL,
+    GEO_HEIGHT_RANGE_FT,
+    GRADE_NO_SOURCE,
+    GRADE_PLAUSIBLE,
+    GRADE_SOURCE,
     HEADER_BYTES,
+    MAX_TIME_OF_DAY_S,
     REJECT_DECODER,
     REJECT_NO_SOURCE,
     REJECT_RECORDS,
-    SPECS,
     Cat021Report,
     Cat034Message,
     Cat048Report,
     DecodeStats,
     Report,
+    decoder_specs,
+    edition_name,
     split_blocks,
 )
 
@@ -169,19 +179,75 @@ def _cat034(record: Any, capture_s: float | None) -> Cat034Message | None:
     )
 
 
-def _parse_records(category: int, body: bytes) -> tuple[Any, list[Any]] | None:
-    """Parse the records of a block body with the first specification that accepts
-    all of it; ``None`` when none does."""
+def _plausible_021(record: Any, edition: tuple[int, int]) -> bool:
+    """A CAT021 record with a target address and a time of day, all its times below
+    86401 s, its positions within +-90 / +-180 deg and its heights within the ranges
+    of the specification (I010 is checked by the caller)."""
+    if record.get_item("080") is None:
+        return False
+    names = ("071", "073", "077") if edition[0] >= 2 else ("030",)
+    times = [record.get_item(name) for name in names]
+    times = [float(t.variation.content.as_quantity("s")) for t in times if t is not None]
+    if not times or not all(t < MAX_TIME_OF_DAY_S for t in times):
+        return False
+    for name in ("131", "130") if edition[0] >= 2 else ("130",):
+        item = record.get_item(name)
+        if item is not None and not (
+                abs(float(_sub(item, "LAT").as_quantity("°"))) <= 90.0
+                and abs(float(_sub(item, "LON").as_quantity("°"))) <= 180.0):
+            return False
+    for name, unit, (low, high) in (("140", "ft", GEO_HEIGHT_RANGE_FT),
+                                    ("145", "FL", FLIGHT_LEVEL_RANGE_FL)):
+        item = record.get_item(name)
+        if item is not None and not low <= float(item.variation.content.as_quantity(unit)) <= high:
+            return False
+    return True
+
+
+def _grade(category: int, spec: Any, records: list[Any]) -> int:
+    """How plausible a block's records are under ``spec`` (``GRADE_*``)."""
+    if any(record.get_item("010") is None for record in records):
+        return GRADE_NO_SOURCE
+    if category == 21 and not all(_plausible_021(r, spec.cv_edition) for r in records):
+        return GRADE_SOURCE
+    return GRADE_PLAUSIBLE
+
+
+def _parse_records(category: int, body: bytes, specs: tuple[Any, ...]
+                   ) -> tuple[Any, list[Any], int] | None:
+    """Parse the records of a block body with each specification in turn; the first
+    that accepts all of it with the best grade, and that grade.
+
+    Returns ``None`` when none accepts it.
+
+    Raises
+    ------
+    Exception
+        The last ``libasterix`` failure when none accepts it and one failed.
+    """
     bits = Bits.from_bytes(body)
-    for spec in SPECS[category]:
-        records = spec.cv_uap.parse(bits)
-        if not isinstance(records, ValueError) and records:
-            return spec, records
-    return None
+    best: tuple[Any, list[Any], int] | None = None
+    failure: Exception | None = None
+    for spec in specs:
+        try:
+            records = spec.cv_uap.parse(bits)
+        except Exception as exc:  # noqa: BLE001 - another edition may parse it
+            failure = exc
+            continue
+        if isinstance(records, ValueError) or not records:
+            continue
+        grade = _grade(category, spec, records)
+        if best is None or grade > best[2]:
+            best = spec, records, grade
+            if grade == GRADE_PLAUSIBLE:
+                break
+    if best is None and failure is not None:
+        raise failure
+    return best
 
 
 def decode_block(category: int, block: bytes, capture_s: float | None,
-                 stats: DecodeStats) -> list[Report]:
+                 stats: DecodeStats, *, cat021_edition: str = CAT021_AUTO) -> list[Report]:
     """Decode one data block (header included) into reports.
 
     Parameters
@@ -194,6 +260,8 @@ def decode_block(category: int, block: bytes, capture_s: float | None,
         Capture time of the packet [unix s], copied to each report.
     stats : DecodeStats
         Updated in place.
+    cat021_edition : str, optional
+        ``"auto"`` (default) or a CAT021 edition to force.
 
     Returns
     -------
@@ -201,15 +269,16 @@ def decode_block(category: int, block: bytes, capture_s: float | None,
         Empty for a skipped category or a rejected block.  All reports of a
         block are kept or none: a block with one bad record is rejected.
     """
-    if category not in SPECS:
+    specs = decoder_specs(cat021_edition).get(category)
+    if specs is None:
         stats.skipped_categories[category] += 1
         return []
     try:
-        parsed = _parse_records(category, block[HEADER_BYTES:])
+        parsed = _parse_records(category, block[HEADER_BYTES:], specs)
         if parsed is None:
             stats.rejected[REJECT_RECORDS] += 1
             return []
-        spec, records = parsed
+        spec, records, _grade_of_block = parsed
         reports: list[Report] = []
         for record in records:
             if category == 48:
@@ -227,11 +296,12 @@ def decode_block(category: int, block: bytes, capture_s: float | None,
         return []
     stats.blocks_decoded += 1
     stats.records[category] += len(reports)
+    stats.editions[category, edition_name(spec)] += 1
     return reports
 
 
-def decode_payload(data: bytes, capture_s: float | None = None
-                   ) -> tuple[list[Report], DecodeStats]:
+def decode_payload(data: bytes, capture_s: float | None = None, *,
+                   cat021_edition: str = CAT021_AUTO) -> tuple[list[Report], DecodeStats]:
     """Split a raw byte stream into blocks and decode them with ``libasterix``.
 
     Parameters
@@ -240,6 +310,8 @@ def decode_payload(data: bytes, capture_s: float | None = None
         Concatenated ASTERIX data blocks.
     capture_s : float or None, optional
         Capture time [unix s] given to every report.
+    cat021_edition : str, optional
+        ``"auto"`` (default) or a CAT021 edition to force.
 
     Returns
     -------
@@ -251,5 +323,6 @@ def decode_payload(data: bytes, capture_s: float | None = None
     stats = DecodeStats()
     reports: list[Report] = []
     for category, begin, stop in split_blocks(data, stats):
-        reports += decode_block(category, data[begin:stop], capture_s, stats)
+        reports += decode_block(category, data[begin:stop], capture_s, stats,
+                                cat021_edition=cat021_edition)
     return reports, stats

@@ -30,6 +30,12 @@ Time base
       more than 12 h is a midnight wrap.  :attr:`TimeBase.epoch_unix_s` is then
       ``None`` (the date is unknown).
 
+    A time of day beyond 86 401 s (the items hold up to 131 072 s: a corrupted
+    value) is left out of this placing, and its report is skipped and counted
+    (:data:`SKIP_TOD_048`, :data:`SKIP_TOD_021`); so is a report placed before day 0
+    (a negative ``time_s``: a time of day more than 12 h before its neighbour's
+    or its capture time, :data:`SKIP_BEFORE_DAY_0_048`, :data:`SKIP_BEFORE_DAY_0_021`).
+
 Plots (CAT048)
     ``time_s`` from I048/140; ``range_m`` = I048/040 RHO [NM] * 1852;
     ``azimuth_deg`` = I048/040 THETA; ``elevation_deg`` NaN (2-D radar);
@@ -44,15 +50,21 @@ Plots (CAT048)
 ADS-B (CAT021)
     ``time_s`` from I021/071 (time of applicability for position), else
     I021/073 (time of message reception for position; within about a second
-    of it), else I021/030 (edition 0.x); reports with none are skipped.
+    of it), else I021/030 (editions 0.23 to 0.26); reports with none are skipped.
     ``target_id`` from I021/080; ``lat_deg``/``lon_deg`` from I021/131 (high
-    resolution), else I021/130; ``alt_m`` = I021/140 geometric height [ft] *
-    0.3048 (height above the WGS-84 ellipsoid); ``nacp`` from I021/090 NACp,
-    else the NUCp of a DO-260 (version 0) transponder mapped to the NACp whose
-    95 % bound is not tighter (:data:`NUCP_TO_NACP`), else empty;
+    resolution), else I021/130 (editions 0.2x: their only position, 180/2^23 deg
+    in 0.23 and 180/2^25 deg in 0.24 to 0.26); ``alt_m`` = I021/140 geometric
+    height [ft] * 0.3048 (height above the WGS-84 ellipsoid); ``nacp`` from
+    I021/090 NACp (edition 2.x; the I021/090 of editions 0.2x is a figure of merit
+    and is not read), else the NUCp of a DO-260 (version 0) transponder mapped to
+    the NACp whose 95 % bound is not tighter (:data:`NUCP_TO_NACP`), else empty;
     ``baro_alt_m`` = I021/145 flight level * 100 ft * 0.3048 (the reported
     pressure altitude, contract v2; NaN when absent).  Reports without a
-    position, address or geometric height are skipped and counted.
+    position or address are skipped and counted.  A report without I021/140
+    (old ground stations, edition 0.23, often send only I021/145) is kept with
+    ``alt_m`` NaN and its ``baro_alt_m``: its position can be inspected, but a
+    calibration does not use it (:func:`graphcal.data.cleaning.drop_non_finite_adsb`);
+    one with neither I021/140 nor I021/145 is skipped and counted.
 """
 
 from __future__ import annotations
@@ -70,6 +82,7 @@ from graphcal.core.errors import DatasetError
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.epoch import epoch_from_unix
 from graphcal.io.asterix.decode import (
+    MAX_TIME_OF_DAY_S,
     AsterixError,
     Cat034Message,
     Cat048Report,
@@ -304,6 +317,11 @@ class TableStats:
         Reports skipped, by reason.
     adsb_reports, aircraft : int
         ADS-B rows kept; distinct addresses among them.
+    adsb_without_height : int
+        Of the ADS-B rows kept, those without a geometric height (no I021/140):
+        ``alt_m`` is NaN.
+    adsb_without_height_baro : int
+        Of those, rows that carry a flight level (I021/145) as ``baro_alt_m``.
     """
 
     plots_by_radar: dict[str, int] = field(default_factory=dict)
@@ -312,6 +330,8 @@ class TableStats:
     skipped: Counter[str] = field(default_factory=Counter)
     adsb_reports: int = 0
     aircraft: int = 0
+    adsb_without_height: int = 0
+    adsb_without_height_baro: int = 0
 
 
 @dataclass
@@ -382,6 +402,33 @@ def _skip_first(reasons: Sequence[tuple[str, np.ndarray]], skipped: Counter[str]
     return keep
 
 
+#: Reasons for skipping a report whose time of day is out of range: more than
+#: :data:`~graphcal.io.asterix.decode.MAX_TIME_OF_DAY_S` (86 400 s and a leap second;
+#: the items hold up to 131 072 s), so a corrupted value.  Such a time is also left out
+#: when the day of every report is found (:func:`build_tables`).
+SKIP_TOD_048 = "CAT048 time of day (I140) beyond 86400 s"
+SKIP_TOD_021 = "CAT021 time of day beyond 86400 s"
+#: Reasons for skipping a report put on a day before day 0, i.e. a negative ``time_s``:
+#: a time of day more than 12 h before the previous report's (raw files) or its
+#: capture time's (pcap), a corrupted value far more often than a report stamped
+#: before the midnight that starts the recording.
+SKIP_BEFORE_DAY_0_048 = "CAT048 time before 00:00 of day 0 (negative time_s)"
+SKIP_BEFORE_DAY_0_021 = "CAT021 time before 00:00 of day 0 (negative time_s)"
+
+
+def _bad_time_of_day(tod: np.ndarray) -> np.ndarray:
+    """True where a time of day [s] is given but out of range (negative, or beyond
+    :data:`~graphcal.io.asterix.decode.MAX_TIME_OF_DAY_S`)."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(tod) & ((tod < 0.0) | (tod >= MAX_TIME_OF_DAY_S))
+
+
+def _time_of_position(columns: Mapping[str, np.ndarray]) -> np.ndarray:
+    """A CAT021 report's time of day [s]: of applicability for position, else of reception."""
+    t = columns["time_position_s"]
+    return np.where(np.isfinite(t), t, columns["time_reception_s"])
+
+
 def plots_frame(columns: Mapping[str, np.ndarray], times: np.ndarray,
                 radar_ids: Mapping[tuple[int, int], str], skipped: Counter[str],
                 elevation_deg: np.ndarray | None = None,
@@ -412,7 +459,9 @@ def plots_frame(columns: Mapping[str, np.ndarray], times: np.ndarray,
     keep = _skip_first([
         ("CAT048 without I040 (polar position)",
          ~np.isfinite(columns["rho_nm"]) | ~np.isfinite(columns["theta_deg"])),
+        (SKIP_TOD_048, _bad_time_of_day(columns["time_of_day_s"])),
         ("CAT048 without I140 (time of day)", ~np.isfinite(times)),
+        (SKIP_BEFORE_DAY_0_048, times < 0.0),
         ("CAT048 of a 3-D radar without I110 (height)", is_3d & ~np.isfinite(elevation)),
     ], skipped)
     code_ids = {s * 256 + c: rid for (s, c), rid in radar_ids.items()}
@@ -440,8 +489,12 @@ def adsb_frame(columns: Mapping[str, np.ndarray], times: np.ndarray,
             ("CAT021 without position", ~np.isfinite(lat) | ~np.isfinite(lon)),
             ("CAT021 position out of range", ~((np.abs(lat) <= 90.0) & (np.abs(lon) <= 180.0))),
             ("CAT021 without target address", columns["address"] < 0),
-            ("CAT021 without geometric height (I140)", ~np.isfinite(columns["geo_height_ft"])),
+            # Without I140 the report is kept (alt_m NaN) when it has a flight level.
+            ("CAT021 without geometric height (I140) or flight level (I145)",
+             ~np.isfinite(columns["geo_height_ft"]) & ~np.isfinite(columns["flight_level"])),
+            (SKIP_TOD_021, _bad_time_of_day(_time_of_position(columns))),
             ("CAT021 without time of position", ~np.isfinite(times)),
+            (SKIP_BEFORE_DAY_0_021, times < 0.0),
         ], skipped)
     nacp = _nacp(columns)[keep]
     frame = pd.DataFrame({
@@ -569,6 +622,24 @@ def sites_template(inventory: Sequence[RadarInventory], recordings: Sequence[str
     return "\n".join(lines)
 
 
+#: A source with no position and at most this many plots ...
+STRAY_MAX_PLOTS = 20
+#: ... and at most this share of the recording's plots is a corrupted SAC/SIC, not a radar.
+STRAY_MAX_SHARE = 1e-3
+#: How its plots are counted among the skipped reports.
+STRAY_REASON = "CAT048 of a SAC/SIC with a handful of plots and no position (a corrupted SAC/SIC?)"
+
+
+def _stray_sources(missing: Sequence[RadarInventory],
+                   inventory: Sequence[RadarInventory]) -> list[RadarInventory]:
+    """Sources without a position whose few plots (at most :data:`STRAY_MAX_PLOTS` and
+    :data:`STRAY_MAX_SHARE` of all) are a corrupted data source identifier: a radar of a
+    real recording sends thousands.  They are left out, not asked a position for."""
+    total = sum(r.plots for r in inventory)
+    return [r for r in missing
+            if r.plots <= STRAY_MAX_PLOTS and r.plots <= STRAY_MAX_SHARE * total]
+
+
 def _position_help(missing: Sequence[RadarInventory]) -> str:
     names = ", ".join(f"SAC {r.sac} / SIC {r.sic} ({r.radar_id}, {r.plots} plots)"
                       for r in missing)
@@ -629,18 +700,17 @@ def _elevations(columns: Mapping[str, np.ndarray], sites: Mapping[tuple[int, int
 
 
 def _time_of_day(decoded: Decoded) -> tuple[np.ndarray, np.ndarray]:
-    """Time of day [s] and capture time [unix s] of every report in input order."""
+    """Time of day [s] (NaN: none, or out of range) and capture time [unix s] of every
+    report in input order."""
     n = len(decoded.order)
     tod, capture = np.full(n, np.nan), np.full(n, np.nan)
     for category, columns in decoded.columns.items():
         rows = decoded.order == category
-        if category == 21:
-            t = columns["time_position_s"]
-            t = np.where(np.isfinite(t), t, columns["time_reception_s"])
-        else:
-            t = columns["time_of_day_s"]
-        tod[rows] = t
+        tod[rows] = (_time_of_position(columns) if category == 21
+                     else columns["time_of_day_s"])
         capture[rows] = columns["capture_s"]
+    # An out-of-range time of day is not used to place the reports after it.
+    tod[_bad_time_of_day(tod)] = np.nan
     return tod, capture
 
 
@@ -693,8 +763,12 @@ def build_tables(
     usable_codes = set((columns["sac"] * 256 + columns["sic"])[usable].tolist())
     missing = [r for r in inventory if r.radar_id not in user and r.cat034 is None
                and r.sac * 256 + r.sic in usable_codes]
+    stray = _stray_sources(missing, inventory)
+    missing = [r for r in missing if r not in stray]
     if missing:
         raise AsterixError(_position_help(missing), path=source)
+    for radar in stray:  # a corrupted SAC/SIC: its few plots left out, counted
+        usable_codes.discard(radar.sac * 256 + radar.sic)
     check_dimensions(inventory, user, source)
 
     stats = TableStats()
@@ -727,6 +801,10 @@ def build_tables(
         raise AsterixError(
             "no usable CAT048 plot (every report lacks I040 polar position or I140 time)",
             path=source)
+    if stray:
+        gone = plots["radar_id"].isin([r.radar_id for r in stray]).to_numpy()
+        stats.skipped[STRAY_REASON] += int(gone.sum())
+        plots = plots[~gone].reset_index(drop=True)
     counts = plots["radar_id"].value_counts()
     for radar_id in list(sites):
         if radar_id not in counts.index:
@@ -743,6 +821,11 @@ def build_tables(
     if adsb is not None:
         stats.adsb_reports = len(adsb)
         stats.aircraft = int(adsb["target_id"].nunique())
+        no_height = ~np.isfinite(adsb["alt_m"].to_numpy(dtype=float, na_value=np.nan))
+        stats.adsb_without_height = int(no_height.sum())
+        if "baro_alt_m" in adsb:
+            baro = adsb["baro_alt_m"].to_numpy(dtype=float, na_value=np.nan)
+            stats.adsb_without_height_baro = int((no_height & np.isfinite(baro)).sum())
     epoch = None if time_base.epoch_unix_s is None else epoch_from_unix(time_base.epoch_unix_s)
     dataset = Dataset(sites=sites, plots=plots, adsb=_with_sigma(adsb),
                       plot_altitude="geometric" if user_sites is None else user_sites.plot_altitude,
