@@ -715,7 +715,7 @@ def _shared_height_error(bad: list[tuple[str, float, float]],
         tuple(rid for rid, _, _ in bad))
 
 
-def _elevation_radians(sites: Mapping[str, Site], plots: pd.DataFrame,
+def elevation_radians(sites: Mapping[str, Site], plots: pd.DataFrame,
                        fits: Mapping[str, GeometryFit] | None = None) -> Finding | None:
     """A 3-D radar whose elevations look like radians (:data:`ELEVATION_RADIANS_RATIO`).
 
@@ -978,7 +978,7 @@ def check_tables(sites: Mapping[str, Site], plots: pd.DataFrame,
     findings += [azimuth, ranges]
     # Elevations in radians fake a wrong antenna height: judged first, and it replaces
     # that finding.  On the plots' heights here, on the ADS-B below when they have none.
-    elevation = _elevation_radians(sites, plots_sample)
+    elevation = elevation_radians(sites, plots_sample)
     findings.append(elevation)
     time_unit = [_plot_time_unit(sites, plots)]
     if adsb is not None and len(adsb):
@@ -1013,7 +1013,7 @@ def check_tables(sites: Mapping[str, Site], plots: pd.DataFrame,
                 and plot_feet is None and elevation is None and not time_unit:
             with np.errstate(all="ignore"):
                 fits = adsb_geometry(sites, plots, adsb)
-            elevation = _elevation_radians(sites, plots_sample, fits)
+            elevation = elevation_radians(sites, plots_sample, fits)
             findings.append(elevation)
             findings.append(_time_base(fits))
             antenna = None if elevation is not None else _antenna_height(sites, fits)
@@ -1073,6 +1073,7 @@ __all__ = [
     "SITE_ALT_RANGE_M",
     "Finding",
     "check_tables",
+    "elevation_radians",
     "check_time_overlap",
     "ground_distance_m",
     "midnight_wrap",

@@ -378,7 +378,7 @@ def _solve(
                    values.get(HEIGHT))
 
 
-def _joint_covariance(fg: Any, values: Any, joint_keys: list[int],
+def named_joint_covariance(fg: Any, values: Any, joint_keys: list[int],
                       radar_keys: Mapping[str, int]) -> np.ndarray:
     """``fg.joint_covariance``; an indeterminate system becomes an :class:`EstimationError`
     naming the radar whose biases the data leave undetermined (exit 3, not a defect)."""
@@ -407,7 +407,7 @@ def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
     and an azimuth bias).
     """
     keys = [solved.problem.keys[rid] for rid in solved.radars]
-    marginal = _joint_covariance(solved.fg, solved.result.values, keys, solved.problem.keys)
+    marginal = named_joint_covariance(solved.fg, solved.result.values, keys, solved.problem.keys)
     solved.joint = (keys, marginal)  # the marginals of the result, when nothing is re-solved
     labels = [(rid, name) for rid in solved.radars for name in solved.terms[rid].free]
     information = np.linalg.inv(marginal)
@@ -587,7 +587,7 @@ def graph(
     if solved.joint is not None and solved.joint[0] == joint_keys:
         marginal = solved.joint[1]  # computed by the time-offset check, same graph and values
     else:
-        marginal = _joint_covariance(fg, result.values, joint_keys, keys)
+        marginal = named_joint_covariance(fg, result.values, joint_keys, keys)
     labels = [(rid, name) for rid in radars for name in terms[rid].free]
     p = len(labels)
     columns: dict[str, list[int]] = {rid: [] for rid in radar_ids}

@@ -176,7 +176,7 @@ def _run_wls(
             f"(chi2/dof); its sigmas are paper 001's formal ones, from the stated noise, and "
             f"are then about {np.sqrt(chi2):.2g} times too small (or the noise model is "
             "wrong: estimate the sigmas with 'graphcal noise')")
-    large = _beyond_one_linearisation(cal)
+    large = beyond_one_linearisation(cal)
     if large:
         cal.warnings.append(
             f"{method} linearises once, at the measured plots (paper 001 eq. 10): with biases "
@@ -199,7 +199,7 @@ LINEARISATION_LIMITS: dict[str, float] = {
     "range_offset_m": 1000.0, "azimuth_bias_mrad": 10.0, "elevation_bias_mrad": 10.0}
 
 
-def _beyond_one_linearisation(cal: Calibration) -> list[str]:
+def beyond_one_linearisation(cal: Calibration) -> list[str]:
     """``["NORD range_offset_m 3030"]``: the estimates beyond :data:`LINEARISATION_LIMITS`."""
     found = []
     for rid in cal.radar_ids:
@@ -271,4 +271,5 @@ def wls_pruned(
     return _run_wls("wls-pruned", dataset, True, iterations, max_gap_s, progress, linearise)
 
 
-__all__ = ["wls", "wls_pruned", "greedy_prune", "whiten"]
+__all__ = ["LINEARISATION_LIMITS", "beyond_one_linearisation", "greedy_prune", "whiten", "wls",
+           "wls_pruned"]

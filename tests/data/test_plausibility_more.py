@@ -15,9 +15,9 @@ import graphcal
 from graphcal.cli.app import app
 from graphcal.data.cleaning import clean_dataset, time_stamp_warnings
 from graphcal.data.plausibility import (
-    _elevation_radians,
     adsb_geometry,
     check_tables,
+    elevation_radians,
     midnight_wrap,
 )
 from graphcal.io.folder import write_dataset
@@ -78,7 +78,7 @@ def test_elevation_in_radians_seen_against_the_adsb(demo):
         fits = adsb_geometry(ds.sites, ds.plots, ds.adsb)
     assert math.isclose(fits["EST3D"].elevation_ratio, math.pi / 180, rel_tol=0.1)
     assert math.isclose(fits["OUEST3D"].elevation_ratio, 1.0, rel_tol=0.1)
-    finding = _elevation_radians(ds.sites, ds.plots, fits)
+    finding = elevation_radians(ds.sites, ds.plots, fits)
     assert finding is not None and finding.radars == ("EST3D",)
     assert "ADS-B" in finding.message
 

@@ -31,10 +31,10 @@ from graphcal.io.asterix.tables import (
     SKIP_BEFORE_DAY_0_048,
     SKIP_TOD_021,
     SKIP_TOD_048,
-    _time_of_day,
     adsb_frame,
     build_tables,
     plots_frame,
+    records_time_of_day,
     unwrap_time_array,
 )
 from graphcal.io.folder import write_sites
@@ -216,7 +216,7 @@ def test_no_negative_time_after_random_corruption(recording) -> None:
         decoded = decode_bytes(bytes(corrupted))
         # The table builder's steps, without the sites (a corrupted SAC/SIC is a radar
         # without a position, which build_tables refuses).
-        tod, capture_s = _time_of_day(decoded)
+        tod, capture_s = records_time_of_day(decoded)
         times, _ = unwrap_time_array(tod, capture_s)
         columns = decoded.columns[48]
         ids = {(s, c): f"SAC{s}_SIC{c}" for s, c in zip(

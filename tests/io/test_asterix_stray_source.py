@@ -7,7 +7,7 @@ from graphcal.io.asterix.tables import (
     STRAY_MAX_PLOTS,
     STRAY_MAX_SHARE,
     RadarInventory,
-    _stray_sources,
+    stray_sources,
 )
 
 
@@ -18,7 +18,7 @@ def _radar(sic: int, plots: int) -> RadarInventory:
 
 def test_a_handful_of_plots_is_a_stray_source() -> None:
     radars = [_radar(10, 70_000), _radar(11, 71_000), _radar(99, 1), _radar(98, STRAY_MAX_PLOTS)]
-    stray = _stray_sources(radars[2:], radars)
+    stray = stray_sources(radars[2:], radars)
     assert [r.sic for r in stray] == [99, 98]
 
 
@@ -26,9 +26,9 @@ def test_a_small_recording_keeps_asking() -> None:
     # 15 plots of 200 are 7.5 %: a radar seen briefly, not a corrupted byte
     radars = [_radar(10, 185), _radar(11, 15)]
     assert 15 > STRAY_MAX_SHARE * 200
-    assert _stray_sources(radars[1:], radars) == []
+    assert stray_sources(radars[1:], radars) == []
 
 
 def test_more_than_the_limit_is_a_radar() -> None:
     radars = [_radar(10, 1_000_000), _radar(11, STRAY_MAX_PLOTS + 1)]
-    assert _stray_sources(radars[1:], radars) == []
+    assert stray_sources(radars[1:], radars) == []

@@ -32,5 +32,5 @@ def test_graph_names_the_radar() -> None:
             raise IndeterminateSystemError("indeterminate", symbol("b", 1))
 
     with pytest.raises(EstimationError, match="near SUD's biases"):
-        graph_module._joint_covariance(Stub(), None, [symbol("b", 0), symbol("b", 1)],
+        graph_module.named_joint_covariance(Stub(), None, [symbol("b", 0), symbol("b", 1)],
                                        {"NORD": symbol("b", 0), "SUD": symbol("b", 1)})

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from graphcal.data.calibration import Calibration, Observability
-from graphcal.solvers.wls import LINEARISATION_LIMITS, _beyond_one_linearisation
+from graphcal.solvers.wls import LINEARISATION_LIMITS, beyond_one_linearisation
 
 
 def _cal(offset_m: float, azimuth_rad: float) -> Calibration:
@@ -22,6 +22,6 @@ def test_limits_are_1_km_and_10_mrad() -> None:
 
 
 def test_large_biases_are_named_small_ones_not() -> None:
-    assert _beyond_one_linearisation(_cal(3030.3, 0.001)) == ["NORD range_offset_m 3,030"]
-    assert _beyond_one_linearisation(_cal(-50.0, -0.012)) == ["NORD azimuth_bias_mrad -12"]
-    assert _beyond_one_linearisation(_cal(999.0, 0.0099)) == []
+    assert beyond_one_linearisation(_cal(3030.3, 0.001)) == ["NORD range_offset_m 3,030"]
+    assert beyond_one_linearisation(_cal(-50.0, -0.012)) == ["NORD azimuth_bias_mrad -12"]
+    assert beyond_one_linearisation(_cal(999.0, 0.0099)) == []

@@ -630,7 +630,7 @@ STRAY_MAX_SHARE = 1e-3
 STRAY_REASON = "CAT048 of a SAC/SIC with a handful of plots and no position (a corrupted SAC/SIC?)"
 
 
-def _stray_sources(missing: Sequence[RadarInventory],
+def stray_sources(missing: Sequence[RadarInventory],
                    inventory: Sequence[RadarInventory]) -> list[RadarInventory]:
     """Sources without a position whose few plots (at most :data:`STRAY_MAX_PLOTS` and
     :data:`STRAY_MAX_SHARE` of all) are a corrupted data source identifier: a radar of a
@@ -699,7 +699,7 @@ def _elevations(columns: Mapping[str, np.ndarray], sites: Mapping[tuple[int, int
     return elevation
 
 
-def _time_of_day(decoded: Decoded) -> tuple[np.ndarray, np.ndarray]:
+def records_time_of_day(decoded: Decoded) -> tuple[np.ndarray, np.ndarray]:
     """Time of day [s] (NaN: none, or out of range) and capture time [unix s] of every
     report in input order."""
     n = len(decoded.order)
@@ -763,7 +763,7 @@ def build_tables(
     usable_codes = set((columns["sac"] * 256 + columns["sic"])[usable].tolist())
     missing = [r for r in inventory if r.radar_id not in user and r.cat034 is None
                and r.sac * 256 + r.sic in usable_codes]
-    stray = _stray_sources(missing, inventory)
+    stray = stray_sources(missing, inventory)
     missing = [r for r in missing if r not in stray]
     if missing:
         raise AsterixError(_position_help(missing), path=source)
@@ -791,7 +791,7 @@ def build_tables(
         by_source[(radar.sac, radar.sic)] = sites[radar.radar_id]
         stats.sources[radar.radar_id] = (radar.sac, radar.sic)
 
-    tod, capture = _time_of_day(decoded)
+    tod, capture = records_time_of_day(decoded)
     times, time_base = unwrap_time_array(tod, capture, epoch_unix_s)
     radar_ids = {(r.sac, r.sic): r.radar_id for r in inventory}
     three_d = [(r.sac, r.sic) for r in inventory if r.is_3d]
