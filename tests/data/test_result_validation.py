@@ -108,7 +108,7 @@ def test_covariance_units_are_named(case) -> None:
     assert np.sqrt(cal.covariance_contract[i, i]) == pytest.approx(sigma)
     assert np.sqrt(cal.covariance_si[i, i]) * 1e3 == pytest.approx(sigma)
     assert cal.covariance_si[i, i] == cal.covariance[i, i]
-    block = cal.covariance("NORD")
+    block = cal.marginal("NORD")
     k = cal.marginal_labels("NORD").index("azimuth_bias_mrad")
     assert np.sqrt(block[k, k]) == pytest.approx(sigma)
     assert np.allclose(cal.covariance_contract, doc["covariance"]["matrix"])
