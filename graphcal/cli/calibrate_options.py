@@ -13,13 +13,12 @@ the choices are repeated here from the modules that own them (a test keeps them 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from typing import Any
 
 import typer
 
-from graphcal.cli.common import EXIT_BAD_INPUT, check_choice, fail
+from graphcal.cli.common import EXIT_BAD_INPUT, check_choice, check_count, check_positive, fail
 
 #: Estimators (:data:`graphcal.solvers.registry.METHODS`).
 METHOD_CHOICES: tuple[str, ...] = ("graph", "ls", "fl", "fl-ls", "wls", "wls-pruned")
@@ -119,28 +118,13 @@ COUNT_OPTIONS: dict[str, str] = {
 }
 
 
-def check_positive(value: float | None, option: str, what: str = "a positive number") -> None:
-    """Refuse (exit 2) a value that is not a finite number above zero (``None`` passes).
-
-    A negative, zero, NaN or infinite duration, scale or threshold is never meant: a
-    gap of -3 s bridges nothing and silently turns ADS-B off, one of ``inf`` bridges
-    hours.
-    """
-    if value is None:
-        return
-    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-        fail(f"{option} must be {what}, not {value}", EXIT_BAD_INPUT)
-
-
 def check_numbers(params: Mapping[str, Any]) -> None:
     """Refuse (exit 2) numeric options out of their domain (:data:`POSITIVE_OPTIONS`,
     :data:`COUNT_OPTIONS`), whether or not the method uses them."""
     for name, (option, what) in POSITIVE_OPTIONS.items():
         check_positive(params.get(name), option, what)
     for name, option in COUNT_OPTIONS.items():
-        value = params.get(name)
-        if value is not None and value < 1:
-            fail(f"{option} must be at least 1, not {value}", EXIT_BAD_INPUT)
+        check_count(params.get(name), option, "at least 1")
 
 
 def _check_adsb(ctx: typer.Context, method: str) -> None:
@@ -226,5 +210,4 @@ __all__ = [
     "WLS_OPTIONS",
     "check_calibrate_options",
     "check_numbers",
-    "check_positive",
 ]

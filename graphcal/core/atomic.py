@@ -30,11 +30,11 @@ import errno
 import os
 import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from graphcal.core.errors import OutputExistsError, os_error_errno
+from graphcal.core.errors import OutputExistsError, fill_errno
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -154,11 +154,7 @@ def publish(temporary: str | Path, path: str | Path, *, replace: bool = True) ->
 
 def _name_error(exc: OSError, path: Path, temporary: str | None) -> None:
     """Give an operating-system error the destination as its file (in place)."""
-    if exc.errno is None:
-        code = os_error_errno(exc)
-        if code is not None:
-            exc.errno, exc.strerror = code, os.strerror(code)
-    if exc.errno is None:  # not an error of the system: its message stands
+    if not fill_errno(exc):  # not an error of the system: its message stands
         return
     name = exc.filename
     if name is None or (temporary is not None and os.fspath(name) == os.fspath(temporary)) \
@@ -174,6 +170,32 @@ def _temporary_of(name: object, path: Path) -> bool:
     candidate = Path(os.fsdecode(name))
     return (os.path.abspath(candidate.parent) == os.path.abspath(path.parent)
             and candidate.name.startswith(f".{path.stem}."))
+
+
+@contextlib.contextmanager
+def _published(path: Path, replace: bool | None, prefix: str, suffix: str) -> Iterator[str]:
+    """A temporary file beside ``path`` to fill inside the block; then synced to disk and
+    published (:func:`publish`, never replacing a protected or ``replace=False`` path).
+    On any error the temporary is removed and an :class:`OSError` names ``path``."""
+    no_replace = not _replaces(path, replace)
+    temporary: str | None = None
+    try:
+        handle, temporary = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=path.parent)
+        os.close(handle)
+        yield temporary
+        with open(temporary, "rb+") as stream:
+            os.fsync(stream.fileno())
+        os.chmod(temporary, 0o644)
+        publish(temporary, path, replace=not no_replace)
+    except BaseException as exc:
+        if temporary is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(temporary)
+        if isinstance(exc, OSError):
+            _name_error(exc, path, temporary)
+        raise
+    if no_replace:
+        unprotect(path)
 
 
 def atomic_write_stream(path: str | Path, write: Callable[[Any], None], *,
@@ -201,26 +223,9 @@ def atomic_write_stream(path: str | Path, write: Callable[[Any], None], *,
         With ``filename`` the destination (a full disk, a file-size limit, ...).
     """
     path = Path(path)
-    no_replace = not _replaces(path, replace)
-    temporary: str | None = None
-    try:
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp",
-                                             dir=path.parent)
-        with os.fdopen(handle, "wb") as stream:
-            write(stream)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.chmod(temporary, 0o644)
-        publish(temporary, path, replace=not no_replace)
-    except BaseException as exc:
-        if temporary is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(temporary)
-        if isinstance(exc, OSError):
-            _name_error(exc, path, temporary)
-        raise
-    if no_replace:
-        unprotect(path)
+    with _published(path, replace, f".{path.name}.", ".tmp") as temporary, \
+            open(temporary, "wb") as stream:
+        write(stream)
 
 
 def atomic_write_text(path: str | Path, text: str, *, encoding: str = "utf-8",
@@ -256,26 +261,8 @@ def atomic_write_table(frame: pd.DataFrame, path: str | Path, *,
     path = Path(path)
     if path.suffix not in (".csv", ".parquet"):
         raise ValueError(f"{path}: the table format comes from the suffix: .csv or .parquet")
-    no_replace = not _replaces(path, replace)
-    temporary: str | None = None
-    try:
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix,
-                                             dir=path.parent)
-        os.close(handle)
+    with _published(path, replace, f".{path.stem}.", path.suffix) as temporary:
         write_table(frame, Path(temporary))
-        with open(temporary, "rb+") as stream:
-            os.fsync(stream.fileno())
-        os.chmod(temporary, 0o644)
-        publish(temporary, path, replace=not no_replace)
-    except BaseException as exc:
-        if temporary is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(temporary)
-        if isinstance(exc, OSError):
-            _name_error(exc, path, temporary)
-        raise
-    if no_replace:
-        unprotect(path)
 
 
 def write_table(frame: pd.DataFrame, path: Path) -> None:

@@ -105,6 +105,16 @@ _CAUSES = {
 }
 
 
+def fill_errno(exc: OSError) -> bool:
+    """Set ``errno`` and ``strerror`` of ``exc`` (in place) when only its message names
+    them (:func:`os_error_errno`); whether it is an error of the system at all."""
+    if exc.errno is None:
+        code = os_error_errno(exc)
+        if code is not None:
+            exc.errno, exc.strerror = code, os.strerror(code)
+    return exc.errno is not None
+
+
 def os_error_errno(exc: BaseException) -> int | None:
     """The ``errno`` of an operating-system error, also when a library (pyarrow) only
     names it in the message (``[errno 28] No space left on device``)."""

@@ -76,8 +76,8 @@ from graphcal.core.errors import (
     DatasetError,
     OutputExistsError,
     SensorModelError,
+    fill_errno,
     os_error_cause,
-    os_error_errno,
 )
 from graphcal.core.refraction import DEFAULT_N_S, DEFAULT_SCALE_HEIGHT_M, Atmosphere
 from graphcal.data.bias import ESTIMATE_NAMES
@@ -749,11 +749,7 @@ def _name_write_error(exc: OSError, staging: Path, target: Path,
                       current: str | None = None) -> None:
     """Give an error of writing into ``staging`` the destination's name (in place):
     ``target/plots.csv``, not the hidden temporary folder."""
-    if exc.errno is None:
-        code = os_error_errno(exc)
-        if code is not None:
-            exc.errno, exc.strerror = code, os.strerror(code)
-    if exc.errno is None:  # not an error of the system: its message stands
+    if not fill_errno(exc):  # not an error of the system: its message stands
         return
     name = exc.filename
     if isinstance(name, str | os.PathLike):

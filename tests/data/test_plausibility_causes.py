@@ -15,11 +15,6 @@ from tests.paths import SCENARIOS
 
 
 @pytest.fixture(scope="module")
-def demo() -> graphcal.Dataset:
-    return graphcal.simulate(SCENARIOS / "demo_network.toml", seed=1).dataset
-
-
-@pytest.fixture(scope="module")
 def pressure() -> graphcal.Dataset:
     return graphcal.simulate(SCENARIOS / "demo_pressure.toml", seed=3).dataset
 

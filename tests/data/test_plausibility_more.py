@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-import graphcal
 from graphcal.cli.app import app
 from graphcal.data.cleaning import clean_dataset, time_stamp_warnings
 from graphcal.data.plausibility import (
@@ -21,14 +20,9 @@ from graphcal.data.plausibility import (
     midnight_wrap,
 )
 from graphcal.io.folder import write_dataset
-from tests.paths import SCENARIOS
 
 ALL = ("NORD", "SUD", "EST3D", "OUEST3D", "APP")
 
-
-@pytest.fixture(scope="module")
-def demo() -> graphcal.Dataset:
-    return graphcal.simulate(SCENARIOS / "demo_network.toml", seed=1).dataset
 
 
 def _elevation_in_radians(ds, radar: str = "EST3D", altitude: bool = True):

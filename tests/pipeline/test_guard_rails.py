@@ -22,23 +22,11 @@ from graphcal.analysis.fit_verdict import shared_time_offset_warning
 from graphcal.cli.app import app
 from graphcal.data.cleaning import clean_dataset
 from graphcal.data.plausibility import adsb_geometry, check_tables
-from graphcal.io.folder import write_dataset
 from graphcal.pipeline.compare import row_status
-from tests.paths import SCENARIOS
 
 runner = CliRunner()
 
 
-@pytest.fixture(scope="module")
-def demo() -> graphcal.Dataset:
-    return graphcal.simulate(SCENARIOS / "demo_network.toml", seed=1).dataset
-
-
-@pytest.fixture(scope="module")
-def demo_dir(demo, tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("demo") / "demo"
-    write_dataset(demo, folder)
-    return folder
 
 
 def _copy(demo_dir: Path, tmp_path: Path) -> Path:

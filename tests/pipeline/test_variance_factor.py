@@ -31,25 +31,13 @@ from graphcal.analysis.fit_verdict import (
 )
 from graphcal.cli.app import app
 from graphcal.data.calibration import Calibration
-from graphcal.io.folder import write_dataset
 from graphcal.solvers.registry import calibrate as estimate
 from graphcal.solvers.window_fit import WindowFit
-from tests.paths import SCENARIOS
 
 runner = CliRunner()
 WIDENED = "its residuals exceed their sigmas beyond chance"
 
 
-@pytest.fixture(scope="module")
-def demo() -> graphcal.Dataset:
-    return graphcal.simulate(SCENARIOS / "demo_network.toml", seed=1).dataset
-
-
-@pytest.fixture(scope="module")
-def demo_dir(demo, tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("demo") / "demo"
-    write_dataset(demo, folder)
-    return folder
 
 
 @pytest.fixture(scope="module")
