@@ -49,7 +49,7 @@ FloatArray = NDArray[np.float64]
 Progress = Callable[..., None]
 
 #: Cross-radar formulations.
-CROSS_MODES: tuple[str, ...] = ("pairwise", "target-state", "none")
+CROSS_MODES: tuple[str, ...] = ("trajectory", "pairwise", "target-state", "none")
 #: Fastest plausible aircraft ground speed [m/s]; a faster ADS-B segment holds an outlier.
 ADSB_MAX_SPEED_M_S = 600.0
 

@@ -105,6 +105,9 @@ AUTO_TIME_OFFSET_MAX_INFLATION = 1.5
 #: the same 0.09 sigma), and no window needs a realignment, instead of half of them.
 TIME_OFFSET_REALIGN_TOLERANCE_S = 0.05
 TIME_OFFSET_MAX_REALIGNMENTS = 5
+#: Trajectory formulation: Gauss-Newton steps on the biases before the process noise is
+#: estimated and Levenberg-Marquardt takes over.
+PRESOLVE_STEPS = 2
 
 
 # --------------------------------------------------------------------------- set-up
@@ -260,6 +263,10 @@ class _Settings:
     max_iterations: int
     progress: Progress | None
     height_key: int | None = None
+    #: Trajectory formulation: the biases after the Gauss-Newton pre-solve.
+    path_start: dict[str, FloatArray] | None = None
+    #: Trajectory formulation: the paths of the first solve, for a solve with other terms.
+    paths_block: Any = None
 
 
 @dataclass
@@ -321,6 +328,9 @@ def _solve(
                     al = align_adsb(dataset, rid, s.max_gap_s)
                     if len(al):
                         problem.alignments[rid] = al
+        elif s.cross == "trajectory":
+            if problem.target_state is None:
+                _build_paths(dataset, problem, init_biases, s)
         else:
             build_factors(dataset, problem, s.have_adsb, s.cross, s.kernel, s.max_gap_s,
                            s.pair_max_gap_s, s.progress, tau0)
@@ -334,6 +344,8 @@ def _solve(
         priors = {rid: prior_sigmas(dataset.sites[rid], terms[rid]) for rid in radars}
         fg = FactorGraph()
         initial_free: dict[str, FloatArray] = {}
+        if s.cross == "trajectory" and s.path_start:
+            start_values = dict(s.path_start)
         for rid in radars:
             start = start_values.get(rid)
             if start is None:
@@ -343,7 +355,8 @@ def _solve(
             fg.add_prior(keys[rid], np.zeros(len(terms[rid].free)), priors[rid])
         variable = set(radars)
         height_used = problem.height is not None or any(
-            f.height_key is not None for f in problem.pairs)
+            f.height_key is not None for f in problem.pairs) or bool(
+            getattr(problem.target_state, "height_key", None) is not None)
         if height_used:
             fg.add_variable(s.height_key, start_values.get(HEIGHT, np.zeros(2)))
             fg.add_prior(s.height_key, np.zeros(2), np.array(HEIGHT_PRIOR_SIGMA))
@@ -364,6 +377,8 @@ def _solve(
         values = {rid: result.vector(keys[rid]) for rid in radars}
         if height_used:
             values[HEIGHT] = result.vector(s.height_key)
+        if s.cross == "trajectory":
+            break  # time offsets are exact in the paths: no alignment to redo
         moved = [
             abs(terms[rid].time_offset(values[rid]) - tau0[rid])
             for rid in radars if "time_offset" in terms[rid].free
@@ -376,6 +391,51 @@ def _solve(
     result = dataclasses.replace(result, iterations=iterations)
     return _Solved(terms, problem, fg, result, radars, values, priors, variable, realignments,
                    values.get(HEIGHT))
+
+
+def _build_paths(dataset: Dataset, problem: Problem, init_biases: dict[str, RadarBias],
+                 s: _Settings) -> None:
+    """The trajectory block (every aircraft's path, eliminated inside one factor), the
+    ADS-B height factor and, for the report, the plots aligned with ADS-B."""
+    from graphcal.model.height import adsb_height_factor
+    from graphcal.model.trajectory import build_trajectory_block
+
+    terms = problem.terms
+    free = [rid for rid in dataset.radar_ids if terms[rid].free]
+    start = {rid: _initial_free(terms[rid], init_biases.get(rid),
+                                prior_sigmas(dataset.sites[rid], terms[rid])) for rid in free}
+    earlier = s.paths_block
+    if earlier is not None:  # solved before with other free terms: same paths
+        block = earlier.with_terms(terms, free)
+        previous = s.path_start or {}
+        start = {rid: (previous[rid] if rid in previous and len(previous[rid]) == len(v)
+                       else v) for rid, v in start.items()}
+    else:
+        block = build_trajectory_block(
+            dataset, terms, problem.keys, free, s.kernel, use_adsb=s.have_adsb,
+            initial_biases=start, height_key=s.height_key, progress=s.progress)
+    problem.target_state = block
+    s.paths_block = block
+    if block is None:
+        return
+    # Gauss-Newton steps on the biases, the phases' process noise estimated there, and
+    # the start values for Levenberg-Marquardt.
+    priors = [prior_sigmas(dataset.sites[name], terms[name]) if name
+              else np.array(HEIGHT_PRIOR_SIGMA) for _, name, _ in block.variables]
+    if earlier is None:
+        values = block.gauss_newton(block.values_of(start), priors, PRESOLVE_STEPS)
+        block.estimate_process_noise(values)
+    else:
+        values = block.values_of(start)
+    values = block.gauss_newton(values, priors, 1)
+    s.path_start = {name: v for (_, name, _), v in zip(block.variables, values, strict=True)}
+    if s.have_adsb and s.height_key is not None:
+        problem.height = adsb_height_factor(dataset.adsb, s.height_key, s.kernel)
+    if s.have_adsb:
+        for rid in dataset.radar_ids:
+            al = align_adsb(dataset, rid, s.max_gap_s)
+            if len(al):
+                problem.alignments[rid] = al
 
 
 def named_joint_covariance(fg: Any, values: Any, joint_keys: list[int],

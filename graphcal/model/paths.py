@@ -1,0 +1,340 @@
+"""Aircraft paths as cubic B-splines, and their exact elimination from the normal equations.
+
+Every aircraft's path ``x(t)`` (three Cartesian coordinates in one local frame of
+the network, metres) is a uniform cubic B-spline with knots every
+``spacing_s`` seconds::
+
+    x(t) = sum_j B_j(u) c_{k + j},    j = 0..3,   k = floor((t - t0) / spacing),
+    u = (t - t0) / spacing - k,
+
+with the uniform cubic basis ``B_0 = (1 - u)^3 / 6``, ``B_1 = (3u^3 - 6u^2 + 4) / 6``,
+``B_2 = (-3u^3 + 3u^2 + 3u + 1) / 6``, ``B_3 = u^3 / 6``.  Its motion prior is the
+nearly-constant-velocity model, white acceleration of spectral density ``q``
+[m^2/s^3] per axis, whose negative log density is ``(1 / 2q) int |x''(t)|^2 dt``
+(the cubic smoothing spline is the MAP path of that model): a quadratic form
+``c^T Omega c / (2q)`` in the coefficients, exact for the spline.  ``q`` may change
+from one flight phase to the next (:class:`PathLayout` ``phase``).
+
+Unknowns are ordered path by path, coefficient by coefficient, axis by axis
+(``3 * coefficient + axis``).  A measurement at time ``t`` touches the 12 unknowns
+``3k .. 3k + 11`` and the prior couples coefficients at most three apart, so the
+normal matrix of all paths together is one symmetric band matrix of half-bandwidth
+:data:`HALF_BANDWIDTH` (paths do not couple: it is block diagonal in the band).
+LAPACK's banded Cholesky (``scipy.linalg.cholesky_banded``) factorises it in
+``O(n)``, and its banded triangular solve (``dtbtrs``) eliminates the paths from
+the bias columns: the Schur complement of bundle adjustment's reduced camera
+system, with no Python loop over aircraft or plots.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+from scipy.linalg import lapack
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Unknowns touched by one measurement: four coefficients of three axes.
+LOCAL = 12
+#: Half-bandwidth of the paths' normal matrix.
+HALF_BANDWIDTH = LOCAL - 1
+
+# Lower-triangle pairs (a >= c) of the 12 local unknowns.
+_PAIR_A, _PAIR_C = np.tril_indices(LOCAL)
+_COEF_A, _AXIS_A = np.divmod(_PAIR_A, 3)
+_COEF_C, _AXIS_C = np.divmod(_PAIR_C, 3)
+
+
+# Distinct entries of a symmetric 4x4 (coefficients) and 3x3 (axes) matrix, and where
+# each lower-triangle pair of the 12 local unknowns finds its product of the two.
+_SYM4_A, _SYM4_B = np.triu_indices(4)
+_SYM3_A, _SYM3_B = np.triu_indices(3)
+_SYM4_INDEX = np.zeros((4, 4), dtype=np.int64)
+_SYM4_INDEX[_SYM4_A, _SYM4_B] = _SYM4_INDEX[_SYM4_B, _SYM4_A] = np.arange(len(_SYM4_A))
+_SYM3_INDEX = np.zeros((3, 3), dtype=np.int64)
+_SYM3_INDEX[_SYM3_A, _SYM3_B] = _SYM3_INDEX[_SYM3_B, _SYM3_A] = np.arange(len(_SYM3_A))
+_PAIR_FROM_PRODUCT = (_SYM4_INDEX[_COEF_A, _COEF_C] * len(_SYM3_A)
+                      + _SYM3_INDEX[_AXIS_A, _AXIS_C])
+
+
+def basis(u: FloatArray) -> FloatArray:
+    """Uniform cubic B-spline weights ``(n, 4)`` at the interval fractions ``u`` in [0, 1]."""
+    u = np.asarray(u, dtype=float)
+    u2, u3 = u * u, u * u * u
+    return np.stack([(1.0 - u) ** 3, 3.0 * u3 - 6.0 * u2 + 4.0,
+                     -3.0 * u3 + 3.0 * u2 + 3.0 * u + 1.0, u3], axis=-1) / 6.0
+
+
+def basis_derivative(u: FloatArray) -> FloatArray:
+    """``d B_j / d u`` ``(n, 4)`` (divide by the knot spacing for ``d / dt``)."""
+    u = np.asarray(u, dtype=float)
+    u2 = u * u
+    return np.stack([-(1.0 - u) ** 2, 3.0 * u2 - 4.0 * u,
+                     -3.0 * u2 + 2.0 * u + 1.0, u2], axis=-1) / 2.0
+
+
+def _second_derivative_gram() -> FloatArray:
+    """``G_ab = int_0^1 B_a''(u) B_b''(u) du`` (4, 4): the ``B''`` are linear in ``u``,
+    so two-point Gauss-Legendre quadrature is exact."""
+    nodes = 0.5 + np.array([-0.5, 0.5]) / np.sqrt(3.0)
+    gram = np.zeros((4, 4))
+    for u in nodes:
+        second = np.array([1.0 - u, 3.0 * u - 2.0, 1.0 - 3.0 * u, u])
+        gram += 0.5 * np.outer(second, second)
+    return gram
+
+
+#: ``int B_a'' B_b'' du`` over one knot interval (per unit spacing).
+SECOND_DERIVATIVE_GRAM = _second_derivative_gram()
+
+
+@dataclass(frozen=True)
+class PathLayout:
+    """Where every path's coefficients sit among the unknowns.
+
+    Attributes
+    ----------
+    spacing_s : float
+        Knot spacing [s].
+    t0_s : ndarray (n_paths,)
+        Time of each path's first knot [s].
+    n_intervals : ndarray (n_paths,) of int
+        Knot intervals of each path (coefficients: ``n_intervals + 3``).
+    first_coefficient : ndarray (n_paths + 1,) of int
+        Path ``p``'s coefficients are ``first_coefficient[p] : first_coefficient[p + 1]``.
+    phase : ndarray (n_intervals_total,) of int
+        The flight phase (a run of intervals of one path sharing one process noise)
+        of each interval, intervals ordered path by path.
+    n_phases : int
+    """
+
+    spacing_s: float
+    t0_s: FloatArray
+    n_intervals: IntArray
+    first_coefficient: IntArray
+    phase: IntArray
+    n_phases: int
+
+    @classmethod
+    def build(cls, start_s: FloatArray, end_s: FloatArray, spacing_s: float,
+              phase_s: float) -> PathLayout:
+        """Paths spanning ``[start_s, end_s]`` each, flight phases of ``phase_s`` seconds."""
+        start_s = np.asarray(start_s, dtype=float)
+        end_s = np.asarray(end_s, dtype=float)
+        n_intervals = np.maximum(np.ceil((end_s - start_s) / spacing_s).astype(np.int64), 1)
+        first = np.concatenate([[0], np.cumsum(n_intervals + 3)]).astype(np.int64)
+        per_phase = max(int(round(phase_s / spacing_s)), 1)
+        path_of_interval = np.repeat(np.arange(len(n_intervals)), n_intervals)
+        interval_in_path = np.arange(int(n_intervals.sum())) - np.repeat(
+            np.concatenate([[0], np.cumsum(n_intervals)[:-1]]), n_intervals)
+        # Phases: runs of per_phase intervals within a path (the last run of a path may
+        # be up to twice as long rather than very short).
+        phases_per_path = np.maximum(n_intervals // per_phase, 1)
+        local_phase = np.minimum(interval_in_path // per_phase,
+                                 phases_per_path[path_of_interval] - 1)
+        first_phase = np.concatenate([[0], np.cumsum(phases_per_path)[:-1]])
+        phase = first_phase[path_of_interval] + local_phase
+        return cls(float(spacing_s), start_s, n_intervals, first, phase.astype(np.int64),
+                   int(phases_per_path.sum()))
+
+    @property
+    def n_paths(self) -> int:
+        return len(self.t0_s)
+
+    @property
+    def n_coefficients(self) -> int:
+        return int(self.first_coefficient[-1])
+
+    @property
+    def n_unknowns(self) -> int:
+        return 3 * self.n_coefficients
+
+    def locate(self, path: IntArray, time_s: FloatArray) -> tuple[IntArray, FloatArray]:
+        """The first coefficient (global) and the fraction ``u`` of each time on its path.
+
+        Times outside a path's knots are clamped to its first or last interval
+        (``u`` then leaves [0, 1]: the cubic is extrapolated).
+        """
+        position = (time_s - self.t0_s[path]) / self.spacing_s
+        interval = np.clip(np.floor(position), 0, self.n_intervals[path] - 1).astype(np.int64)
+        return self.first_coefficient[path] + interval, position - interval
+
+    def unknown_path(self) -> IntArray:
+        """The path of every unknown ``(n_unknowns,)``."""
+        per_path = 3 * np.diff(self.first_coefficient)
+        return np.repeat(np.arange(self.n_paths), per_path)
+
+    def interval_path(self) -> IntArray:
+        """The path of every knot interval."""
+        return np.repeat(np.arange(self.n_paths), self.n_intervals)
+
+    @cached_property
+    def interval_first(self) -> IntArray:
+        """:meth:`interval_first_coefficient`, computed once."""
+        return self.interval_first_coefficient()
+
+    def interval_first_coefficient(self) -> IntArray:
+        """The first coefficient of every knot interval (global)."""
+        path = self.interval_path()
+        local = np.arange(len(path)) - np.repeat(
+            np.concatenate([[0], np.cumsum(self.n_intervals)[:-1]]), self.n_intervals)
+        return self.first_coefficient[path] + local
+
+    def unknown_phase(self) -> IntArray:
+        """The flight phase of every unknown: coefficient ``j`` of a path counts with its
+        interval ``clip(j - 2, 0, n_intervals - 1)`` (the middle of its support)."""
+        n_coef = np.diff(self.first_coefficient)
+        path = np.repeat(np.arange(self.n_paths), n_coef)
+        local = np.arange(self.n_coefficients) - self.first_coefficient[path]
+        interval_offset = np.concatenate([[0], np.cumsum(self.n_intervals)[:-1]])
+        interval = interval_offset[path] + np.clip(local - 2, 0, self.n_intervals[path] - 1)
+        return np.repeat(self.phase[interval], 3)
+
+    def evaluate(self, coefficients: FloatArray, first: IntArray, u: FloatArray,
+                 derivative: bool = False) -> FloatArray:
+        """Positions (or velocities [m/s] with ``derivative``) ``(n, 3)`` of the paths.
+
+        ``coefficients``: ``(n_coefficients, 3)``; ``first`` and ``u`` from :meth:`locate`.
+        """
+        weights = (basis_derivative(u) / self.spacing_s) if derivative else basis(u)
+        out = np.zeros((len(first), 3))
+        for j in range(4):
+            out += weights[:, j, None] * coefficients[first + j]
+        return out
+
+
+# --------------------------------------------------------------------------- band assembly
+def band_zeros(n_unknowns: int) -> FloatArray:
+    """An empty lower band ``(HALF_BANDWIDTH + 1, n)``: ``band[d, i] = A[i + d, i]``."""
+    return np.zeros((HALF_BANDWIDTH + 1, n_unknowns))
+
+
+def _group_by_first(first: IntArray) -> tuple[IntArray, IntArray, IntArray]:
+    """``(order, starts, unique_first)``: measurements sorted by their first coefficient,
+    where each run of one first coefficient starts, and those coefficients."""
+    order = np.argsort(first, kind="stable")
+    first_sorted = first[order]
+    starts = np.flatnonzero(np.r_[True, first_sorted[1:] != first_sorted[:-1]])
+    return order, starts, first_sorted[starts]
+
+
+def _add_pair_values(band: FloatArray, first: IntArray, values: FloatArray) -> None:
+    """Add ``values`` (u, 78) of the lower-triangle pairs at the unique first coefficients
+    ``first`` (u,): for one pair the columns ``3 first + c`` are distinct, so a plain
+    fancy-indexed add is exact."""
+    base = 3 * first
+    for k in range(len(_PAIR_A)):
+        column = base + _PAIR_C[k]
+        band[_PAIR_A[k] - _PAIR_C[k], column] += values[:, k]
+
+
+def add_measurement_blocks(band: FloatArray, first: IntArray, weights: FloatArray,
+                           info: FloatArray) -> None:
+    """Add ``sum_i (B_i B_i^T) kron M_i`` to the band, in place.
+
+    ``first`` (n,) the first coefficient of each measurement, ``weights`` (n, 4) its
+    B-spline weights, ``info`` (n, 3, 3) its information on the position
+    (``H^T W H``, robust weight included).  The measurements sharing a first
+    coefficient are summed first (:func:`numpy.add.reduceat`).
+    """
+    if len(first) == 0:
+        return
+    order, starts, unique_first = _group_by_first(first)
+    w, m = weights[order], info[order]
+    # The 10 distinct products B_j B_l times the 6 distinct entries of M, summed per
+    # first coefficient, then spread over the 78 lower-triangle pairs.
+    products = (w[:, _SYM4_A] * w[:, _SYM4_B])[:, :, None] * m[:, _SYM3_A, _SYM3_B][:, None, :]
+    summed = np.add.reduceat(products.reshape(len(w), -1), starts, axis=0)
+    _add_pair_values(band, unique_first, summed[:, _PAIR_FROM_PRODUCT])
+
+
+def add_motion_prior(band: FloatArray, layout: PathLayout, phase_scale: FloatArray) -> None:
+    """Add ``Omega / q`` (the white-acceleration prior) to the band, in place.
+
+    ``phase_scale`` (n_phases,): ``1 / q`` of every flight phase [s^3/m^2].
+    """
+    first = layout.interval_first
+    scale = phase_scale[layout.phase] / layout.spacing_s**3
+    same_axis = np.flatnonzero(_AXIS_A == _AXIS_C)
+    gram = SECOND_DERIVATIVE_GRAM[_COEF_A[same_axis], _COEF_C[same_axis]]
+    base = 3 * first
+    for k, g in zip(same_axis, gram, strict=True):
+        band[_PAIR_A[k] - _PAIR_C[k], base + _PAIR_C[k]] += scale * g
+
+
+def motion_prior_energy(coefficients: FloatArray, layout: PathLayout) -> FloatArray:
+    """``int |x''|^2 dt`` of every interval ``(n_intervals_total,)`` [m^2/s^3]."""
+    first = layout.interval_first
+    c = np.stack([coefficients[first + j] for j in range(4)], axis=1)  # (k, 4, 3)
+    return np.einsum("kai,ab,kbi->k", c, SECOND_DERIVATIVE_GRAM, c) / layout.spacing_s**3
+
+
+def scatter_vectors(first: IntArray, weights: FloatArray, vectors: FloatArray,
+                    n_unknowns: int) -> FloatArray:
+    """``sum_i B_i kron v_i`` as a length-``n_unknowns`` vector (``vectors`` (n, 3))."""
+    values = weights[:, :, None] * vectors[:, None, :]  # (n, 4, 3)
+    index = 3 * first[:, None, None] + np.arange(LOCAL).reshape(4, 3)[None]
+    return np.bincount(index.ravel(), values.ravel(), minlength=n_unknowns)
+
+
+def scatter_columns(first: IntArray, weights: FloatArray, blocks: FloatArray,
+                    columns: IntArray, out: FloatArray) -> None:
+    """Add ``sum_i B_i kron K_i`` into the columns ``columns`` of ``out`` (n_unknowns, P).
+
+    ``blocks`` (n, 3, k): each measurement's position-by-bias block (``H_x^T W H_b``).
+    """
+    if len(first) == 0 or blocks.shape[2] == 0:
+        return
+    order = np.argsort(first, kind="stable")
+    first_sorted = first[order]
+    starts = np.flatnonzero(np.r_[True, first_sorted[1:] != first_sorted[:-1]])
+    unique_first = first_sorted[starts]
+    for j in range(4):
+        summed = np.add.reduceat(weights[order, j, None, None] * blocks[order], starts,
+                                 axis=0)  # (u, 3, k)
+        rows = 3 * (unique_first + j)
+        for axis in range(3):
+            out[np.ix_(rows + axis, columns)] += summed[:, axis, :]
+
+
+def band_matvec(band: FloatArray, x: FloatArray) -> FloatArray:
+    """``A x`` for the symmetric matrix whose lower band is ``band`` (x: (n,) or (n, k))."""
+    y = band[0].reshape((-1,) + (1,) * (x.ndim - 1)) * x
+    for d in range(1, band.shape[0]):
+        diagonal = band[d, :-d].reshape((-1,) + (1,) * (x.ndim - 1))
+        y[d:] += diagonal * x[:-d]
+        y[:-d] += diagonal * x[d:]
+    return y
+
+
+@dataclass
+class BandFactor:
+    """The banded Cholesky factor ``L`` (lower) of a path normal matrix."""
+
+    lower: FloatArray
+
+    @classmethod
+    def of(cls, band: FloatArray) -> BandFactor:
+        """Factorise; :class:`numpy.linalg.LinAlgError` when not positive definite."""
+        return cls(scipy.linalg.cholesky_banded(band, lower=True, check_finite=False))
+
+    def forward(self, rhs: FloatArray) -> FloatArray:
+        """``L^-1 rhs`` (rhs (n,) or (n, k))."""
+        matrix = rhs.reshape(len(rhs), -1)
+        out, info = lapack.dtbtrs(self.lower, np.asfortranarray(matrix), uplo="L")
+        if info != 0:
+            raise np.linalg.LinAlgError(f"banded triangular solve failed (info {info})")
+        return out.reshape(rhs.shape)
+
+    def solve(self, rhs: FloatArray) -> FloatArray:
+        """``A^-1 rhs``."""
+        return scipy.linalg.cho_solve_banded((self.lower, True), rhs, check_finite=False)
+
+    def log_diagonal(self) -> FloatArray:
+        """``log L_ii`` of every unknown (``log det A = 2 sum``)."""
+        return np.log(self.lower[0])

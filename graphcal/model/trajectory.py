@@ -1,0 +1,890 @@
+"""The trajectory formulation: every aircraft's path estimated with the biases, then eliminated.
+
+Every aircraft (``target_id``) seen by two radars, or by a radar and ADS-B, gets a
+path: a cubic B-spline in the network's frame with a white-acceleration prior
+(:mod:`graphcal.model.paths`).  Then
+
+* every radar plot is a measurement of the path at its own time in its radar's own
+  coordinates, through the radar's measurement model (:mod:`graphcal.model.measurement`:
+  refraction, the bias model with azimuth eccentricity, the time offset
+  ``time_reported = time_true + time_offset_s``)::
+
+      z = h_r(x(t_reported - tau_r), beta_r) + noise,     noise ~ N(0, diag(sigma_r^2))
+
+  with no interpolation, no Cartesian conversion of noisy plots, no pairs;
+* a 2-D radar's plot also carries its reported height (Mode C), a measurement of the
+  path's ellipsoidal height with 1-sigma :data:`ALTITUDE_SIGMA_M`, through the height
+  model ``h = (1 + k) p + d`` when the heights are pressure altitudes;
+* every ADS-B report is a measurement of the path at its own time, with its own
+  sigma (``sigma_m`` horizontally, 1.5 times vertically); reports beyond a
+  chi-square gate of the first fit are left out;
+* the process noise ``q`` of the motion prior is estimated per flight phase
+  (:data:`PHASE_S` of one path) by maximising the marginal likelihood of the data
+  over :data:`PROCESS_NOISE_GRID_M2_S3`, so manoeuvres do not bias the biases.
+
+:class:`TrajectoryBlock` is one factor over the bias variables: at each value of the
+biases it eliminates the paths exactly (one banded Cholesky for all paths; the
+Schur complement of the bias columns), and hands GTSAM the reduced cost, gradient
+and Gauss-Newton information as a whitened error ``e`` and Jacobian ``J`` with
+``J^T J = S``, ``J^T e = g`` and ``|e|^2 / 2`` the reduced cost (GTSAM's smart
+factors eliminate their landmarks the same way).  Every measurement goes through the
+robust kernel.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+
+from graphcal.core import frames
+from graphcal.data.align import ADSB_VERTICAL_SIGMA_RATIO, adsb_track_table, plot_arrays
+from graphcal.data.bias import correct_bias
+from graphcal.data.dataset import Dataset, Site
+from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, MAX_2D_ELEVATION_RAD
+from graphcal.model.measurement import measurement_model
+from graphcal.model.parameters import TERM_NAMES, RadarTerms
+from graphcal.model.paths import (
+    HALF_BANDWIDTH,
+    BandFactor,
+    PathLayout,
+    add_measurement_blocks,
+    add_motion_prior,
+    band_matvec,
+    band_zeros,
+    basis,
+    motion_prior_energy,
+    scatter_columns,
+    scatter_vectors,
+)
+from graphcal.model.robust import RobustKernel
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+Progress = Callable[..., None]
+
+#: Knot spacing of the paths [s].  A cubic spline with knots 10 s apart follows a
+#: 3 deg/s turn at 250 m/s to within 1 m (the error of the spline is about
+#: ``spacing^4 |x''''| / 384``), far below any radar's noise.
+KNOT_SPACING_S = 10.0
+#: A path is cut where its aircraft is not seen by any radar for this long [s].
+PATH_SPLIT_GAP_S = 120.0
+#: ADS-B reports up to this long [s] before the first or after the last plot of a path
+#: are kept on it.
+ADSB_MARGIN_S = 30.0
+#: Length [s] of a flight phase: the process noise is estimated per phase.
+PHASE_S = 300.0
+#: The process noises [m^2/s^3] among which each phase's is chosen (a level airliner
+#: needs about 0.1, a turning one 10 or more).
+PROCESS_NOISE_GRID_M2_S3 = tuple(float(v) for v in 10.0 ** np.arange(-2.0, 3.01, 0.5))
+#: Process noise [m^2/s^3] of the first fit, before the phases' own are estimated.
+INITIAL_PROCESS_NOISE_M2_S3 = 10.0
+#: ADS-B reports whose whitened residual in the first fit exceeds this [sigma] are
+#: left out (the 99.99 % point of a chi with 3 degrees of freedom is 4.9).
+ADSB_GATE_SIGMA = 5.0
+#: Gauss-Newton steps of the paths at the initial biases.
+INITIAL_PATH_ITERATIONS = 3
+#: A path step decreasing the cost by more than this [chi2 units] is followed by another
+#: before the reduced system is formed.
+PATH_STEP_TOLERANCE = 0.5
+#: Relative ridge added to the paths' normal matrix (numerical only).
+RIDGE = 1e-12
+
+
+@dataclass(frozen=True)
+class NetworkFrame:
+    """ENU frame at the network's centre (mean site latitude and longitude, height 0)."""
+
+    lat_rad: float
+    lon_rad: float
+
+    @classmethod
+    def of(cls, sites: list[Site]) -> NetworkFrame:
+        return cls(float(np.mean([s.lat_rad for s in sites])),
+                   float(np.mean([s.lon_rad for s in sites])))
+
+    @property
+    def origin_ecef_m(self) -> FloatArray:
+        return frames.geodetic_to_ecef(self.lat_rad, self.lon_rad, 0.0)
+
+    @property
+    def rotation(self) -> FloatArray:
+        """ECEF -> network ENU."""
+        return frames.ecef_to_enu_rotation(self.lat_rad, self.lon_rad)
+
+    def from_ecef(self, ecef_m: FloatArray) -> FloatArray:
+        return (np.asarray(ecef_m) - self.origin_ecef_m) @ self.rotation.T
+
+    def to_ecef(self, enu_m: FloatArray) -> FloatArray:
+        return np.asarray(enu_m) @ self.rotation + self.origin_ecef_m
+
+    def radar_map(self, site: Site) -> tuple[FloatArray, FloatArray]:
+        """``(A, c)`` with radar ENU = ``A p + c`` for a network-ENU point ``p``."""
+        a = site.ecef_to_enu @ self.rotation.T
+        c = site.ecef_to_enu @ (self.origin_ecef_m - site.ecef_m)
+        return a, c
+
+
+# --------------------------------------------------------------------------- data on paths
+@dataclass
+class RadarOnPaths:
+    """One radar's plots on the paths (fixed data)."""
+
+    radar_id: str
+    site: Site
+    terms: RadarTerms
+    rows: IntArray  # plot table index
+    path: IntArray
+    time_s: FloatArray  # reported
+    measured: FloatArray  # (n, 3): range, azimuth, elevation (NaN for 2-D)
+    altitude_m: FloatArray  # (n,) reported height, NaN where none (2-D only)
+    map_a: FloatArray
+    map_c: FloatArray
+
+    @property
+    def ndim(self) -> int:
+        return 3 if self.site.is_3d else 2
+
+
+@dataclass
+class AdsbOnPaths:
+    """ADS-B reports on the paths: constant contributions to the normal equations."""
+
+    path: IntArray
+    time_s: FloatArray
+    position: FloatArray  # (n, 3) network frame
+    information: FloatArray  # (n, 3, 3)
+    first: IntArray
+    weights: FloatArray
+    band: FloatArray  # their share of the paths' normal matrix
+    rhs: FloatArray  # sum B kron W z
+    constant: float  # 0.5 sum z^T W z
+
+
+@dataclass
+class _Group:
+    """One set of linearised measurements: ``e + Hx dx + Hb db`` (whitened)."""
+
+    radar_id: str
+    kind: str  # "plots" or "heights"
+    first: IntArray
+    weights: FloatArray
+    interval: IntArray
+    hx: FloatArray  # (n, m, 3)
+    hb: FloatArray  # (n, m, k)
+    columns: IntArray  # (k,)
+    e: FloatArray  # (n, m)
+
+
+@dataclass
+class _Linear:
+    """The paths' normal equations at one linearisation."""
+
+    band: FloatArray
+    gradient: FloatArray
+    cost: float
+    groups: list[_Group]
+    cross: FloatArray | None = None  # (n_unknowns, P)
+    bias_information: FloatArray | None = None
+    bias_gradient: FloatArray | None = None
+
+
+# --------------------------------------------------------------------------- the block
+@dataclass
+class TrajectoryBlock:
+    """All paths and every measurement of them: one factor on the bias variables."""
+
+    frame: NetworkFrame
+    layout: PathLayout
+    radars: list[RadarOnPaths]
+    adsb: AdsbOnPaths | None
+    kernel: RobustKernel
+    #: Variables of the factor, in order: (key, radar id or "" for the height model, size).
+    variables: list[tuple[int, str, int]]
+    height_key: int | None
+    pressure: bool
+    coefficients: FloatArray  # (n_coefficients, 3): the current paths
+    phase_scale: FloatArray  # (n_phases,): 1 / q
+    n_aircraft: int
+    target_of_path: NDArray[np.object_]
+    fixed_values: dict[str, FloatArray] = field(default_factory=dict)
+    n_adsb_gated: int = 0
+    last_weights: dict[str, FloatArray] = field(default_factory=dict)
+    n_calls: int = 0
+    _prior_cache: tuple[FloatArray, FloatArray] | None = field(default=None, repr=False)
+
+    # ------------------------------------------------------------ layout of the biases
+    @property
+    def keys(self) -> list[int]:
+        return [key for key, _, _ in self.variables]
+
+    @property
+    def n_bias(self) -> int:
+        return sum(size for _, _, size in self.variables)
+
+    @property
+    def radars_seen(self) -> set[str]:
+        return {r.radar_id for r in self.radars}
+
+    def _columns(self) -> dict[str, IntArray]:
+        out, start = {}, 0
+        for _, name, size in self.variables:
+            out[name] = np.arange(start, start + size)
+            start += size
+        return out
+
+    def with_terms(self, terms: dict[str, RadarTerms], variable_radars: list[str]
+                   ) -> TrajectoryBlock:
+        """The same paths and measurements with other free terms (e.g. without the time
+        offsets the data do not determine): the paths and process noise carry over."""
+        radars = [dataclasses.replace(r, terms=terms[r.radar_id]) for r in self.radars]
+        variables = [(key, name, 2 if not name else len(terms[name].free))
+                     for key, name, _ in self.variables
+                     if not name or (name in variable_radars and terms[name].free)]
+        names = {name for _, name, _ in variables}
+        fixed = {r.radar_id: np.zeros(0) for r in radars if r.radar_id not in names}
+        return dataclasses.replace(self, radars=radars, variables=variables,
+                                   fixed_values=fixed, last_weights={}, n_calls=0)
+
+    def values_of(self, named: dict[str, FloatArray]) -> list[FloatArray]:
+        """The factor's variable values in order, from a dict by radar id (``""``: the
+        height model)."""
+        return [np.asarray(named.get(name, np.zeros(size)), dtype=float)
+                for _, name, size in self.variables]
+
+    def _split(self, values: list[FloatArray]) -> dict[str, FloatArray]:
+        named = {name: np.asarray(v, dtype=float)
+                 for (_, name, _), v in zip(self.variables, values, strict=True)}
+        for rid, v in self.fixed_values.items():
+            named.setdefault(rid, v)
+        return named
+
+    @property
+    def dimension(self) -> int:
+        """Measurement dimensions minus the paths' effective unknowns (for chi2/dof)."""
+        n = sum(len(r.rows) * r.ndim + int(np.isfinite(r.altitude_m).sum())
+                for r in self.radars)
+        n += 0 if self.adsb is None else 3 * len(self.adsb.time_s)
+        return int(n - 6 * self.layout.n_paths)
+
+    # ------------------------------------------------------------ linearisation
+    def _linearise(self, named: dict[str, FloatArray], want_bias: bool,
+                   coefficients: FloatArray | None = None) -> _Linear:
+        c = self.coefficients if coefficients is None else coefficients
+        lin = self._linearise_data(named, want_bias, c)
+        self._add_prior(lin, c, self.phase_scale)
+        return lin
+
+    def _add_prior(self, lin: _Linear, c: FloatArray, phase_scale: FloatArray) -> None:
+        """Add the motion prior ``Omega / q`` to linearised data, in place."""
+        cached = self._prior_cache
+        if cached is not None and np.array_equal(cached[0], phase_scale):
+            prior_band = cached[1]
+        else:
+            prior_band = band_zeros(self.layout.n_unknowns)
+            add_motion_prior(prior_band, self.layout, phase_scale)
+            self._prior_cache = (phase_scale.copy(), prior_band)
+        flat = c.ravel()
+        prior_gradient = band_matvec(prior_band, flat)
+        lin.band += prior_band
+        lin.band[0] += RIDGE * np.maximum(lin.band[0].max(initial=1.0), 1.0)
+        lin.gradient += prior_gradient
+        lin.cost += 0.5 * float(flat @ prior_gradient)
+
+    def _linearise_data(self, named: dict[str, FloatArray], want_bias: bool,
+                        c: FloatArray) -> _Linear:
+        """The measurements' share of the normal equations (no motion prior)."""
+        layout = self.layout
+        n = layout.n_unknowns
+        columns = self._columns()
+        band = band_zeros(n)
+        flat = c.ravel()
+        gradient = np.zeros(n)
+        cost = 0.0
+        if self.adsb is not None:
+            band += self.adsb.band
+            adsb_ax = band_matvec(self.adsb.band, flat)
+            gradient += adsb_ax - self.adsb.rhs
+            cost += 0.5 * float(flat @ adsb_ax) - float(flat @ self.adsb.rhs) + self.adsb.constant
+        groups = []
+        height = named.get("") if self.pressure else None
+        for radar in self.radars:
+            groups.extend(self._radar_groups(radar, named.get(radar.radar_id, np.zeros(0)),
+                                             height, c, columns))
+        p = self.n_bias
+        lin = _Linear(band, gradient, cost, groups)
+        if want_bias:
+            lin.cross = np.zeros((n, p))
+            lin.bias_information = np.zeros((p, p))
+            lin.bias_gradient = np.zeros(p)
+        firsts, weights, infos, gradients = [], [], [], []
+        for g in groups:
+            m = g.e.shape[1]
+            s = frames.row_norm(g.e)
+            w = self.kernel.weight(s, m)
+            lin.cost += float(np.sum(self.kernel.loss(s, m)))
+            weighted = g.hx * w[:, None, None]
+            infos.append(np.swapaxes(weighted, 1, 2) @ g.hx)
+            gradients.append(np.einsum("nmi,nm->ni", weighted, g.e))
+            firsts.append(g.first)
+            weights.append(g.weights)
+            if want_bias and len(g.columns):
+                assert lin.cross is not None and lin.bias_information is not None
+                assert lin.bias_gradient is not None
+                block = np.einsum("nmi,nmk,n->nik", g.hx, g.hb, w)
+                scatter_columns(g.first, g.weights, block, g.columns, lin.cross)
+                lin.bias_information[np.ix_(g.columns, g.columns)] += np.einsum(
+                    "nmk,nml,n->kl", g.hb, g.hb, w)
+                lin.bias_gradient[g.columns] += np.einsum("nmk,nm,n->k", g.hb, g.e, w)
+        if groups:
+            first_all, weights_all = np.concatenate(firsts), np.concatenate(weights)
+            add_measurement_blocks(lin.band, first_all, weights_all, np.concatenate(infos))
+            lin.gradient += scatter_vectors(first_all, weights_all, np.concatenate(gradients), n)
+        return lin
+
+    def _radar_groups(self, radar: RadarOnPaths, free: FloatArray, height: FloatArray | None,
+                      c: FloatArray, columns: dict[str, IntArray]) -> list[_Group]:
+        terms = radar.terms
+        full = terms.full_terms(free)
+        offset, gain, az_bias, el_bias, tau, s_ecc, c_ecc = full
+        first, u, interval = self._locate(radar.path, radar.time_s - tau)
+        weights = basis(u)
+        position = self._evaluate(c, first, weights)
+        enu = position @ radar.map_a.T + radar.map_c
+        polar, jac_enu = measurement_model(radar.site).enu_jacobian(enu)
+        r_t, az_t, el_t = polar[:, 0], polar[:, 1], polar[:, 2]
+        sin_az, cos_az = np.sin(az_t), np.cos(az_t)
+        predicted = np.stack([
+            (1.0 + gain) * r_t + offset,
+            az_t + az_bias + s_ecc * sin_az + c_ecc * cos_az,
+            el_t + el_bias,
+        ], axis=-1)
+        e = predicted - radar.measured
+        e[:, 1] = frames.wrap_to_pi(e[:, 1])
+        slope = np.stack([np.full_like(r_t, 1.0 + gain),
+                          1.0 + s_ecc * cos_az - c_ecc * sin_az, np.ones_like(r_t)], axis=-1)
+        hx = (slope[:, :, None] * jac_enu) @ radar.map_a
+        m = radar.ndim
+        sigmas = radar.site.measurement_sigmas()[:m]
+        hx = hx[:, :m] / sigmas[None, :, None]
+        e = e[:, :m] / sigmas[None, :]
+        free_names = terms.free
+        hb = np.zeros((len(e), m, len(free_names)))
+        for k, name in enumerate(free_names):
+            if name == "range_offset":
+                hb[:, 0, k] = 1.0
+            elif name == "range_gain":
+                hb[:, 0, k] = r_t
+            elif name == "azimuth_bias":
+                hb[:, 1, k] = 1.0
+            elif name == "elevation_bias" and m == 3:
+                hb[:, 2, k] = 1.0
+            elif name == "azimuth_sin":
+                hb[:, 1, k] = sin_az
+            elif name == "azimuth_cos":
+                hb[:, 1, k] = cos_az
+            elif name == "time_offset":
+                velocity = self._evaluate(c, first, _basis_rate(u, self.layout.spacing_s))
+                hb[:, :, k] = -np.einsum("nmi,ni->nm", hx * sigmas[None, :, None], velocity)
+        hb /= sigmas[None, :, None]
+        cols = columns.get(radar.radar_id, np.zeros(0, dtype=np.int64))
+        if len(cols) == 0:
+            hb = hb[:, :, :0]
+        groups = [_Group(radar.radar_id, "plots", first, weights, interval, hx, hb, cols, e)]
+        if radar.site.is_3d:
+            return groups
+        has = np.isfinite(radar.altitude_m)
+        if not np.any(has):
+            return groups
+        # The reported height: a measurement of the path's ellipsoidal height.
+        pos = position[has]
+        lat, lon, h = frames.ecef_to_geodetic(self.frame.to_ecef(pos))
+        up_ecef = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon),
+                            np.sin(lat)], axis=-1)
+        up = up_ecef @ self.frame.rotation.T
+        reported = radar.altitude_m[has]
+        height_cols = np.zeros(0, dtype=np.int64)
+        if height is not None:
+            reported_h = (1.0 + height[1]) * reported + height[0]
+            height_cols = columns[""]
+        else:
+            reported_h = reported
+        e_h = ((h - reported_h) / ALTITUDE_SIGMA_M)[:, None]
+        hx_h = (up / ALTITUDE_SIGMA_M)[:, None, :]
+        blocks = []
+        if len(cols):
+            hb_h = np.zeros((len(e_h), 1, len(cols)))
+            if "time_offset" in free_names:
+                k = free_names.index("time_offset")
+                velocity = self._evaluate(c, first[has], _basis_rate(u[has],
+                                                                     self.layout.spacing_s))
+                hb_h[:, 0, k] = -np.einsum("ni,ni->n", up, velocity) / ALTITUDE_SIGMA_M
+            blocks.append((hb_h, cols))
+        if len(height_cols):
+            hb_model = -np.stack([np.ones_like(reported), reported], axis=-1)[:, None, :]
+            blocks.append((hb_model / ALTITUDE_SIGMA_M, height_cols))
+        hb_all = (np.concatenate([b for b, _ in blocks], axis=2) if blocks
+                  else np.zeros((len(e_h), 1, 0)))
+        cols_all = (np.concatenate([cc for _, cc in blocks]) if blocks
+                    else np.zeros(0, dtype=np.int64))
+        groups.append(_Group(radar.radar_id, "heights", first[has], weights[has],
+                             interval[has], hx_h, hb_all, cols_all, e_h))
+        return groups
+
+    def _locate(self, path: IntArray, time_s: FloatArray) -> tuple[IntArray, FloatArray, IntArray]:
+        first, u = self.layout.locate(path, time_s)
+        interval_offset = np.concatenate([[0], np.cumsum(self.layout.n_intervals)[:-1]])
+        interval = interval_offset[path] + (first - self.layout.first_coefficient[path])
+        return first, u, interval
+
+    @staticmethod
+    def _evaluate(c: FloatArray, first: IntArray, weights: FloatArray) -> FloatArray:
+        out = weights[:, 0, None] * c[first]
+        for j in range(1, 4):
+            out += weights[:, j, None] * c[first + j]
+        return out
+
+    # ------------------------------------------------------------ elimination
+    def _settle_paths(self, named: dict[str, FloatArray], max_steps: int) -> None:
+        """Gauss-Newton steps of the paths at fixed biases."""
+        for _ in range(max_steps):
+            lin = self._linearise(named, want_bias=False)
+            factor = BandFactor.of(lin.band)
+            z = factor.forward(lin.gradient)
+            step = _backward(factor, z)
+            self.coefficients = self.coefficients - step.reshape(-1, 3)
+            if 0.5 * float(z @ z) < PATH_STEP_TOLERANCE:
+                break
+
+    def reduced(self, values: list[FloatArray], want: bool
+                ) -> tuple[float, FloatArray | None, FloatArray | None]:
+        """The reduced cost, gradient and information on the biases (paths eliminated).
+
+        The paths are first moved to their optimum at these biases (Gauss-Newton,
+        warm-started from the last call); the reduced quantities are those of the
+        Gauss-Newton model at the final linearisation, the paths re-optimised in it:
+        ``cost - |L^-1 g_x|^2 / 2``, ``g_b - X^T A^-1 g_x`` and ``A_bb - X^T A^-1 X``.
+        """
+        self.n_calls += 1
+        named = self._split(values)
+        lin = self._linearise(named, want_bias=want)
+        factor = BandFactor.of(lin.band)
+        if not want:
+            zg = factor.forward(lin.gradient)
+            self.coefficients = self.coefficients - _backward(factor, zg).reshape(-1, 3)
+            return lin.cost - 0.5 * float(zg @ zg), None, None
+        assert lin.cross is not None and lin.bias_information is not None
+        assert lin.bias_gradient is not None
+        stacked = factor.forward(np.column_stack([lin.cross, lin.gradient]))
+        zx, zg = stacked[:, :-1], np.ascontiguousarray(stacked[:, -1])
+        information = lin.bias_information - zx.T @ zx
+        gradient = lin.bias_gradient - zx.T @ zg
+        cost = lin.cost - 0.5 * float(zg @ zg)
+        # The paths move to their optimum at these biases (the step the reduced system
+        # assumes), the start of the next call.
+        self.coefficients = self.coefficients - _backward(factor, zg).reshape(-1, 3)
+        self._record_weights(lin)
+        return cost, gradient, 0.5 * (information + information.T)
+
+    def gauss_newton(self, values: list[FloatArray], prior_sigmas: list[FloatArray],
+                     steps: int) -> list[FloatArray]:
+        """Up to ``steps`` Gauss-Newton steps on the biases (paths eliminated), with the
+        weak priors ``N(0, prior_sigmas^2)``; a step that raises the cost is taken back
+        and ends the iterations.  A start for GTSAM's Levenberg-Marquardt."""
+        sizes = [len(v) for v in values]
+        x = np.concatenate([np.asarray(v, dtype=float) for v in values])
+        prior = np.concatenate(prior_sigmas) ** -2.0
+        previous: tuple[float, FloatArray] | None = None
+        for _ in range(steps + 1):
+            parts = np.split(x, np.cumsum(sizes)[:-1])
+            cost, gradient, information = self.reduced(parts, True)
+            assert gradient is not None and information is not None
+            total = cost + 0.5 * float(np.sum(prior * x * x))
+            if previous is not None and total > previous[0]:
+                x = previous[1]
+                break
+            previous = (total, x.copy())
+            if _ == steps:
+                break
+            hessian = information + np.diag(prior)
+            scale = np.sqrt(np.maximum(np.diag(hessian), 1e-300))
+            step = np.linalg.lstsq(hessian / np.outer(scale, scale),
+                                   -(gradient + prior * x) / scale, rcond=1e-12)[0] / scale
+            x = x + step
+        return np.split(x, np.cumsum(sizes)[:-1])
+
+    def error(self, values: list[FloatArray], want: bool
+              ) -> tuple[FloatArray, list[FloatArray] | None]:
+        """Whitened error and Jacobians for GTSAM (module docstring)."""
+        cost, gradient, information = self.reduced(values, want)
+        p = self.n_bias
+        cost = max(cost, 0.0)
+        if not want:
+            e = np.zeros(p + 1)
+            e[-1] = np.sqrt(2.0 * cost)
+            return e, None
+        assert gradient is not None and information is not None
+        # A square root of the information, in units scaled to its diagonal (terms in
+        # metres and radians differ by ten orders of magnitude).
+        scale = np.sqrt(np.maximum(np.diag(information), 1e-300))
+        eigenvalues, vectors = np.linalg.eigh(information / np.outer(scale, scale))
+        keep = eigenvalues > 1e-12 * max(eigenvalues.max(initial=0.0), 1e-300)
+        root = np.sqrt(np.where(keep, eigenvalues, 0.0))
+        jacobian = np.zeros((p + 1, p))
+        jacobian[:p] = (root[:, None] * vectors.T) * scale[None, :]
+        e = np.zeros(p + 1)
+        projected = vectors.T @ (gradient / scale)
+        e[:p] = np.where(keep, projected / np.where(keep, root, 1.0), 0.0)
+        e[p] = np.sqrt(max(2.0 * cost - float(e[:p] @ e[:p]), 0.0))
+        blocks, start = [], 0
+        for _, _, size in self.variables:
+            blocks.append(jacobian[:, start:start + size])
+            start += size
+        return e, blocks
+
+    def _record_weights(self, lin: _Linear) -> None:
+        weights: dict[str, list[FloatArray]] = {}
+        for g in lin.groups:
+            if g.kind != "plots":
+                continue
+            s = frames.row_norm(g.e)
+            weights.setdefault(g.radar_id, []).append(self.kernel.weight(s, g.e.shape[1]))
+        self.last_weights = {rid: np.concatenate(w) for rid, w in weights.items()}
+
+    # ------------------------------------------------------------ process noise
+    def estimate_process_noise(self, values: list[FloatArray]) -> FloatArray:
+        """Each phase's process noise [m^2/s^3] by maximum marginal likelihood (grid).
+
+        For each ``q`` of :data:`PROCESS_NOISE_GRID_M2_S3` the paths' Laplace
+        log-likelihood is split by phase: ``-(cost - |L^-1 g|^2 / 2) - sum log L_ii
+        - rank / 2 log q`` (the motion prior's rank is three per interval); every phase
+        takes the ``q`` that maximises its share.  Sets and returns the phases' ``q``.
+        """
+        named = self._split(values)
+        layout = self.layout
+        unknown_phase = layout.unknown_phase()
+        best = np.full(layout.n_phases, -np.inf)
+        chosen = np.full(layout.n_phases, INITIAL_PROCESS_NOISE_M2_S3)
+        rank = 3.0 * np.bincount(layout.phase, minlength=layout.n_phases)
+        energy = np.bincount(layout.phase, motion_prior_energy(self.coefficients, layout),
+                             minlength=layout.n_phases)
+        measurement_cost = self._measurement_cost_by_phase(named)
+        data = self._linearise_data(named, False, self.coefficients)
+        for q in PROCESS_NOISE_GRID_M2_S3:
+            lin = _Linear(data.band.copy(), data.gradient.copy(), data.cost, [])
+            self._add_prior(lin, self.coefficients, np.full(layout.n_phases, 1.0 / q))
+            factor = BandFactor.of(lin.band)
+            z = factor.forward(lin.gradient)
+            reduction = np.bincount(unknown_phase, 0.5 * z * z, minlength=layout.n_phases)
+            log_det = np.bincount(unknown_phase, factor.log_diagonal(),
+                                  minlength=layout.n_phases)
+            log_lik = -(measurement_cost + 0.5 * energy / q - reduction) - log_det \
+                - 0.5 * rank * np.log(q)
+            better = log_lik > best
+            best = np.where(better, log_lik, best)
+            chosen = np.where(better, q, chosen)
+        self.phase_scale = 1.0 / chosen
+        return chosen
+
+    def _measurement_cost_by_phase(self, named: dict[str, FloatArray]) -> FloatArray:
+        layout = self.layout
+        out = np.zeros(layout.n_phases)
+        columns = self._columns()
+        height = named.get("") if self.pressure else None
+        for radar in self.radars:
+            for g in self._radar_groups(radar, named.get(radar.radar_id, np.zeros(0)), height,
+                                        self.coefficients, columns):
+                s = frames.row_norm(g.e)
+                out += np.bincount(layout.phase[g.interval], self.kernel.loss(s, g.e.shape[1]),
+                                   minlength=layout.n_phases)
+        if self.adsb is not None:
+            a = self.adsb
+            first, u, interval = self._locate(a.path, a.time_s)
+            residual = self._evaluate(self.coefficients, first, basis(u)) - a.position
+            chi2 = np.einsum("ni,nij,nj->n", residual, a.information, residual)
+            out += np.bincount(layout.phase[interval], 0.5 * chi2, minlength=layout.n_phases)
+        return out
+
+    # ------------------------------------------------------------ reporting
+    def summary(self) -> dict:
+        q = 1.0 / self.phase_scale
+        return {
+            "formulation": "trajectory",
+            "n_aircraft": self.n_aircraft,
+            "n_paths": self.layout.n_paths,
+            "n_path_unknowns": self.layout.n_unknowns,
+            "knot_spacing_s": self.layout.spacing_s,
+            "n_phases": self.layout.n_phases,
+            "process_noise_m2_s3": {
+                "median": float(np.median(q)), "p90": float(np.percentile(q, 90)),
+                "max": float(q.max()),
+            },
+            "n_adsb_reports": 0 if self.adsb is None else int(len(self.adsb.time_s)),
+            "n_adsb_gated": self.n_adsb_gated,
+            "n_plots": self.plots_per_radar(),
+        }
+
+    def plots_per_radar(self) -> dict[str, int]:
+        return {r.radar_id: int(len(r.rows)) for r in self.radars}
+
+    def plot_rows(self, radar_id: str) -> IntArray:
+        for r in self.radars:
+            if r.radar_id == radar_id:
+                return r.rows
+        return np.zeros(0, dtype=np.int64)
+
+    def downweighted(self, bias_values: dict[str, FloatArray], result) -> dict[str, dict[str, int]]:
+        """Plots with a final robust weight below 0.5, per radar."""
+        del bias_values, result
+        return {rid: {"plots": int(np.sum(w < 0.5))} for rid, w in self.last_weights.items()}
+
+    def add_to(self, fg, variable: set[str], initial_free: dict) -> None:
+        """Add the block to a :class:`~graphcal.solvers.gtsam_adapter.FactorGraph` (duck-typed)."""
+        del variable, initial_free
+        fg.add_custom(self.keys, self.n_bias + 1, self.error)
+
+
+def _basis_rate(u: FloatArray, spacing_s: float) -> FloatArray:
+    from graphcal.model.paths import basis_derivative
+
+    return basis_derivative(u) / spacing_s
+
+
+def _backward(factor: BandFactor, z: FloatArray) -> FloatArray:
+    """``L^-T z``: with ``z = L^-1 g`` this is ``A^-1 g``."""
+    from scipy.linalg import lapack
+
+    out, info = lapack.dtbtrs(factor.lower, np.asfortranarray(z.reshape(len(z), -1)),
+                              uplo="L", trans="T")
+    if info != 0:
+        raise np.linalg.LinAlgError(f"banded triangular solve failed (info {info})")
+    return out.reshape(z.shape)
+
+
+# --------------------------------------------------------------------------- building
+def build_trajectory_block(
+    dataset: Dataset,
+    terms: dict[str, RadarTerms],
+    keys: dict[str, int],
+    variable_radars: list[str],
+    kernel: RobustKernel,
+    *,
+    use_adsb: bool,
+    initial_biases: dict[str, FloatArray],
+    height_key: int | None = None,
+    spacing_s: float = KNOT_SPACING_S,
+    progress: Progress | None = None,
+) -> TrajectoryBlock | None:
+    """The paths of every aircraft that links two radars or a radar and ADS-B, fitted at
+    the initial biases, their process noise estimated; ``None`` when there is none.
+
+    ``initial_biases``: each radar's free values to start from.  ``variable_radars``:
+    the radars whose free terms are variables (others enter with their fixed terms).
+    """
+    sites = dataset.sites
+    frame = NetworkFrame.of(list(sites.values()))
+    pieces = []
+    for rid in sorted(dataset.radar_ids):  # the radars' order does not matter
+        plots = plot_arrays(dataset, rid)
+        target = np.asarray(plots.target_id, dtype=object)
+        named = pd.notna(target) & (pd.Series(target).astype(str).str.strip() != "").to_numpy()
+        usable = named & np.isfinite(plots.range_m) & np.isfinite(plots.azimuth_rad)
+        if sites[rid].is_3d:
+            usable &= np.isfinite(plots.elevation_rad)
+        if not np.any(usable):
+            continue
+        pieces.append(pd.DataFrame({
+            "radar": rid, "k": np.flatnonzero(usable), "target": target[usable].astype(str),
+            "time": plots.time_s[usable]}))
+    if not pieces:
+        return None
+    table = pd.concat(pieces, ignore_index=True).sort_values(["target", "time"], kind="stable")
+    target_arr = table["target"].to_numpy(dtype=object)
+    time_arr = table["time"].to_numpy(dtype=float)
+    new_path = np.ones(len(table), dtype=bool)
+    new_path[1:] = (target_arr[1:] != target_arr[:-1]) | (np.diff(time_arr) > PATH_SPLIT_GAP_S)
+    path_id = np.cumsum(new_path) - 1
+    table["path"] = path_id
+    n_radars = table.groupby("path")["radar"].nunique().to_numpy()
+    start = table.groupby("path")["time"].min().to_numpy()
+    end = table.groupby("path")["time"].max().to_numpy()
+    path_target = table.groupby("path")["target"].first().to_numpy(dtype=object)
+    # ADS-B on the paths.
+    adsb_path = np.zeros(0, dtype=np.int64)
+    adsb_rows = np.zeros(0, dtype=np.int64)
+    tracks = None
+    if use_adsb and dataset.adsb is not None and len(dataset.adsb):
+        tracks = adsb_track_table(dataset.adsb)
+        code_of_path = tracks.codes(path_target.astype(object))
+        rows, paths = [], []
+        for p in np.flatnonzero(code_of_path >= 0):
+            k = code_of_path[p]
+            lo, hi = tracks.start[k], tracks.start[k + 1]
+            t = tracks.time_s[lo:hi]
+            inside = np.flatnonzero((t >= start[p] - ADSB_MARGIN_S) & (t <= end[p] + ADSB_MARGIN_S))
+            rows.append(lo + inside)
+            paths.append(np.full(len(inside), p))
+        if rows:
+            adsb_rows = np.concatenate(rows).astype(np.int64)
+            adsb_path = np.concatenate(paths).astype(np.int64)
+    n_adsb_of_path = np.bincount(adsb_path, minlength=len(start))
+    keep = (n_radars >= 2) | ((n_radars >= 1) & (n_adsb_of_path >= 2))
+    if not np.any(keep):
+        return None
+    renumber = np.full(len(keep), -1)
+    renumber[keep] = np.arange(int(keep.sum()))
+    table = table[keep[table["path"].to_numpy()]]
+    table["path"] = renumber[table["path"].to_numpy()]
+    in_kept = keep[adsb_path]
+    adsb_rows, adsb_path = adsb_rows[in_kept], renumber[adsb_path[in_kept]]
+    start, end, path_target = start[keep], end[keep], path_target[keep]
+    if len(adsb_path):
+        adsb_t = tracks.time_s[adsb_rows]
+        lo = pd.Series(adsb_t).groupby(adsb_path).min()
+        hi = pd.Series(adsb_t).groupby(adsb_path).max()
+        start[lo.index.to_numpy()] = np.minimum(start[lo.index.to_numpy()], lo.to_numpy())
+        end[hi.index.to_numpy()] = np.maximum(end[hi.index.to_numpy()], hi.to_numpy())
+    layout = PathLayout.build(start - 1.0, end + 1.0, spacing_s, PHASE_S)
+    # Radars on paths.
+    radars: list[RadarOnPaths] = []
+    for rid, part in table.groupby("radar", sort=True):
+        site = sites[str(rid)]
+        plots = plot_arrays(dataset, str(rid))
+        k = part["k"].to_numpy()
+        a, c = frame.radar_map(site)
+        measured = np.stack([plots.range_m[k], plots.azimuth_rad[k],
+                             plots.elevation_rad[k] if site.is_3d else np.full(len(k), np.nan)],
+                            axis=-1)
+        altitude = np.full(len(k), np.nan)
+        if not site.is_3d:
+            altitude = plots.altitude_m[k].astype(float)
+        radars.append(RadarOnPaths(str(rid), site, terms[str(rid)], plots.index[k],
+                                   part["path"].to_numpy().astype(np.int64),
+                                   plots.time_s[k], measured, altitude, a, c))
+    # Variables: the variable radars seen, in the dataset's order (GTSAM keys), then the
+    # height model when 2-D plots carry pressure altitudes.
+    seen = {r.radar_id for r in radars}
+    variables = [(keys[rid], rid, len(terms[rid].free)) for rid in dataset.radar_ids
+                 if rid in seen and rid in variable_radars and terms[rid].free]
+    pressure = bool(dataset.pressure_altitudes and height_key is not None and any(
+        not r.site.is_3d and np.isfinite(r.altitude_m).any() for r in radars))
+    if pressure:
+        variables.append((int(height_key), "", 2))
+    fixed_values = {rid: np.zeros(0) for rid in seen if rid not in
+                    {name for _, name, _ in variables}}
+    adsb = None
+    if len(adsb_rows):
+        adsb = _adsb_on_paths(layout, frame, tracks, adsb_rows, adsb_path)
+    block = TrajectoryBlock(
+        frame, layout, radars, adsb, kernel, variables, height_key if pressure else None,
+        pressure, np.zeros((layout.n_coefficients, 3)),
+        np.full(layout.n_phases, 1.0 / INITIAL_PROCESS_NOISE_M2_S3),
+        n_aircraft=len(pd.unique(path_target)), target_of_path=path_target,
+        fixed_values=fixed_values,
+    )
+    start_values = [np.asarray(initial_biases.get(name, np.zeros(size)), dtype=float)
+                    if name else np.zeros(2) for _, name, size in variables]
+    if progress is not None:
+        progress("aircraft paths", 0, 1)
+    block.coefficients = _initial_coefficients(block, block._split(start_values))
+    block._settle_paths(block._split(start_values), INITIAL_PATH_ITERATIONS)
+    if block.adsb is not None:
+        _gate_adsb(block)
+        block._settle_paths(block._split(start_values), INITIAL_PATH_ITERATIONS)
+    if progress is not None:
+        progress("aircraft paths", 1, 1)
+    return block
+
+
+def _adsb_on_paths(layout: PathLayout, frame: NetworkFrame, tracks, rows: IntArray,
+                   path: IntArray) -> AdsbOnPaths:
+    ecef = tracks.ecef_m[rows]
+    position = frame.from_ecef(ecef)
+    sigma = tracks.sigma_m[rows]
+    lat, lon, _ = frames.ecef_to_geodetic(ecef)
+    # The report's own ENU axes in the network frame: horizontal sigma, 1.5 x vertically.
+    rot = frames.ecef_to_enu_rotation(lat, lon) @ frame.rotation.T  # (n, 3, 3) local ENU
+    variances = np.stack([sigma**2, sigma**2, (ADSB_VERTICAL_SIGMA_RATIO * sigma) ** 2],
+                         axis=-1)
+    information = np.einsum("nki,nk,nkj->nij", rot, 1.0 / variances, rot)
+    time_s = tracks.time_s[rows]
+    return _adsb_constants(layout, path, time_s, position, information)
+
+
+def _adsb_constants(layout: PathLayout, path: IntArray, time_s: FloatArray,
+                    position: FloatArray, information: FloatArray) -> AdsbOnPaths:
+    first, u = layout.locate(path, time_s)
+    weights = basis(u)
+    band = band_zeros(layout.n_unknowns)
+    add_measurement_blocks(band, first, weights, information)
+    rhs = scatter_vectors(first, weights, np.einsum("nij,nj->ni", information, position),
+                          layout.n_unknowns)
+    constant = 0.5 * float(np.einsum("ni,nij,nj->", position, information, position))
+    return AdsbOnPaths(path, time_s, position, information, first, weights, band, rhs, constant)
+
+
+def _gate_adsb(block: TrajectoryBlock) -> None:
+    """Leave out the ADS-B reports beyond :data:`ADSB_GATE_SIGMA` of the first fit."""
+    a = block.adsb
+    assert a is not None
+    residual = block._evaluate(block.coefficients, a.first, a.weights) - a.position
+    s = np.sqrt(np.einsum("ni,nij,nj->n", residual, a.information, residual))
+    good = s <= ADSB_GATE_SIGMA
+    block.n_adsb_gated = int(np.sum(~good))
+    if np.all(good):
+        return
+    block.adsb = _adsb_constants(block.layout, a.path[good], a.time_s[good], a.position[good],
+                                 a.information[good])
+
+
+def _initial_coefficients(block: TrajectoryBlock, named: dict[str, FloatArray]) -> FloatArray:
+    """Paths fitted to the ADS-B reports and the plots converted at the initial biases.
+
+    A linear least-squares spline fit with isotropic weights per plot (its larger
+    polar sigma at its range); 2-D plots at their reported heights, those without one
+    left out.  Only a start for the Gauss-Newton steps of the paths.
+    """
+    layout = block.layout
+    n = layout.n_unknowns
+    band = band_zeros(n)
+    add_motion_prior(band, layout, np.full(layout.n_phases, 1.0 / INITIAL_PROCESS_NOISE_M2_S3))
+    rhs = np.zeros(n)
+    if block.adsb is not None:
+        band += block.adsb.band
+        rhs += block.adsb.rhs
+    for radar in block.radars:
+        terms = radar.terms
+        full = terms.full_terms(named.get(radar.radar_id, np.zeros(0)))
+        bias = terms.bias(named.get(radar.radar_id, np.zeros(0)))
+        r, az, el = correct_bias(radar.measured[:, 0], radar.measured[:, 1],
+                                 radar.measured[:, 2], bias)
+        site = radar.site
+        if not site.is_3d:
+            height = radar.altitude_m
+            if block.pressure and "" in named:
+                d, k = named[""]
+                height = (1.0 + k) * height + d
+            el = frames.elevation_from_height(r, height, site.lat_rad, site.alt_m)
+            ok = np.isfinite(el) & (el < MAX_2D_ELEVATION_RAD)
+        else:
+            ok = np.isfinite(el)
+        enu = frames.polar_to_enu(r, az, el)
+        local = (enu - radar.map_c) @ radar.map_a  # radar ENU = A p + c
+        sigma = np.maximum(site.sigma_range_m, r * site.sigma_azimuth_rad)
+        weight = np.where(ok, 1.0 / sigma**2, 0.0)
+        first, u = layout.locate(radar.path, radar.time_s - full[4])
+        weights = basis(u)
+        info = weight[:, None, None] * np.eye(3)[None]
+        add_measurement_blocks(band, first[ok], weights[ok], info[ok])
+        rhs += scatter_vectors(first[ok], weights[ok], weight[ok, None] * local[ok], n)
+    band[0] += RIDGE * np.maximum(band[0].max(initial=1.0), 1.0) + 1e-12
+    factor = BandFactor.of(band)
+    return factor.solve(rhs).reshape(-1, 3)
+
+
+__all__ = ["HALF_BANDWIDTH", "KNOT_SPACING_S", "NetworkFrame", "PROCESS_NOISE_GRID_M2_S3",
+           "TERM_NAMES", "TrajectoryBlock", "build_trajectory_block"]
