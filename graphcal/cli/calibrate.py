@@ -55,9 +55,11 @@ def calibrate_command(
         float | None, typer.Option(help="Longest time gap bridged by interpolation [s].")
     ] = None,
     cross: Annotated[
-        str, typer.Option(metavar="pairwise|target-state|none",
-                          help="graph: cross-radar factors: pairwise, target-state or none.")
-    ] = "pairwise",
+        str, typer.Option(metavar="trajectory|pairwise|target-state|none",
+                          help="graph: how radars are tied together: trajectory (every "
+                          "aircraft's path, the default), pairwise (paper 001's pairs), "
+                          "target-state or none.")
+    ] = "trajectory",
     robust: Annotated[
         str, typer.Option(metavar="huber|cauchy|none",
                           help="graph: robust kernel on every measurement: huber, cauchy, "

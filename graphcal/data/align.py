@@ -546,10 +546,28 @@ class PlotPairs:
         return len(self.b_index)
 
 
+def pairing_order(dataset: Dataset, radar_ids: list[str] | None = None) -> list[str]:
+    """The radars in the order that orients every pair, whatever their order in the file.
+
+    In a pair ``(a, b)`` radar ``a``'s track is interpolated to ``b``'s plot times, so
+    ``a`` is the radar with the shorter scan period (its track is the denser, its
+    interpolation the more accurate); radars without a known period come last, and
+    ties go by radar id.  The pairs, and every answer built on them, are then the same
+    for any order of the ``[[radar]]`` tables.
+    """
+    ids = list(dataset.radar_ids if radar_ids is None else radar_ids)
+
+    def key(rid: str) -> tuple[float, str]:
+        period = dataset.sites[rid].scan_period_s if rid in dataset.sites else None
+        return (float(period) if period else float("inf"), rid)
+
+    return sorted(ids, key=key)
+
+
 def overlapping_pairs(dataset: Dataset, radar_ids: list[str] | None = None
                       ) -> list[tuple[str, str]]:
-    """The radar pairs ``(a, b)``, ``a`` before ``b`` in ``radar_ids``, that saw a common
-    aircraft (a non-empty ``target_id`` in both radars' plots).
+    """The radar pairs ``(a, b)``, ``a`` before ``b`` in :func:`pairing_order`, that saw
+    a common aircraft (a non-empty ``target_id`` in both radars' plots).
 
     Only these can give :func:`pair_plots` anything: a network of many radars, most
     of them far apart (or without plots), is paired in the time its overlaps take,
@@ -560,9 +578,9 @@ def overlapping_pairs(dataset: Dataset, radar_ids: list[str] | None = None
     dataset : Dataset
         The plots.
     radar_ids : list of str, optional
-        The radars and their order (default ``dataset.radar_ids``).
+        The radars to pair (default ``dataset.radar_ids``); their order does not matter.
     """
-    order = list(dataset.radar_ids if radar_ids is None else radar_ids)
+    order = pairing_order(dataset, radar_ids)
     rank = {rid: i for i, rid in enumerate(order)}
     plots = dataset.plots
     target = plots["target_id"].astype(str).to_numpy()

@@ -287,19 +287,21 @@ def scatter_columns(first: IntArray, weights: FloatArray, blocks: FloatArray,
     """Add ``sum_i B_i kron K_i`` into the columns ``columns`` of ``out`` (n_unknowns, P).
 
     ``blocks`` (n, 3, k): each measurement's position-by-bias block (``H_x^T W H_b``).
+    The measurements sharing a first coefficient are summed first; the 12 rows of each
+    sum are then added row offset by row offset (distinct rows within one offset).
     """
     if len(first) == 0 or blocks.shape[2] == 0:
         return
-    order = np.argsort(first, kind="stable")
-    first_sorted = first[order]
-    starts = np.flatnonzero(np.r_[True, first_sorted[1:] != first_sorted[:-1]])
-    unique_first = first_sorted[starts]
-    for j in range(4):
-        summed = np.add.reduceat(weights[order, j, None, None] * blocks[order], starts,
-                                 axis=0)  # (u, 3, k)
-        rows = 3 * (unique_first + j)
-        for axis in range(3):
-            out[np.ix_(rows + axis, columns)] += summed[:, axis, :]
+    order, starts, unique_first = _group_by_first(first)
+    k = blocks.shape[2]
+    local = (weights[order][:, :, None, None] * blocks[order][:, None, :, :]).reshape(
+        len(order), LOCAL * k)
+    summed = np.add.reduceat(local, starts, axis=0).reshape(len(starts), LOCAL, k)
+    part = np.zeros((out.shape[0], k))
+    base = 3 * unique_first
+    for offset in range(LOCAL):
+        part[base + offset] += summed[:, offset]
+    out[:, columns] += part
 
 
 def band_matvec(band: FloatArray, x: FloatArray) -> FloatArray:

@@ -87,7 +87,7 @@ INITIAL_PROCESS_NOISE_M2_S3 = 10.0
 #: left out (the 99.99 % point of a chi with 3 degrees of freedom is 4.9).
 ADSB_GATE_SIGMA = 5.0
 #: Gauss-Newton steps of the paths at the initial biases.
-INITIAL_PATH_ITERATIONS = 3
+INITIAL_PATH_ITERATIONS = 2
 #: A path step decreasing the cost by more than this [chi2 units] is followed by another
 #: before the reduced system is formed.
 PATH_STEP_TOLERANCE = 0.5
@@ -216,6 +216,7 @@ class TrajectoryBlock:
     last_weights: dict[str, FloatArray] = field(default_factory=dict)
     n_calls: int = 0
     _prior_cache: tuple[FloatArray, FloatArray] | None = field(default=None, repr=False)
+    _reduced_cache: tuple[tuple[bytes, bytes], tuple] | None = field(default=None, repr=False)
 
     # ------------------------------------------------------------ layout of the biases
     @property
@@ -248,7 +249,8 @@ class TrajectoryBlock:
         names = {name for _, name, _ in variables}
         fixed = {r.radar_id: np.zeros(0) for r in radars if r.radar_id not in names}
         return dataclasses.replace(self, radars=radars, variables=variables,
-                                   fixed_values=fixed, last_weights={}, n_calls=0)
+                                   fixed_values=fixed, last_weights={}, n_calls=0,
+                                   _reduced_cache=None)
 
     def values_of(self, named: dict[str, FloatArray]) -> list[FloatArray]:
         """The factor's variable values in order, from a dict by radar id (``""``: the
@@ -451,6 +453,7 @@ class TrajectoryBlock:
     # ------------------------------------------------------------ elimination
     def _settle_paths(self, named: dict[str, FloatArray], max_steps: int) -> None:
         """Gauss-Newton steps of the paths at fixed biases."""
+        self._reduced_cache = None
         for _ in range(max_steps):
             lin = self._linearise(named, want_bias=False)
             factor = BandFactor.of(lin.band)
@@ -464,19 +467,25 @@ class TrajectoryBlock:
                 ) -> tuple[float, FloatArray | None, FloatArray | None]:
         """The reduced cost, gradient and information on the biases (paths eliminated).
 
-        The paths are first moved to their optimum at these biases (Gauss-Newton,
-        warm-started from the last call); the reduced quantities are those of the
-        Gauss-Newton model at the final linearisation, the paths re-optimised in it:
-        ``cost - |L^-1 g_x|^2 / 2``, ``g_b - X^T A^-1 g_x`` and ``A_bb - X^T A^-1 X``.
+        The joint system is linearised at these biases and the current paths (those the
+        last call left); the reduced quantities are those of its Gauss-Newton model with
+        the paths re-optimised in it: ``cost - |L^-1 g_x|^2 / 2``, ``g_b - X^T A^-1 g_x``
+        and ``A_bb - X^T A^-1 X`` (exact for the paths' share of the cost to second order;
+        the paths' measurement model is nearly linear).  The paths then take that step,
+        the start of the next call.  ``want`` is accepted for symmetry: the bias columns
+        are always formed, and the last call's result is served again for the same
+        biases.
         """
+        key = (b"".join(np.asarray(v, dtype=float).tobytes() for v in values),
+               self.phase_scale.tobytes())
+        if self._reduced_cache is not None and self._reduced_cache[0] == key:
+            return self._reduced_cache[1]
         self.n_calls += 1
         named = self._split(values)
-        lin = self._linearise(named, want_bias=want)
+        # Always with the bias columns: GTSAM asks for the error at a point and then,
+        # when it accepts the point, for its linearisation there (served from the cache).
+        lin = self._linearise(named, want_bias=True)
         factor = BandFactor.of(lin.band)
-        if not want:
-            zg = factor.forward(lin.gradient)
-            self.coefficients = self.coefficients - _backward(factor, zg).reshape(-1, 3)
-            return lin.cost - 0.5 * float(zg @ zg), None, None
         assert lin.cross is not None and lin.bias_information is not None
         assert lin.bias_gradient is not None
         stacked = factor.forward(np.column_stack([lin.cross, lin.gradient]))
@@ -488,7 +497,31 @@ class TrajectoryBlock:
         # assumes), the start of the next call.
         self.coefficients = self.coefficients - _backward(factor, zg).reshape(-1, 3)
         self._record_weights(lin)
-        return cost, gradient, 0.5 * (information + information.T)
+        out = (cost, gradient, 0.5 * (information + information.T))
+        self._reduced_cache = (key, out)
+        return out
+
+    def normal_equations(self, values: list[FloatArray]) -> dict[str, FloatArray]:
+        """The joint Gauss-Newton normal equations of paths and biases at the current
+        paths (dense; for checks on small problems): ``information`` over
+        ``[path unknowns, biases]``, ``gradient`` and ``cost``."""
+        lin = self._linearise(self._split(values), want_bias=True)
+        assert lin.cross is not None and lin.bias_information is not None
+        assert lin.bias_gradient is not None
+        n = self.layout.n_unknowns
+        dense = np.zeros((n, n))
+        for d in range(lin.band.shape[0]):
+            idx = np.arange(n - d)
+            dense[idx + d, idx] = lin.band[d, : n - d]
+            dense[idx, idx + d] = lin.band[d, : n - d]
+        information = np.block([[dense, lin.cross], [lin.cross.T, lin.bias_information]])
+        return {"information": information,
+                "gradient": np.concatenate([lin.gradient, lin.bias_gradient]),
+                "cost": np.array(lin.cost)}
+
+    def settle(self, values: list[FloatArray], steps: int) -> None:
+        """Move the paths towards their optimum at fixed biases (Gauss-Newton steps)."""
+        self._settle_paths(self._split(values), steps)
 
     def gauss_newton(self, values: list[FloatArray], prior_sigmas: list[FloatArray],
                      steps: int) -> list[FloatArray]:
@@ -561,7 +594,8 @@ class TrajectoryBlock:
 
         For each ``q`` of :data:`PROCESS_NOISE_GRID_M2_S3` the paths' Laplace
         log-likelihood is split by phase: ``-(cost - |L^-1 g|^2 / 2) - sum log L_ii
-        - rank / 2 log q`` (the motion prior's rank is three per interval); every phase
+        - rank / 2 log q`` (the motion prior's rank is ``3 (K + 1)`` on a path of ``K``
+        intervals); every phase
         takes the ``q`` that maximises its share.  Sets and returns the phases' ``q``.
         """
         named = self._split(values)
@@ -569,7 +603,11 @@ class TrajectoryBlock:
         unknown_phase = layout.unknown_phase()
         best = np.full(layout.n_phases, -np.inf)
         chosen = np.full(layout.n_phases, INITIAL_PROCESS_NOISE_M2_S3)
-        rank = 3.0 * np.bincount(layout.phase, minlength=layout.n_phases)
+        # The prior's rank: 3 (K + 1) for a path of K intervals (straight motion is free),
+        # three per interval and the path's three more counted in its first phase.
+        first_phase = layout.phase[np.concatenate([[0], np.cumsum(layout.n_intervals)[:-1]])]
+        rank = 3.0 * (np.bincount(layout.phase, minlength=layout.n_phases)
+                      + np.bincount(first_phase, minlength=layout.n_phases))
         energy = np.bincount(layout.phase, motion_prior_energy(self.coefficients, layout),
                              minlength=layout.n_phases)
         measurement_cost = self._measurement_cost_by_phase(named)
@@ -626,6 +664,7 @@ class TrajectoryBlock:
             "n_adsb_reports": 0 if self.adsb is None else int(len(self.adsb.time_s)),
             "n_adsb_gated": self.n_adsb_gated,
             "n_plots": self.plots_per_radar(),
+            "n_eliminations": self.n_calls,
         }
 
     def plots_per_radar(self) -> dict[str, int]:

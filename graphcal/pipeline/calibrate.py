@@ -40,7 +40,7 @@ TIME_OFFSET_CHOICES: dict[str, bool | None] = {"auto": None, "on": True, "off": 
 #: Options of each method, with their defaults (those of the command line).
 METHOD_OPTIONS: dict[str, dict[str, Any]] = {
     "graph": {
-        "cross": "pairwise", "robust": "huber", "robust_scale": 1.0, "use_adsb": True,
+        "cross": "trajectory", "robust": "huber", "robust_scale": 1.0, "use_adsb": True,
         "init": "auto", "fixed": None, "max_iterations": 100, "time_offset": "auto",
     },
     "wls": {"iterations": 1, "linearise": "plots"},
@@ -111,7 +111,7 @@ def calibrate(
     *,
     max_gap_s: float | None = None,
     clean: bool = True,
-    cross: str = "pairwise",
+    cross: str = "trajectory",
     robust: str = "huber",
     robust_scale: float = 1.0,
     use_adsb: bool = True,

@@ -77,7 +77,12 @@ from graphcal.model.parameters import (
 from graphcal.model.problem import CROSS_MODES, Problem, build_factors, radars_with_adsb
 from graphcal.model.robust import RobustKernel
 from graphcal.noise import fills_missing_sigmas
-from graphcal.solvers.gtsam_adapter import FactorGraph, IndeterminateSystemError, symbol
+from graphcal.solvers.gtsam_adapter import (
+    FactorGraph,
+    IndeterminateSystemError,
+    OptimizationResult,
+    symbol,
+)
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[..., None]
@@ -105,9 +110,6 @@ AUTO_TIME_OFFSET_MAX_INFLATION = 1.5
 #: the same 0.09 sigma), and no window needs a realignment, instead of half of them.
 TIME_OFFSET_REALIGN_TOLERANCE_S = 0.05
 TIME_OFFSET_MAX_REALIGNMENTS = 5
-#: Trajectory formulation: Gauss-Newton steps on the biases before the process noise is
-#: estimated and Levenberg-Marquardt takes over.
-PRESOLVE_STEPS = 2
 
 
 # --------------------------------------------------------------------------- set-up
@@ -267,6 +269,8 @@ class _Settings:
     path_start: dict[str, FloatArray] | None = None
     #: Trajectory formulation: the paths of the first solve, for a solve with other terms.
     paths_block: Any = None
+    #: Trajectory formulation: estimate the phases' process noise after the first step.
+    estimate_process_noise: bool = False
 
 
 @dataclass
@@ -366,12 +370,15 @@ def _solve(
                               problem.height.error)
         for factor in [*problem.adsb.values(), *problem.pairs]:
             add_factor(fg, factor, variable)
-        if problem.target_state is not None:
+        if problem.target_state is not None and s.cross != "trajectory":
             problem.target_state.add_to(fg, variable, initial_free)
         t0 = time.perf_counter()
         if s.progress is not None:
             s.progress("optimising", 0, 1)
-        result = fg.optimize(max_iterations=s.max_iterations)
+        if s.cross == "trajectory":
+            result = _solve_paths(problem, fg, initial_free, priors, s)
+        else:
+            result = fg.optimize(max_iterations=s.max_iterations)
         iterations += result.iterations
         timing["optimisation_s"] = timing.get("optimisation_s", 0.0) + time.perf_counter() - t0
         values = {rid: result.vector(keys[rid]) for rid in radars}
@@ -418,16 +425,8 @@ def _build_paths(dataset: Dataset, problem: Problem, init_biases: dict[str, Rada
     s.paths_block = block
     if block is None:
         return
-    # Gauss-Newton steps on the biases, the phases' process noise estimated there, and
-    # the start values for Levenberg-Marquardt.
-    priors = [prior_sigmas(dataset.sites[name], terms[name]) if name
-              else np.array(HEIGHT_PRIOR_SIGMA) for _, name, _ in block.variables]
-    if earlier is None:
-        values = block.gauss_newton(block.values_of(start), priors, PRESOLVE_STEPS)
-        block.estimate_process_noise(values)
-    else:
-        values = block.values_of(start)
-    values = block.gauss_newton(values, priors, 1)
+    values = block.values_of(start)
+    s.estimate_process_noise = earlier is None
     s.path_start = {name: v for (_, name, _), v in zip(block.variables, values, strict=True)}
     if s.have_adsb and s.height_key is not None:
         problem.height = adsb_height_factor(dataset.adsb, s.height_key, s.kernel)
@@ -436,6 +435,96 @@ def _build_paths(dataset: Dataset, problem: Problem, init_biases: dict[str, Rada
             al = align_adsb(dataset, rid, s.max_gap_s)
             if len(al):
                 problem.alignments[rid] = al
+
+
+#: Trajectory formulation: Gauss-Newton on the biases stops when no step exceeds this
+#: fraction of its parameter's sigma.
+PATHS_STEP_TOLERANCE_SIGMA = 0.01
+#: ... or after this many eliminations of the paths.
+PATHS_MAX_ITERATIONS = 20
+
+
+def _solve_paths(problem: Problem, fg: FactorGraph, initial_free: dict[str, FloatArray],
+                 priors: dict[str, FloatArray], s: _Settings) -> OptimizationResult:
+    """Gauss-Newton on the biases with the paths eliminated, then GTSAM's bias-level graph.
+
+    Each iteration eliminates the paths at the current biases
+    (:meth:`~graphcal.model.trajectory.TrajectoryBlock.reduced`, robust weights
+    renewed), adds the weak priors and the ADS-B height factor, and steps; a step that
+    raises the cost is halved.  The last elimination becomes a Gaussian factor on the
+    biases in ``fg`` (beside the priors and the height factor already there): GTSAM takes
+    the last step and gives the marginals of the same system.
+    """
+    block = problem.target_state
+    height = problem.height
+    layout = [(key, name, size) for key, name, size in block.variables]
+    if height is not None and all(name != HEIGHT for _, name, _ in layout):
+        layout.append((height.key, HEIGHT, 2))
+    in_block = len(block.variables)
+    prior = np.concatenate([
+        priors[name] ** -2.0 if name != HEIGHT else np.array(HEIGHT_PRIOR_SIGMA) ** -2.0
+        for _, name, _ in layout])
+    sizes = [size for _, _, size in layout]
+    edges = np.cumsum(sizes)[:-1]
+    x = np.concatenate([
+        initial_free[name] if name != HEIGHT else (s.path_start or {}).get(HEIGHT, np.zeros(2))
+        for _, name, _ in layout]).astype(float)
+    height_columns = next((np.arange(int(np.sum(sizes[:i])), int(np.sum(sizes[:i])) + 2)
+                           for i, (_, name, _) in enumerate(layout) if name == HEIGHT), None)
+    n_block = int(np.sum(sizes[:in_block]))
+
+    def linearise(x: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray, FloatArray]:
+        parts = np.split(x, edges)
+        cost, gradient, information = block.reduced(parts[:in_block], True)
+        p = len(x)
+        g_all, h_all = np.zeros(p), np.zeros((p, p))
+        g_all[:n_block], h_all[:n_block, :n_block] = gradient, information
+        if height is not None and height_columns is not None:
+            e, jac = height.error([x[height_columns]], True)
+            j = jac[0]
+            h_all[np.ix_(height_columns, height_columns)] += j.T @ j
+            g_all[height_columns] += j.T @ e
+            cost += 0.5 * float(e @ e)
+        total = cost + 0.5 * float(np.sum(prior * x * x))
+        return total, g_all + prior * x, h_all + np.diag(prior), gradient, information
+
+    first_total = None
+    previous: tuple[float, FloatArray] | None = None
+    iterations, converged = 0, False
+    while iterations < PATHS_MAX_ITERATIONS:
+        total, grad, hessian, gradient, information = linearise(x)
+        iterations += 1
+        first_total = total if first_total is None else first_total
+        if previous is not None and total > previous[0] + 1e-9 * abs(previous[0]):
+            x = 0.5 * (previous[1] + x)  # the step raised the cost: halve it
+            continue
+        previous = (total, x.copy())
+        scale = np.sqrt(np.maximum(np.diag(hessian), 1e-300))
+        scaled = hessian / np.outer(scale, scale)
+        step = np.linalg.lstsq(scaled, -grad / scale, rcond=1e-12)[0] / scale
+        sigma = np.sqrt(np.maximum(np.diag(np.linalg.pinv(scaled, rcond=1e-12)), 1e-300)) / scale
+        if np.all(np.abs(step) <= PATHS_STEP_TOLERANCE_SIGMA * sigma):
+            converged = True
+            break
+        x = x + step
+        if s.estimate_process_noise:
+            # After the first step, the phases' process noise at these biases (the paths
+            # as the step left them); the cost changes with it, so the comparison of
+            # costs starts again.
+            block.estimate_process_noise(np.split(x, edges)[:in_block])
+            s.estimate_process_noise = False
+            previous = None
+    point = np.split(previous[1], edges) if previous is not None else np.split(x, edges)
+    # The last elimination as a Gaussian factor at its point: GTSAM takes the last step.
+    fg.add_gaussian(block.keys, information, -gradient, point[:in_block])
+    for (key, _, _), value in zip(layout, point, strict=True):
+        fg.set_initial(key, value)
+    result = fg.solve_linear()
+    data_cost = previous[0] if previous is not None else total
+    return dataclasses.replace(
+        result, iterations=iterations, converged=converged,
+        initial_error=float(first_total if first_total is not None else total),
+        final_error=float(data_cost + result.final_error - fg.error()))
 
 
 def named_joint_covariance(fg: Any, values: Any, joint_keys: list[int],
@@ -498,7 +587,7 @@ def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
 def graph(
     dataset: Dataset,
     *,
-    cross: str = "pairwise",
+    cross: str = "trajectory",
     robust: str = "huber",
     robust_scale: float = 1.0,
     use_adsb: bool = True,

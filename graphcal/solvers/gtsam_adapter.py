@@ -48,6 +48,10 @@ class FactorGraph:
         """Whether ``key`` is a variable of the graph."""
         return bool(self._values.exists(int(key)))
 
+    def set_initial(self, key: int, value: FloatArray) -> None:
+        """Replace the initial value of variable ``key``."""
+        self._values.update(int(key), np.asarray(value, dtype=float))
+
     # -------------------------------------------------------------- factors
     def add_custom(self, keys: Sequence[int], dimension: int, error: ErrorFunction) -> None:
         """Add a factor whose whitened error is computed in Python.

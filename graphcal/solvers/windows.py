@@ -98,7 +98,7 @@ class WindowOptions:
     """How each window is calibrated (the :func:`~graphcal.solvers.graph.graph` options)."""
 
     use_adsb: bool = True
-    cross: str = "pairwise"
+    cross: str = "trajectory"
     robust: str = "huber"
     robust_scale: float = 1.0
     fixed: Mapping[tuple[str, str], float] = field(default_factory=dict)

@@ -1,0 +1,106 @@
+"""The trajectory formulation: elimination, derivatives, order, sparse ADS-B."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import graphcal
+from graphcal.model.parameters import radar_terms, terms_vector
+from graphcal.model.robust import RobustKernel
+from graphcal.model.trajectory import build_trajectory_block
+from graphcal.simulation.scenario import load_scenario
+from graphcal.solvers.graph import graph
+from tests.paths import SCENARIOS
+
+
+@pytest.fixture(scope="module")
+def short_demo(demo) -> graphcal.Dataset:
+    """The first 10 minutes of the demo network."""
+    plots = demo.plots[demo.plots["time_s"] < 600.0].reset_index(drop=True)
+    adsb = demo.adsb[demo.adsb["time_s"] < 600.0].reset_index(drop=True)
+    return dataclasses.replace(demo, plots=plots, adsb=adsb)
+
+
+def truth_block(dataset, use_adsb: bool, kernel: str = "none"):
+    sim_truth = graphcal.simulate(SCENARIOS / "demo_network.toml", seed=1).biases
+    terms = {rid: radar_terms(dataset.sites[rid], {}, False) for rid in dataset.radar_ids}
+    keys = {rid: i for i, rid in enumerate(dataset.radar_ids)}
+    truth = {rid: terms_vector(sim_truth[rid])[terms[rid].positions] for rid in dataset.radar_ids}
+    block = build_trajectory_block(dataset, terms, keys, list(dataset.radar_ids),
+                                   RobustKernel(kernel), use_adsb=use_adsb, initial_biases=truth)
+    assert block is not None
+    return block, block.values_of(truth)
+
+
+def test_reduced_system_is_the_schur_complement_of_the_joint_system(short_demo) -> None:
+    block, values = truth_block(short_demo, use_adsb=True)
+    block.settle(values, 5)
+    joint = block.normal_equations(values)
+    n = block.layout.n_unknowns
+    a = joint["information"]
+    g = joint["gradient"]
+    schur = a[n:, n:] - a[n:, :n] @ np.linalg.solve(a[:n, :n], a[:n, n:])
+    reduced_gradient = g[n:] - a[n:, :n] @ np.linalg.solve(a[:n, :n], g[:n])
+    block.settle(values, 5)
+    _, gradient, information = block.reduced(values, True)
+    scale = np.sqrt(np.diag(schur))
+    assert np.allclose(information / np.outer(scale, scale), schur / np.outer(scale, scale),
+                       atol=1e-6)
+    assert np.allclose(gradient / scale, reduced_gradient / scale, atol=1e-6)
+
+
+def test_reduced_gradient_matches_finite_differences_of_the_reduced_cost(short_demo) -> None:
+    block, values = truth_block(short_demo, use_adsb=False)
+    block.settle(values, 6)
+    _, gradient, information = block.reduced(values, True)
+    sigma = np.sqrt(np.diag(np.linalg.inv(information + 1e-12 * np.eye(len(information)))))
+    sizes = [len(v) for v in values]
+    x0 = np.concatenate(values)
+
+    def cost_at(x: np.ndarray) -> float:
+        parts = np.split(x, np.cumsum(sizes)[:-1])
+        block.settle(parts, 6)
+        cost, _, _ = block.reduced(parts, False)
+        return cost
+
+    for i in [0, 1, 2, 6, 9]:
+        h = 0.5 * sigma[i]
+        step = np.zeros_like(x0)
+        step[i] = h
+        numeric = (cost_at(x0 + step) - cost_at(x0 - step)) / (2 * h)
+        # Scaled by the gradient's noise (sqrt of the information): the reduced cost is
+        # the minimum over the paths, so its derivative is the Schur gradient.
+        assert numeric * sigma[i] == pytest.approx(gradient[i] * sigma[i], abs=0.05)
+    block.settle(values, 6)
+
+
+@pytest.mark.parametrize("cross", ["trajectory", "pairwise"])
+@pytest.mark.parametrize("use_adsb", [True, False])
+def test_radar_order_does_not_change_the_answer(short_demo, use_adsb: bool, cross: str) -> None:
+    reversed_sites = dict(reversed(list(short_demo.sites.items())))
+    backwards = dataclasses.replace(short_demo, sites=reversed_sites)
+    a = graph(short_demo, use_adsb=use_adsb, cross=cross)
+    b = graph(backwards, use_adsb=use_adsb, cross=cross)
+    assert list(b.radar_ids) == list(reversed(a.radar_ids))
+    for label, value, sigma in zip(a.labels, a.estimate, np.sqrt(np.diag(a.covariance)),
+                                   strict=True):
+        other = b.estimate[b.labels.index(label)]
+        assert abs(other - value) / sigma < 0.01, label
+
+
+def test_sparse_adsb_every_5_s_calibrates_within_3_sigma() -> None:
+    scenario = load_scenario(SCENARIOS / "demo_network.toml")
+    scenario = dataclasses.replace(
+        scenario, duration_s=1200.0, adsb=dataclasses.replace(scenario.adsb, period_s=5.0))
+    sim = graphcal.simulate(scenario, seed=7)
+    cal = graph(sim.dataset)
+    estimated_time = [label for label in cal.labels if label[1] == "time_offset"]
+    assert len(estimated_time) >= 2  # sparse ADS-B still determines time offsets
+    sigma = np.sqrt(np.diag(cal.covariance))
+    for (rid, name), value, s in zip(cal.labels, cal.estimate, sigma, strict=True):
+        truth = sim.biases[rid].value(name)
+        assert abs(value - truth) < 3.0 * s, (rid, name, value, truth, s)
+    assert cal.info["target_state"]["formulation"] == "trajectory"
