@@ -274,6 +274,11 @@ class Calibration:
         Fisher information the data alone give on the parameters (SI, ``labels``
         order, priors excluded), when the estimator computes it; the pipeline's
         analyses read it.  Not part of the result JSON.
+    bound : dict or None
+        The Cramér-Rao bound of the estimator's own model, when it computes one:
+        ``{"covariance": (p, p) over labels (SI, priors included), "atmosphere_sigma":
+        {key: sigma} or None, "model": description}``.  Not part of the result JSON
+        (its sigmas are, as ``info["crlb_sigma"]``).
     atmosphere : HeightModelEstimate or None
         The height model of pressure altitudes (contract v2), when the dataset's
         plots carry pressure altitudes and the estimator models them: the result
@@ -295,6 +300,7 @@ class Calibration:
     info: dict[str, Any] = field(default_factory=dict)
     fixed: dict[tuple[str, str], float] = field(default_factory=dict)
     information: NDArray[np.float64] | None = field(default=None, repr=False, compare=False)
+    bound: dict[str, Any] | None = field(default=None, repr=False, compare=False)
     atmosphere: HeightModelEstimate | None = None
     series: dict[str, Any] | None = field(default=None, repr=False)
     events: list[dict[str, Any]] | None = None

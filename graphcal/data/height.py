@@ -123,7 +123,10 @@ class HeightModelEstimate:
     n_adsb_segments : int
         ADS-B aircraft segments in the height factor (reports with both heights).
     n_pressure_pairs : int
-        Cross-radar pairs whose 2-D plots were placed at a modelled height.
+        Observations that use a pressure altitude: cross-radar pairs whose 2-D plots
+        were placed at a modelled height (``--cross pairwise``), or 2-D plots whose
+        reported pressure altitude measures their aircraft's path (the trajectory
+        formulation).
     """
 
     height_offset_m: float

@@ -86,6 +86,8 @@ INITIAL_PROCESS_NOISE_M2_S3 = 10.0
 #: ADS-B reports whose whitened residual in the first fit exceeds this [sigma] are
 #: left out (the 99.99 % point of a chi with 3 degrees of freedom is 4.9).
 ADSB_GATE_SIGMA = 5.0
+#: Robust refits of the first fit before the ADS-B gate (:func:`_gate_adsb`).
+ADSB_GATE_ITERATIONS = 3
 #: Gauss-Newton steps of the paths at the initial biases.
 INITIAL_PATH_ITERATIONS = 2
 #: A path step decreasing the cost by more than this [chi2 units] is followed by another
@@ -667,6 +669,14 @@ class TrajectoryBlock:
             "n_eliminations": self.n_calls,
         }
 
+    def n_pressure_plots(self) -> int:
+        """2-D plots whose pressure altitude measures their path (through the height
+        model); 0 without pressure altitudes."""
+        if not self.pressure:
+            return 0
+        return int(sum(np.isfinite(r.altitude_m).sum() for r in self.radars
+                       if not r.site.is_3d))
+
     def plots_per_radar(self) -> dict[str, int]:
         return {r.radar_id: int(len(r.rows)) for r in self.radars}
 
@@ -793,7 +803,13 @@ def build_trajectory_block(
     for rid, part in table.groupby("radar", sort=True):
         site = sites[str(rid)]
         plots = plot_arrays(dataset, str(rid))
+        # In an order set by the values (path, time, range, azimuth), not by the rows:
+        # the same plots in another file order give the same sums, bit for bit.
         k = part["k"].to_numpy()
+        path_of = part["path"].to_numpy()
+        order = np.lexsort((plots.azimuth_rad[k], plots.range_m[k], plots.time_s[k], path_of))
+        part = part.iloc[order]
+        k = k[order]
         a, c = frame.radar_map(site)
         measured = np.stack([plots.range_m[k], plots.azimuth_rad[k],
                              plots.elevation_rad[k] if site.is_3d else np.full(len(k), np.nan)],
@@ -832,7 +848,7 @@ def build_trajectory_block(
     block.coefficients = _initial_coefficients(block, block._split(start_values))
     block._settle_paths(block._split(start_values), INITIAL_PATH_ITERATIONS)
     if block.adsb is not None:
-        _gate_adsb(block)
+        _gate_adsb(block, block._split(start_values))
         block._settle_paths(block._split(start_values), INITIAL_PATH_ITERATIONS)
     if progress is not None:
         progress("aircraft paths", 1, 1)
@@ -866,18 +882,32 @@ def _adsb_constants(layout: PathLayout, path: IntArray, time_s: FloatArray,
     return AdsbOnPaths(path, time_s, position, information, first, weights, band, rhs, constant)
 
 
-def _gate_adsb(block: TrajectoryBlock) -> None:
-    """Leave out the ADS-B reports beyond :data:`ADSB_GATE_SIGMA` of the first fit."""
+def _gate_adsb(block: TrajectoryBlock, named: dict[str, FloatArray]) -> None:
+    """Leave out the ADS-B reports beyond :data:`ADSB_GATE_SIGMA` of a robust first fit.
+
+    The first fit is refitted :data:`ADSB_GATE_ITERATIONS` times with each report's
+    weight ``min(1, gate / s)`` (Huber's, ``s`` its whitened residual), so that a
+    report kilometres off does not drag the path, and its neighbours with it, beyond
+    the gate; then the reports beyond the gate are left out.
+    """
     a = block.adsb
     assert a is not None
-    residual = block._evaluate(block.coefficients, a.first, a.weights) - a.position
-    s = np.sqrt(np.einsum("ni,nij,nj->n", residual, a.information, residual))
-    good = s <= ADSB_GATE_SIGMA
+
+    def whitened_residual() -> FloatArray:
+        residual = block._evaluate(block.coefficients, a.first, a.weights) - a.position
+        return np.sqrt(np.einsum("ni,nij,nj->n", residual, a.information, residual))
+
+    for _ in range(ADSB_GATE_ITERATIONS):
+        weight = np.minimum(1.0, ADSB_GATE_SIGMA / np.maximum(whitened_residual(), 1e-300))
+        if np.all(weight == 1.0):
+            break
+        block.adsb = _adsb_constants(block.layout, a.path, a.time_s, a.position,
+                                     a.information * weight[:, None, None])
+        block._settle_paths(named, 1)
+    good = whitened_residual() <= ADSB_GATE_SIGMA
     block.n_adsb_gated = int(np.sum(~good))
-    if np.all(good):
-        return
-    block.adsb = _adsb_constants(block.layout, a.path[good], a.time_s[good], a.position[good],
-                                 a.information[good])
+    block.adsb = a if np.all(good) else _adsb_constants(
+        block.layout, a.path[good], a.time_s[good], a.position[good], a.information[good])
 
 
 def _initial_coefficients(block: TrajectoryBlock, named: dict[str, FloatArray]) -> FloatArray:
@@ -911,6 +941,9 @@ def _initial_coefficients(block: TrajectoryBlock, named: dict[str, FloatArray]) 
             ok = np.isfinite(el) & (el < MAX_2D_ELEVATION_RAD)
         else:
             ok = np.isfinite(el)
+        ok &= np.isfinite(r) & (r > 0.0)  # a range no correction makes positive: left out
+        r = np.where(ok, r, 1.0)
+        el = np.where(ok, el, 0.0)
         enu = frames.polar_to_enu(r, az, el)
         local = (enu - radar.map_c) @ radar.map_a  # radar ENU = A p + c
         sigma = np.maximum(site.sigma_range_m, r * site.sigma_azimuth_rad)

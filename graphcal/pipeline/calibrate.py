@@ -461,6 +461,8 @@ def bound_info(
     the bound too (its 2-D plots placed at the calibration's estimate), and its two
     parameters get entries ``atmosphere.height_offset_m`` and ``atmosphere.height_scale``.
     """
+    if cal.bound is not None:
+        return _own_bound_info(cal)
     priors: dict[tuple[str, str], float] = {}
     for rid, entries in (cal.info.get("priors") or {}).items():
         for key, value in entries.items():
@@ -490,6 +492,27 @@ def bound_info(
     if cross:
         note += ", cross-radar events with straight-line target segments"
     return {"crlb_sigma": sigma, "efficiency": efficiency, "crlb_model": note}
+
+
+def _own_bound_info(cal: Calibration) -> dict[str, Any]:
+    """:func:`bound_info` from the bound the estimator computed of its own model."""
+    assert cal.bound is not None
+    bound_sd = np.sqrt(np.maximum(np.diag(cal.bound["covariance"]), 0.0))
+    sigma, efficiency = {}, {}
+    for i, (rid, name) in enumerate(cal.labels):
+        key, scale = CONTRACT_KEYS[name]
+        bound_sigma = float(bound_sd[i] * scale)
+        sigma[f"{rid}.{key}"] = bound_sigma
+        reported = float(np.sqrt(cal.covariance_si[i, i])) * scale
+        efficiency[f"{rid}.{key}"] = reported / bound_sigma if bound_sigma > 0 else None
+    atmosphere_sigma = cal.bound.get("atmosphere_sigma")
+    if cal.atmosphere is not None and atmosphere_sigma:
+        for key, bound_sigma in atmosphere_sigma.items():
+            sigma[f"atmosphere.{key}"] = bound_sigma
+            reported = cal.atmosphere.sigma[key]
+            efficiency[f"atmosphere.{key}"] = (
+                reported / bound_sigma if 0 < bound_sigma < np.inf else None)
+    return {"crlb_sigma": sigma, "efficiency": efficiency, "crlb_model": cal.bound["model"]}
 
 
 __all__ = ["METHODS", "METHOD_OPTIONS", "TIME_OFFSET_CHOICES", "bound_info", "calibrate",

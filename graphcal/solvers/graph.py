@@ -853,11 +853,62 @@ def graph(
         atmosphere=atmosphere,
     )
     cal.information = data_information
+    if cross == "trajectory" and problem.target_state is not None:
+        cal.bound = _trajectory_bound(problem, full_values, labels, priors, radars, settings)
     for rid, al in problem.alignments.items():
         if rid in radars:
             bias = terms[rid].bias(values[rid])
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, bias)
     return cal
+
+
+def _trajectory_bound(problem: Problem, values: dict[str, FloatArray],
+                      labels: list[tuple[str, str]], priors: dict[str, FloatArray],
+                      radars: list[str], settings: _Settings) -> dict[str, Any]:
+    """The Cramér-Rao bound of the trajectory model at the estimate.
+
+    The Fisher information of the biases with the paths eliminated
+    (:meth:`~graphcal.model.trajectory.TrajectoryBlock.reduced` without the robust
+    kernel: every plot and ADS-B report at full weight), plus the ADS-B height
+    segments and the weak priors, inverted.  The paths and their process noise are the
+    estimate's: the bound of this same model, evaluated where the data put it.
+    """
+    block = problem.target_state
+    fisher_block = dataclasses.replace(block, kernel=RobustKernel("none"), _reduced_cache=None)
+    _, _, fisher = fisher_block.reduced(block.values_of(values), True)
+    names = [name for _, name, _ in block.variables]
+    sizes = [size for _, _, size in block.variables]
+    has_height = HEIGHT in names or problem.height is not None
+    p = len(labels)
+    size = p + (2 if has_height else 0)
+    full = np.zeros((size, size))
+    position: list[int] = []
+    for name, n in zip(names, sizes, strict=True):
+        if name == HEIGHT:
+            position.extend([p, p + 1])
+            continue
+        start = sum(len(priors[rid]) for rid in radars[:radars.index(name)])
+        position.extend(range(start, start + n))
+    full[np.ix_(position, position)] += fisher
+    if problem.height is not None:
+        e, jac = problem.height.whitened([values.get(HEIGHT, np.zeros(2))])
+        j = jac[0].reshape(len(e), 2)
+        full[p:, p:] += j.T @ j
+    prior = [priors[rid] for rid in radars]
+    if has_height:
+        prior.append(np.array(HEIGHT_PRIOR_SIGMA))
+    full += np.diag(np.concatenate(prior) ** -2.0)
+    scale = np.sqrt(np.diag(full))
+    covariance = np.linalg.pinv(full / np.outer(scale, scale), rcond=1e-13) / np.outer(
+        scale, scale)
+    atmosphere = None
+    if has_height:
+        atmosphere = dict(zip(HEIGHT_MODEL_KEYS, np.sqrt(np.diag(covariance)[p:]).tolist(),
+                              strict=True))
+    del settings
+    return {"covariance": covariance[:p, :p], "atmosphere_sigma": atmosphere,
+            "model": "trajectory model at the estimate: every plot and ADS-B report on its "
+                     "aircraft's path, the paths eliminated, no robust down-weighting"}
 
 
 def _height_model_estimate(
@@ -886,7 +937,9 @@ def _height_model_estimate(
         covariance=covariance, prior_sigma=prior, determined=not undetermined,
         cross_labels=cross_labels, cross_covariance=cross,
         n_adsb_segments=0 if problem.height is None else len(problem.height),
-        n_pressure_pairs=int(sum(len(f) for f in problem.pairs if f.height_key is not None)),
+        n_pressure_pairs=int(sum(len(f) for f in problem.pairs if f.height_key is not None))
+        + (problem.target_state.n_pressure_plots()
+           if hasattr(problem.target_state, "n_pressure_plots") else 0),
     )
     notes = []
     if undetermined:

@@ -37,7 +37,7 @@ def test_joint_sigma_is_the_graph_posterior_without_priors() -> None:
     (whose weak priors change the sigmas by far less than 1 % with ADS-B)."""
     ds = _network()
     report = analyse(observation_blocks(ds))
-    cal = graph(ds, robust="none", time_offset=False)
+    cal = graph(ds, robust="none", time_offset=False, cross="pairwise")
     assert report.labels == cal.labels
     assert np.allclose(report.sigma_joint, np.sqrt(np.diag(cal.covariance)), rtol=0.01)
     assert report.rank == len(report.labels)

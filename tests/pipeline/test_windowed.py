@@ -240,7 +240,13 @@ def _assert_series_as_ordered(sim, tmp_path: Path, got: Calibration) -> None:
     ordered = tmp_path / "ordered"
     write_dataset(sim.dataset, ordered)
     expected = calibrate(ordered, window="15min")
-    assert got.events == expected.events
+    # The same events; the step statistic (a chi-square of some 1,000) to 1e-6 of itself:
+    # the order of the rows changes the order of floating-point sums.
+    assert len(got.events) == len(expected.events)
+    for mine, theirs in zip(got.events, expected.events, strict=True):
+        assert {k: v for k, v in mine.items() if k != "statistic"} == {
+            k: v for k, v in theirs.items() if k != "statistic"}
+        assert mine.get("statistic") == pytest.approx(theirs.get("statistic"), rel=1e-6)
     for rid, entries in expected.series["radars"].items():
         for mine, theirs in zip(entries, got.series["radars"][rid], strict=True):
             assert mine["n_plots"] == theirs["n_plots"]

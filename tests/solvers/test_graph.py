@@ -59,12 +59,17 @@ def test_with_adsb_every_parameter_within_3_sigma_and_sigma_consistent(demo_runs
 
 def test_cross_radar_only_within_4_sigma(demo_runs) -> None:
     """Pairwise mode without ADS-B: its sigma is somewhat optimistic (normalised error
-    variance 1.6 over 8 seeds of this scenario, see the README), so 4 sigma here."""
+    variance 1.6 over 8 seeds of this scenario, see docs/graph.md), so 4 sigma here; the
+    trajectory formulation (the default) within 3."""
     run = demo_runs[0]
-    cal = graph(run.dataset, use_adsb=False)
+    cal = graph(run.dataset, use_adsb=False, cross="pairwise")
     assert cal.info["n_adsb_plots"] == 0 and cal.info["n_pairs"] > 10000
     assert "shared between pairs" in cal.info["covariance"]
     assert np.max(np.abs(z_scores(cal, run.biases))) < 4.0
+    paths = graph(run.dataset, use_adsb=False)
+    assert paths.info["target_state"]["formulation"] == "trajectory"
+    assert sum(paths.info["target_state"]["n_plots"].values()) > 30_000
+    assert np.max(np.abs(z_scores(paths, run.biases))) < 3.0
 
 
 def test_paper001_path1_without_adsb_has_no_linearisation_bias() -> None:
@@ -97,15 +102,26 @@ def test_adsb_outliers_do_not_move_robust_estimates() -> None:
     adsb = dataclasses.replace(scenario.adsb, outlier_fraction=0.02, outlier_distance_m=5000.0)
     run = simulate(dataclasses.replace(scenario, adsb=adsb), np.random.default_rng(5))
     for kernel in ("huber", "cauchy"):
-        cal = graph(run.dataset, robust=kernel)
+        cal = graph(run.dataset, robust=kernel, cross="pairwise")
         assert np.max(np.abs(z_scores(cal, run.biases))) < 3.0, kernel
         for rid, counts in cal.info["downweighted"].items():
             # A plot interpolated next to a displaced report is displaced too: 2-4 % (+ Cauchy's
             # 5 % tail of clean plots).
             share = counts["adsb_plots"] / cal.n_plots[rid]
             assert 0.015 < share < 0.15, (kernel, rid, share)
-    plain = graph(run.dataset, robust="none")
+    plain = graph(run.dataset, robust="none", cross="pairwise")
     assert np.max(np.abs(z_scores(plain, run.biases))) > 5.0  # the outliers do matter
+    # The trajectory formulation leaves the displaced reports out of its paths (their
+    # residuals from the first fit are beyond the gate), with or without a kernel: the
+    # plots are not displaced by them.
+    for kernel in ("huber", "none"):
+        cal = graph(run.dataset, robust=kernel)
+        assert np.max(np.abs(z_scores(cal, run.biases))) < 3.0, kernel
+        paths = cal.info["target_state"]
+        gated = paths["n_adsb_gated"] / (paths["n_adsb_reports"] + paths["n_adsb_gated"])
+        assert 0.015 < gated < 0.03, gated
+        for rid, counts in cal.info["downweighted"].items():
+            assert counts["plots"] / cal.n_plots[rid] < 0.01, (kernel, rid)
 
 
 @pytest.mark.skipif(not (OPENSKY / "opensky_paris_2021-10-07.parquet").exists(),
@@ -209,7 +225,7 @@ def test_cli_calibrates_with_graph_by_default_and_writes_the_result(tmp_path: Pa
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
     assert data["method"] == "graph"
-    assert data["info"]["cross"] == "pairwise" and data["info"]["robust"]["kernel"] == "huber"
+    assert data["info"]["cross"] == "trajectory" and data["info"]["robust"]["kernel"] == "huber"
     assert data["radars"]["A"]["azimuth_bias_mrad"] == pytest.approx(3.0, abs=0.2)
     result = runner.invoke(app, ["calibrate", str(tmp_path / "ds"), "--fix", "A.range_gain=0.001",
                                  "--cross", "target-state", "--robust", "cauchy"])

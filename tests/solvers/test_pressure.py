@@ -96,11 +96,26 @@ def test_pressure_altitudes_declared_geometric_bias_the_estimates(runs) -> None:
     assert scores["OUEST3D.elevation_bias_mrad"] > 20.0
 
 
-def test_height_model_not_determined_is_said_and_not_a_number(runs) -> None:
-    """ADS-B without baro_alt_m: every plot matches ADS-B, no observation uses a pressure
-    altitude; the block gives the prior, determined false, and a warning says so."""
+def test_without_baro_the_paths_still_determine_the_height_model(runs) -> None:
+    """ADS-B without baro_alt_m: in the trajectory formulation the 2-D plots' pressure
+    altitudes measure their aircraft's paths, whose heights ADS-B gives: the height
+    model is determined, and right."""
     run = runs[0]
     cal = graph(dataclasses.replace(run.dataset, adsb=run.dataset.adsb.drop(columns="baro_alt_m")))
+    assert cal.atmosphere is not None and cal.atmosphere.determined
+    assert cal.atmosphere.n_adsb_segments == 0 and cal.atmosphere.n_pressure_pairs > 10_000
+    truth = run.scenario.height_model
+    for key in ("height_offset_m", "height_scale"):
+        error = getattr(cal.atmosphere, key) - getattr(truth, key)
+        assert abs(error) < 3.0 * cal.atmosphere.sigma[key], key
+
+
+def test_height_model_not_determined_is_said_and_not_a_number(runs) -> None:
+    """Pairwise, ADS-B without baro_alt_m: every plot matches ADS-B, no observation uses a
+    pressure altitude; the block gives the prior, determined false, and a warning says so."""
+    run = runs[0]
+    cal = graph(dataclasses.replace(run.dataset, adsb=run.dataset.adsb.drop(columns="baro_alt_m")),
+                cross="pairwise")
     block = cal.to_dict()["atmosphere"]
     assert block["determined"] is False
     assert block["sigma"] == {"height_offset_m": 1000.0, "height_scale": 0.1}

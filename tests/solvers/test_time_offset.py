@@ -51,7 +51,8 @@ def test_offsets_of_half_a_second_to_two_seconds_are_recovered(runs) -> None:
     shifted, _ = runs
     cal = graph(shifted.dataset)
     assert cal.info["time_offset"]["estimated"] == list(OFFSETS_S)
-    assert cal.info["time_offset"]["realignments"] >= 1
+    # The paths are evaluated at each plot's own corrected time: nothing to realign.
+    assert cal.info["time_offset"]["realignments"] == 0
     z = _z(cal, shifted.biases)
     assert max(abs(v) for v in z.values()) < 3.0, z
     for rid, offset in OFFSETS_S.items():
