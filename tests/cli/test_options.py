@@ -46,7 +46,8 @@ runner = CliRunner()
     (["--out", "r.json", "--truth", "t.json"], "with --out alone it is not used"),
     (["--method", "magic"], "unknown method 'magic'"),
     (["--cross", "everything"],
-     "--cross: unknown cross-radar mode 'everything'; use one of: trajectory, pairwise, target-state, none"),
+     "--cross: unknown cross-radar mode 'everything'; use one of: trajectory, pairwise, "
+     "target-state, none"),
     (["--select", "best"], "--select: unknown selection method 'best'; use one of: greedy, "
      "e-optimal, d-optimal, random"),
 ])
