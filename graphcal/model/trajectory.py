@@ -86,10 +86,12 @@ INITIAL_PROCESS_NOISE_M2_S3 = 10.0
 #: ADS-B reports whose whitened residual in the first fit exceeds this [sigma] are
 #: left out (the 99.99 % point of a chi with 3 degrees of freedom is 4.9).
 ADSB_GATE_SIGMA = 5.0
-#: Robust refits of the first fit before the ADS-B gate (:func:`_gate_adsb`).
+#: Robust refits of the first fit before the ADS-B gate (:func:`_gate_adsb`), done
+#: only while some report is beyond :data:`ADSB_GROSS_SIGMA` [sigma].
 ADSB_GATE_ITERATIONS = 3
+ADSB_GROSS_SIGMA = 20.0
 #: Gauss-Newton steps of the paths at the initial biases.
-INITIAL_PATH_ITERATIONS = 2
+INITIAL_PATH_ITERATIONS = 1
 #: A path step decreasing the cost by more than this [chi2 units] is followed by another
 #: before the reduced system is formed.
 PATH_STEP_TOLERANCE = 0.5
@@ -119,10 +121,10 @@ class NetworkFrame:
         return frames.ecef_to_enu_rotation(self.lat_rad, self.lon_rad)
 
     def from_ecef(self, ecef_m: FloatArray) -> FloatArray:
-        return (np.asarray(ecef_m) - self.origin_ecef_m) @ self.rotation.T
+        return frames.rotate(np.asarray(ecef_m) - self.origin_ecef_m, self.rotation)
 
     def to_ecef(self, enu_m: FloatArray) -> FloatArray:
-        return np.asarray(enu_m) @ self.rotation + self.origin_ecef_m
+        return frames.rotate(enu_m, self.rotation.T) + self.origin_ecef_m
 
     def radar_map(self, site: Site) -> tuple[FloatArray, FloatArray]:
         """``(A, c)`` with radar ENU = ``A p + c`` for a network-ENU point ``p``."""
@@ -326,6 +328,7 @@ class TrajectoryBlock:
             lin.bias_information = np.zeros((p, p))
             lin.bias_gradient = np.zeros(p)
         firsts, weights, infos, gradients = [], [], [], []
+        pending: dict[str, list[tuple[IntArray, FloatArray, FloatArray, IntArray]]] = {}
         for g in groups:
             m = g.e.shape[1]
             s = frames.row_norm(g.e)
@@ -337,13 +340,24 @@ class TrajectoryBlock:
             firsts.append(g.first)
             weights.append(g.weights)
             if want_bias and len(g.columns):
-                assert lin.cross is not None and lin.bias_information is not None
-                assert lin.bias_gradient is not None
-                block = np.einsum("nmi,nmk,n->nik", g.hx, g.hb, w)
-                scatter_columns(g.first, g.weights, block, g.columns, lin.cross)
+                assert lin.bias_information is not None and lin.bias_gradient is not None
+                weighted_hb = g.hb * w[:, None, None]
+                pending.setdefault(g.radar_id, []).append(
+                    (g.first, g.weights, np.swapaxes(weighted, 1, 2) @ g.hb, g.columns))
                 lin.bias_information[np.ix_(g.columns, g.columns)] += np.einsum(
-                    "nmk,nml,n->kl", g.hb, g.hb, w)
-                lin.bias_gradient[g.columns] += np.einsum("nmk,nm,n->k", g.hb, g.e, w)
+                    "nmk,nml->kl", weighted_hb, g.hb)
+                lin.bias_gradient[g.columns] += np.einsum("nmk,nm->k", weighted_hb, g.e)
+        for parts in pending.values():  # one scatter per radar, over its columns
+            assert lin.cross is not None
+            columns_all = np.unique(np.concatenate([cols for *_, cols in parts]))
+            blocks = []
+            for _, _, block, cols in parts:
+                padded = np.zeros((len(block), 3, len(columns_all)))
+                padded[:, :, np.searchsorted(columns_all, cols)] = block
+                blocks.append(padded)
+            scatter_columns(np.concatenate([f for f, *_ in parts]),
+                            np.concatenate([wt for _, wt, *_ in parts]),
+                            np.concatenate(blocks), columns_all, lin.cross)
         if groups:
             first_all, weights_all = np.concatenate(firsts), np.concatenate(weights)
             add_measurement_blocks(lin.band, first_all, weights_all, np.concatenate(infos))
@@ -358,7 +372,7 @@ class TrajectoryBlock:
         first, u, interval = self._locate(radar.path, radar.time_s - tau)
         weights = basis(u)
         position = self._evaluate(c, first, weights)
-        enu = position @ radar.map_a.T + radar.map_c
+        enu = frames.rotate(position, radar.map_a) + radar.map_c
         polar, jac_enu = measurement_model(radar.site).enu_jacobian(enu)
         r_t, az_t, el_t = polar[:, 0], polar[:, 1], polar[:, 2]
         sin_az, cos_az = np.sin(az_t), np.cos(az_t)
@@ -409,7 +423,7 @@ class TrajectoryBlock:
         lat, lon, h = frames.ecef_to_geodetic(self.frame.to_ecef(pos))
         up_ecef = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon),
                             np.sin(lat)], axis=-1)
-        up = up_ecef @ self.frame.rotation.T
+        up = frames.rotate(up_ecef, self.frame.rotation)
         reported = radar.altitude_m[has]
         height_cols = np.zeros(0, dtype=np.int64)
         if height is not None:
@@ -848,8 +862,10 @@ def build_trajectory_block(
     block.coefficients = _initial_coefficients(block, block._split(start_values))
     block._settle_paths(block._split(start_values), INITIAL_PATH_ITERATIONS)
     if block.adsb is not None:
+        before = block.n_adsb_gated
         _gate_adsb(block, block._split(start_values))
-        block._settle_paths(block._split(start_values), INITIAL_PATH_ITERATIONS)
+        if block.n_adsb_gated != before:
+            block._settle_paths(block._split(start_values), 1)
     if progress is not None:
         progress("aircraft paths", 1, 1)
     return block
@@ -860,12 +876,16 @@ def _adsb_on_paths(layout: PathLayout, frame: NetworkFrame, tracks, rows: IntArr
     ecef = tracks.ecef_m[rows]
     position = frame.from_ecef(ecef)
     sigma = tracks.sigma_m[rows]
-    lat, lon, _ = frames.ecef_to_geodetic(ecef)
-    # The report's own ENU axes in the network frame: horizontal sigma, 1.5 x vertically.
-    rot = frames.ecef_to_enu_rotation(lat, lon) @ frame.rotation.T  # (n, 3, 3) local ENU
-    variances = np.stack([sigma**2, sigma**2, (ADSB_VERTICAL_SIGMA_RATIO * sigma) ** 2],
-                         axis=-1)
-    information = np.einsum("nki,nk,nkj->nij", rot, 1.0 / variances, rot)
+    # Horizontal sigma, 1.5 x vertically, about the report's own vertical: the
+    # ellipsoid's normal, the gradient of x^2/a^2 + y^2/a^2 + z^2/b^2 (at a few km above
+    # the ellipsoid within 1e-6 rad of the normal through the point).
+    b2 = frames.WGS84_A_M**2 * (1.0 - frames.WGS84_E2)
+    normal = ecef / np.array([frames.WGS84_A_M**2, frames.WGS84_A_M**2, b2])
+    up = frames.rotate(normal / frames.row_norm(normal)[:, None], frame.rotation)
+    horizontal = 1.0 / sigma**2
+    vertical = 1.0 / (ADSB_VERTICAL_SIGMA_RATIO * sigma) ** 2
+    information = (horizontal[:, None, None] * np.eye(3)[None]
+                   + (vertical - horizontal)[:, None, None] * up[:, :, None] * up[:, None, :])
     time_s = tracks.time_s[rows]
     return _adsb_constants(layout, path, time_s, position, information)
 
@@ -898,9 +918,10 @@ def _gate_adsb(block: TrajectoryBlock, named: dict[str, FloatArray]) -> None:
         return np.sqrt(np.einsum("ni,nij,nj->n", residual, a.information, residual))
 
     for _ in range(ADSB_GATE_ITERATIONS):
-        weight = np.minimum(1.0, ADSB_GATE_SIGMA / np.maximum(whitened_residual(), 1e-300))
-        if np.all(weight == 1.0):
-            break
+        s = whitened_residual()
+        if s.max(initial=0.0) <= ADSB_GROSS_SIGMA:
+            break  # nothing gross enough to drag the first fit: gate as it is
+        weight = np.minimum(1.0, ADSB_GATE_SIGMA / np.maximum(s, 1e-300))
         block.adsb = _adsb_constants(block.layout, a.path, a.time_s, a.position,
                                      a.information * weight[:, None, None])
         block._settle_paths(named, 1)
@@ -945,7 +966,7 @@ def _initial_coefficients(block: TrajectoryBlock, named: dict[str, FloatArray]) 
         r = np.where(ok, r, 1.0)
         el = np.where(ok, el, 0.0)
         enu = frames.polar_to_enu(r, az, el)
-        local = (enu - radar.map_c) @ radar.map_a  # radar ENU = A p + c
+        local = frames.rotate(enu - radar.map_c, radar.map_a.T)  # radar ENU = A p + c
         sigma = np.maximum(site.sigma_range_m, r * site.sigma_azimuth_rad)
         weight = np.where(ok, 1.0 / sigma**2, 0.0)
         first, u = layout.locate(radar.path, radar.time_s - full[4])
