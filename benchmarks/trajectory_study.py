@@ -126,6 +126,7 @@ def run(case: str, seed: int) -> dict:
         cal, record = calibrate(dataset, cross, use_adsb)
         if cal is not None:
             cov = np.asarray(cal.covariance_si)
+            bound = None if cal.bound is None else np.asarray(cal.bound["covariance"])
             params = []
             for i, (rid, name) in enumerate(cal.labels):
                 sigma = float(np.sqrt(cov[i, i]))
@@ -133,7 +134,9 @@ def run(case: str, seed: int) -> dict:
                 estimate = float(cal.estimate[i])
                 params.append({"radar": rid, "name": name, "estimate": estimate,
                                "sigma": sigma, "truth": truth,
-                               "z": (estimate - truth) / sigma})
+                               "z": (estimate - truth) / sigma,
+                               "bound_sigma": None if bound is None
+                               else float(np.sqrt(bound[i, i]))})
             record["parameters"] = params
         out[cross] = record
     return out
@@ -191,7 +194,19 @@ def summarise(runs: list[dict]) -> dict:
         for kind in other:
             kinds[kind] = z_stats([p["z"] for p in params if p["name"] == kind])
         kinds["all"] = z_stats([p["z"] for p in params])
+        # RMSE / sqrt(CRLB) per parameter over the seeds (the bound the estimator computes
+        # of its own model, where it does), the largest per kind.
+        efficiency: dict[str, float] = {}
+        by_label: dict[tuple[str, str], list[dict]] = {}
+        for p in params:
+            if p.get("bound_sigma"):
+                by_label.setdefault((p["radar"], p["name"]), []).append(p)
+        for (_, name), ps in by_label.items():
+            rmse = np.sqrt(np.mean([(p["estimate"] - p["truth"]) ** 2 for p in ps]))
+            bound = np.sqrt(np.mean([p["bound_sigma"] ** 2 for p in ps]))
+            efficiency[name] = max(efficiency.get(name, 0.0), float(rmse / bound))
         summary[cross] = {
+            "rmse_over_crlb_max": efficiency,
             "runs": len(good), "errors": len(records) - len(good),
             "seconds": float(np.mean([r["seconds"] for r in records])) if records else 0.0,
             "kinds": kinds,
@@ -237,6 +252,14 @@ def table(summary: dict[str, dict]) -> str:
             cells = " | ".join(_fmt(s["kinds"].get(k, {})) for k in columns)
             lines.append(f"| {case} | {cross} | {s['runs']} | {s['errors']} | "
                          f"{s['seconds']:.1f} | {cells} |")
+    lines += ["", "RMSE / sqrt(CRLB) over the seeds, largest parameter of each kind (the "
+              "trajectory model's own bound)", ""]
+    for case, per in summary.items():
+        for cross, s in per.items():
+            ratios = s.get("rmse_over_crlb_max") or {}
+            if ratios:
+                lines.append(f"- {case}, {cross}: " + ", ".join(
+                    f"{k} {v:.2f}" for k, v in ratios.items()))
     return "\n".join(lines)
 
 

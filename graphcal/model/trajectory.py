@@ -91,7 +91,7 @@ ADSB_GATE_SIGMA = 5.0
 ADSB_GATE_ITERATIONS = 3
 ADSB_GROSS_SIGMA = 20.0
 #: Gauss-Newton steps of the paths at the initial biases.
-INITIAL_PATH_ITERATIONS = 1
+INITIAL_PATH_ITERATIONS = 0
 #: A path step decreasing the cost by more than this [chi2 units] is followed by another
 #: before the reduced system is formed.
 PATH_STEP_TOLERANCE = 0.5
@@ -164,6 +164,7 @@ class AdsbOnPaths:
     information: FloatArray  # (n, 3, 3)
     first: IntArray
     weights: FloatArray
+    interval: IntArray
     band: FloatArray  # their share of the paths' normal matrix
     rhs: FloatArray  # sum B kron W z
     constant: float  # 0.5 sum z^T W z
@@ -192,6 +193,7 @@ class _Linear:
     gradient: FloatArray
     cost: float
     groups: list[_Group]
+    phase_cost: FloatArray | None = None  # (n_phases,): the data's cost by flight phase
     cross: FloatArray | None = None  # (n_unknowns, P)
     bias_information: FloatArray | None = None
     bias_gradient: FloatArray | None = None
@@ -221,6 +223,7 @@ class TrajectoryBlock:
     n_calls: int = 0
     _prior_cache: tuple[FloatArray, FloatArray] | None = field(default=None, repr=False)
     _reduced_cache: tuple[tuple[bytes, bytes], tuple] | None = field(default=None, repr=False)
+    _data_snapshot: tuple | None = field(default=None, repr=False)
 
     # ------------------------------------------------------------ layout of the biases
     @property
@@ -282,6 +285,10 @@ class TrajectoryBlock:
                    coefficients: FloatArray | None = None) -> _Linear:
         c = self.coefficients if coefficients is None else coefficients
         lin = self._linearise_data(named, want_bias, c)
+        # The data's share, for estimating the process noise at this linearisation
+        # without linearising again (estimate_process_noise).
+        self._data_snapshot = (lin.band.copy(), lin.gradient.copy(), lin.cost,
+                               lin.phase_cost, c.copy())
         self._add_prior(lin, c, self.phase_scale)
         return lin
 
@@ -316,13 +323,20 @@ class TrajectoryBlock:
             adsb_ax = band_matvec(self.adsb.band, flat)
             gradient += adsb_ax - self.adsb.rhs
             cost += 0.5 * float(flat @ adsb_ax) - float(flat @ self.adsb.rhs) + self.adsb.constant
+        phase_cost = np.zeros(layout.n_phases)
+        if self.adsb is not None:
+            a = self.adsb
+            residual = self._evaluate(c, a.first, a.weights) - a.position
+            chi2 = np.einsum("ni,nij,nj->n", residual, a.information, residual)
+            phase_cost += np.bincount(layout.phase[a.interval], 0.5 * chi2,
+                                      minlength=layout.n_phases)
         groups = []
         height = named.get("") if self.pressure else None
         for radar in self.radars:
             groups.extend(self._radar_groups(radar, named.get(radar.radar_id, np.zeros(0)),
                                              height, c, columns))
         p = self.n_bias
-        lin = _Linear(band, gradient, cost, groups)
+        lin = _Linear(band, gradient, cost, groups, phase_cost=phase_cost)
         if want_bias:
             lin.cross = np.zeros((n, p))
             lin.bias_information = np.zeros((p, p))
@@ -333,7 +347,9 @@ class TrajectoryBlock:
             m = g.e.shape[1]
             s = frames.row_norm(g.e)
             w = self.kernel.weight(s, m)
-            lin.cost += float(np.sum(self.kernel.loss(s, m)))
+            loss = self.kernel.loss(s, m)
+            lin.cost += float(np.sum(loss))
+            phase_cost += np.bincount(layout.phase[g.interval], loss, minlength=layout.n_phases)
             weighted = g.hx * w[:, None, None]
             infos.append(np.swapaxes(weighted, 1, 2) @ g.hx)
             gradients.append(np.einsum("nmi,nm->ni", weighted, g.e))
@@ -605,7 +621,7 @@ class TrajectoryBlock:
         self.last_weights = {rid: np.concatenate(w) for rid, w in weights.items()}
 
     # ------------------------------------------------------------ process noise
-    def estimate_process_noise(self, values: list[FloatArray]) -> FloatArray:
+    def estimate_process_noise(self, values: list[FloatArray] | None = None) -> FloatArray:
         """Each phase's process noise [m^2/s^3] by maximum marginal likelihood (grid).
 
         For each ``q`` of :data:`PROCESS_NOISE_GRID_M2_S3` the paths' Laplace
@@ -613,8 +629,15 @@ class TrajectoryBlock:
         - rank / 2 log q`` (the motion prior's rank is ``3 (K + 1)`` on a path of ``K``
         intervals); every phase
         takes the ``q`` that maximises its share.  Sets and returns the phases' ``q``.
+
+        ``values``: the biases at which to linearise; ``None``: the last linearisation's
+        data (that of the last :meth:`reduced`), not linearised again.
         """
-        named = self._split(values)
+        if values is not None or self._data_snapshot is None:
+            self._linearise(self._split(values if values is not None else self.values_of({})),
+                            want_bias=False)
+        assert self._data_snapshot is not None
+        data_band, data_gradient, data_cost, measurement_cost, coefficients = self._data_snapshot
         layout = self.layout
         unknown_phase = layout.unknown_phase()
         best = np.full(layout.n_phases, -np.inf)
@@ -624,13 +647,11 @@ class TrajectoryBlock:
         first_phase = layout.phase[np.concatenate([[0], np.cumsum(layout.n_intervals)[:-1]])]
         rank = 3.0 * (np.bincount(layout.phase, minlength=layout.n_phases)
                       + np.bincount(first_phase, minlength=layout.n_phases))
-        energy = np.bincount(layout.phase, motion_prior_energy(self.coefficients, layout),
+        energy = np.bincount(layout.phase, motion_prior_energy(coefficients, layout),
                              minlength=layout.n_phases)
-        measurement_cost = self._measurement_cost_by_phase(named)
-        data = self._linearise_data(named, False, self.coefficients)
         for q in PROCESS_NOISE_GRID_M2_S3:
-            lin = _Linear(data.band.copy(), data.gradient.copy(), data.cost, [])
-            self._add_prior(lin, self.coefficients, np.full(layout.n_phases, 1.0 / q))
+            lin = _Linear(data_band.copy(), data_gradient.copy(), data_cost, [])
+            self._add_prior(lin, coefficients, np.full(layout.n_phases, 1.0 / q))
             factor = BandFactor.of(lin.band)
             z = factor.forward(lin.gradient)
             reduction = np.bincount(unknown_phase, 0.5 * z * z, minlength=layout.n_phases)
@@ -643,25 +664,6 @@ class TrajectoryBlock:
             chosen = np.where(better, q, chosen)
         self.phase_scale = 1.0 / chosen
         return chosen
-
-    def _measurement_cost_by_phase(self, named: dict[str, FloatArray]) -> FloatArray:
-        layout = self.layout
-        out = np.zeros(layout.n_phases)
-        columns = self._columns()
-        height = named.get("") if self.pressure else None
-        for radar in self.radars:
-            for g in self._radar_groups(radar, named.get(radar.radar_id, np.zeros(0)), height,
-                                        self.coefficients, columns):
-                s = frames.row_norm(g.e)
-                out += np.bincount(layout.phase[g.interval], self.kernel.loss(s, g.e.shape[1]),
-                                   minlength=layout.n_phases)
-        if self.adsb is not None:
-            a = self.adsb
-            first, u, interval = self._locate(a.path, a.time_s)
-            residual = self._evaluate(self.coefficients, first, basis(u)) - a.position
-            chi2 = np.einsum("ni,nij,nj->n", residual, a.information, residual)
-            out += np.bincount(layout.phase[interval], 0.5 * chi2, minlength=layout.n_phases)
-        return out
 
     # ------------------------------------------------------------ reporting
     def summary(self) -> dict:
@@ -894,12 +896,15 @@ def _adsb_constants(layout: PathLayout, path: IntArray, time_s: FloatArray,
                     position: FloatArray, information: FloatArray) -> AdsbOnPaths:
     first, u = layout.locate(path, time_s)
     weights = basis(u)
+    interval_offset = np.concatenate([[0], np.cumsum(layout.n_intervals)[:-1]])
+    interval = interval_offset[path] + (first - layout.first_coefficient[path])
     band = band_zeros(layout.n_unknowns)
     add_measurement_blocks(band, first, weights, information)
     rhs = scatter_vectors(first, weights, np.einsum("nij,nj->ni", information, position),
                           layout.n_unknowns)
     constant = 0.5 * float(np.einsum("ni,nij,nj->", position, information, position))
-    return AdsbOnPaths(path, time_s, position, information, first, weights, band, rhs, constant)
+    return AdsbOnPaths(path, time_s, position, information, first, weights, interval, band, rhs,
+                       constant)
 
 
 def _gate_adsb(block: TrajectoryBlock, named: dict[str, FloatArray]) -> None:

@@ -233,7 +233,16 @@ def calibrate(
                                       and math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a positive, finite number, not {value}")
     folder = None
-    if not isinstance(dataset, Dataset):
+    constant_windows = (
+        not isinstance(dataset, Dataset) and window is None and method == "graph"
+        and select is None and not bound and init == "auto" and time_offset in ("auto", None)
+        and not (scheduler or drift or breaks) and _long_recording(dataset))
+    if constant_windows:
+        # A long recording: constant biases from its windows' summaries, read window by
+        # window (memory bounded by a window, whatever the recording's length).
+        folder = dataset
+        sites = load_sites(Path(folder) / SITES_FILE)
+    elif not isinstance(dataset, Dataset):
         if window is not None:  # read window by window, not loaded whole
             folder = dataset
             sites = load_sites(Path(folder) / SITES_FILE)
@@ -250,6 +259,16 @@ def calibrate(
     options = _method_options(method, given, sites)
     if max_gap_s is not None:
         options["max_gap_s"] = max_gap_s
+    if constant_windows:
+        cal = _calibrate_windows(folder, method, CONSTANT_BATCH_WINDOW_S, options, clean=clean,
+                                 select=None, bound=None, progress=progress, force=force,
+                                 check_fit=check_fit, constant=True)
+        cal.warnings.append(
+            f"a recording longer than {CONSTANT_BATCH_MIN_SPAN_S / 3600:g} h: constant biases "
+            f"from {cal.info['windows']['n_windows']} windows of "
+            f"{CONSTANT_BATCH_WINDOW_S / 3600:g} h read one at a time (the Cramér-Rao bound "
+            "and the model checks are not computed over windows)")
+        return cal
     if window is not None:
         return _calibrate_windows(folder if folder is not None else dataset, method, window,
                                   options, clean=clean, select=select,
@@ -383,6 +402,27 @@ def _widen_sigmas(cal: Calibration, verdict: Any) -> None:
     cal.info["sigma_inflation"] = {
         rid: w.to_dict(name for r, name in cal.labels if r == rid) for rid, w in widened.items()}
     cal.warnings.extend(w.message() for w in widened.values())
+
+
+#: A recording read from a folder that spans more than this [s] is calibrated for
+#: constant biases from windows of :data:`CONSTANT_BATCH_WINDOW_S`, one at a time.
+CONSTANT_BATCH_MIN_SPAN_S = 2.0 * 3600.0
+CONSTANT_BATCH_WINDOW_S = 3600.0
+
+
+def _long_recording(folder: str | os.PathLike[str]) -> bool:
+    """Whether the dataset folder's plots span more than :data:`CONSTANT_BATCH_MIN_SPAN_S`
+    (from the Parquet statistics or the ``time_s`` column alone); ``False`` when that
+    cannot be told (the full load then reports the problem)."""
+    from graphcal.io.dataset_span import dataset_span
+
+    try:
+        span = dataset_span(folder)
+    except Exception:  # noqa: BLE001 - the full load names what is wrong with the folder
+        return False
+    if not (math.isfinite(span.t_start_s) and math.isfinite(span.t_end_s)):
+        return False
+    return span.t_end_s - span.t_start_s > CONSTANT_BATCH_MIN_SPAN_S
 
 
 def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,

@@ -100,6 +100,7 @@ def calibrate_windows(
     progress: Progress | None = None,
     force: bool = False,
     check_fit: bool = True,
+    constant: bool = False,
 ) -> Calibration:
     """Calibrate ``dataset`` in windows of ``window_s`` seconds (module docstring).
 
@@ -136,6 +137,11 @@ def calibrate_windows(
         Raise :class:`~graphcal.analysis.fit_verdict.ModelMisfitError` when the fit
         verdict over the windows fails (:func:`_judge`); else it becomes a warning.
         The verdict is recorded in ``info["fit_verdict"]`` either way.
+    constant : bool
+        Constant biases over the whole recording instead of biases over time: the
+        windows' summaries combined with no random walk between them
+        (:func:`graphcal.solvers.windows.constant_biases`), in the memory of one window.
+        ``drift``, ``breaks`` and step detection do not apply.
 
     Raises
     ------
@@ -162,6 +168,17 @@ def calibrate_windows(
     widened = _sigma_inflation(summaries)
     summaries = [_widened(s, widened) for s in summaries]
     elapsed = time.perf_counter() - start
+    if constant:
+        cal = _constant_calibration(summaries, source.sites, window_s, source.cleaning_warnings)
+        cal.info["timing_s"] = {"summaries_s": elapsed, "total_s": time.perf_counter() - start}
+        _finish(cal, source, scheduler, dataset)
+        _record_inflation(cal, widened)
+        verdict = _judge(summaries)
+        if verdict is not None:
+            if not verdict.passed and check_fit:
+                _stop(verdict, cal)
+            _record_verdict(cal, verdict)
+        return cal
     if progress is not None:
         progress("smoothing the chain", 0, 1)
     chain = {"random_walk_per_sqrt_s": rates, "breaks": breaks,
@@ -543,6 +560,32 @@ def series_entry(window: WindowEstimate, terms: RadarTerms, eccentric: bool) -> 
             entry[key] = None
     entry["sigma"] = dict(window.sigma)
     return entry
+
+
+def _constant_calibration(summaries: Sequence[WindowSummary], sites: Mapping[str, Site],
+                          window_s: float, cleaning_warnings: Sequence[str]) -> Calibration:
+    """Constant biases from the windows' summaries, as one batch's :class:`Calibration`."""
+    from graphcal.solvers.windows import constant_biases
+
+    combined = constant_biases(summaries, sites)
+    radar_ids = [rid for rid in sites if any(r == rid for r, _ in combined.labels)]
+    warnings = list(cleaning_warnings)
+    counted = Counter(w for s in summaries for w in s.warnings)
+    n = combined.n_windows
+    warnings += [f"{text} (in {count} of {n} windows)" if n > 1 else text
+                 for text, count in counted.items()]
+    info: dict[str, Any] = {
+        "windows": {"window_s": window_s, "n_windows": n, "constant": True},
+        "cross": "from windows",
+    }
+    return Calibration(
+        method="graph", radar_ids=radar_ids,
+        is_3d={rid: sites[rid].is_3d for rid in radar_ids},
+        labels=list(combined.labels), estimate=combined.estimate,
+        covariance=combined.covariance,
+        n_plots={rid: combined.n_plots.get(rid, 0) for rid in radar_ids},
+        observability=observability(combined.information), warnings=warnings, info=info,
+        information=combined.information, atmosphere=combined.atmosphere)
 
 
 def to_calibration(result: WindowedCalibration, sites: Mapping[str, Site],

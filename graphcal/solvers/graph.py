@@ -505,17 +505,17 @@ def _solve_paths(problem: Problem, fg: FactorGraph, initial_free: dict[str, Floa
         scaled = hessian / np.outer(scale, scale)
         step = np.linalg.lstsq(scaled, -grad / scale, rcond=1e-12)[0] / scale
         sigma = np.sqrt(np.maximum(np.diag(np.linalg.pinv(scaled, rcond=1e-12)), 1e-300)) / scale
-        if np.all(np.abs(step) <= PATHS_STEP_TOLERANCE_SIGMA * sigma):
+        if s.estimate_process_noise and iterations == 2:
+            # After the first step (the biases near their solution, whatever the start),
+            # the phases' process noise from this linearisation; the model changes with
+            # it, so this step is taken and the comparison of costs starts again.
+            block.estimate_process_noise()  # at this linearisation, not another
+            s.estimate_process_noise = False
+            previous = None
+        elif np.all(np.abs(step) <= PATHS_STEP_TOLERANCE_SIGMA * sigma):
             converged = True
             break
         x = x + step
-        if s.estimate_process_noise:
-            # After the first step, the phases' process noise at these biases (the paths
-            # as the step left them); the cost changes with it, so the comparison of
-            # costs starts again.
-            block.estimate_process_noise(np.split(x, edges)[:in_block])
-            s.estimate_process_noise = False
-            previous = None
     point = np.split(previous[1], edges) if previous is not None else np.split(x, edges)
     # The last elimination as a Gaussian factor at its point: GTSAM takes the last step.
     fg.add_gaussian(block.keys, information, -gradient, point[:in_block])
@@ -601,6 +601,7 @@ def graph(
     process_noise_m2_s3: float | None = None,
     time_offset: bool | None = None,
     progress: Progress | None = None,
+    bound: bool = True,
 ) -> Calibration:
     """Joint calibration of every radar with a GTSAM factor graph.
 
@@ -639,6 +640,9 @@ def graph(
         ``True``: always (needs ADS-B, not in target-state mode); ``False``: never.
     progress : callable, optional
         ``progress(stage, done, total)``.
+    bound : bool
+        Trajectory formulation: compute the Cramér-Rao bound of the model
+        (:attr:`Calibration.bound`; one more elimination of the paths).
 
     Returns
     -------
@@ -855,7 +859,7 @@ def graph(
         atmosphere=atmosphere,
     )
     cal.information = data_information
-    if cross == "trajectory" and problem.target_state is not None:
+    if bound and cross == "trajectory" and problem.target_state is not None:
         cal.bound = _trajectory_bound(problem, full_values, labels, priors, radars, settings)
     for rid, al in problem.alignments.items():
         if rid in radars:

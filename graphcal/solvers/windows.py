@@ -199,7 +199,7 @@ def _summarise_window(window: Window, options: WindowOptions, judge: bool
                     fixed=dict(options.fixed), max_iterations=options.max_iterations,
                     max_gap_s=options.max_gap_s, pair_max_gap_s=options.pair_max_gap_s,
                     time_offset=None if have_adsb and options.cross != "target-state"
-                    else False)
+                    else False, bound=False)
     except EstimationError:
         return None
     labels = list(cal.labels)
@@ -721,7 +721,100 @@ def windowed_graph(
     return result
 
 
+# --------------------------------------------------------------------------- constant biases
+@dataclass
+class ConstantBiases:
+    """Constant biases over a whole recording, from its windows' summaries.
+
+    Attributes
+    ----------
+    labels : list of (radar_id, term name)
+        Every term some window estimates, radars in the dataset's order.
+    estimate, covariance : ndarray
+        The joint estimate and covariance (SI), the weak priors counted once.
+    information : ndarray
+        The data's information (the priors taken out).
+    n_plots : dict
+        Plots of each radar, summed over the windows.
+    n_windows : int
+    atmosphere : HeightModelEstimate or None
+        The windows' height models combined (inverse-variance weighted).
+    """
+
+    labels: list[tuple[str, str]]
+    estimate: FloatArray
+    covariance: FloatArray
+    information: FloatArray
+    n_plots: dict[str, int]
+    n_windows: int
+    atmosphere: HeightModelEstimate | None
+
+
+def constant_biases(summaries: Sequence[WindowSummary], sites: Mapping[str, Site]
+                    ) -> ConstantBiases:
+    """The chain with no random walk: one bias vector for the whole recording.
+
+    Window ``k``'s data say ``1/2 (x - y_k)^T L_k (x - y_k) - (x - y_k)^T eta_k``
+    (:meth:`WindowSummary.data_information`); the sum over the windows plus the weak
+    priors ``1/2 x^T Pi^-1 x`` is minimised by
+
+        (sum_k L_k + Pi^-1) x = sum_k (L_k y_k + eta_k),
+
+    whose inverse matrix is the covariance.  Each summary is linearised at its own
+    window's estimate; the model is nearly linear in the biases, so the result is
+    that of one batch over every window to first order, in the memory of one window.
+    A term a window does not estimate (a time offset its traffic does not determine)
+    takes its information from the other windows.
+    """
+    if not summaries:
+        raise EstimationError("no window had anything to calibrate")
+    order = {rid: i for i, rid in enumerate(sites)}
+    labels = sorted({label for s in summaries for label in s.labels},
+                    key=lambda lab: (order.get(lab[0], len(order)), TERM_NAMES.index(lab[1])))
+    index = {label: i for i, label in enumerate(labels)}
+    p = len(labels)
+    prior = np.zeros(p)
+    information = np.zeros((p, p))
+    vector = np.zeros(p)
+    n_plots: dict[str, int] = {}
+    for summary in summaries:
+        cols = [index[label] for label in summary.labels]
+        data, eta = summary.data_information()
+        information[np.ix_(cols, cols)] += data
+        vector[cols] += data @ summary.estimate + eta
+        prior[cols] = summary.prior_sigma
+        for rid, n in summary.n_plots.items():
+            n_plots[rid] = n_plots.get(rid, 0) + int(n)
+    total = information + np.diag(prior ** -2.0)
+    scale = np.sqrt(np.diag(total))
+    covariance = np.linalg.inv(total / np.outer(scale, scale)) / np.outer(scale, scale)
+    covariance = 0.5 * (covariance + covariance.T)
+    return ConstantBiases(labels, covariance @ vector, covariance, information, n_plots,
+                          len({s.index for s in summaries}),
+                          _combined_atmosphere([s.atmosphere for s in summaries]))
+
+
+def _combined_atmosphere(models: list[HeightModelEstimate | None]) -> HeightModelEstimate | None:
+    """Inverse-variance weighted height models of the windows (their cross-covariances
+    with the radar terms left out)."""
+    models = [m for m in models if m is not None and m.determined]
+    if not models:
+        return None
+    weights = [np.linalg.inv(np.asarray(m.covariance)) for m in models]
+    total = sum(weights)
+    covariance = np.linalg.inv(total)
+    value = covariance @ sum(w @ np.array([m.height_offset_m, m.height_scale])
+                             for w, m in zip(weights, models, strict=True))
+    first = models[0]
+    return replace(first, height_offset_m=float(value[0]), height_scale=float(value[1]),
+                   covariance=covariance, cross_labels=[],
+                   cross_covariance=np.zeros((0, 2)),
+                   n_adsb_segments=sum(m.n_adsb_segments for m in models),
+                   n_pressure_pairs=sum(m.n_pressure_pairs for m in models))
+
+
 __all__ = ["DEFAULT_RANDOM_WALK_PER_SQRT_S", "MIN_WINDOW_PLOTS", "RATE_FLOOR_FRACTION", "BiasEvent",
-           "WindowEstimate", "WindowOptions", "WindowSummary", "WindowedCalibration",
-           "declared_cuts", "embed_summary", "smooth_windows", "summarise_window",
+           "ConstantBiases", "WindowEstimate", "WindowOptions", "WindowSummary",
+           "WindowedCalibration", "constant_biases", "declared_cuts", "embed_summary",
+           "smooth_windows", "summarise_window",
            "window_estimate", "windowed_graph"]
