@@ -13,7 +13,10 @@ process's peak resident memory is read (:func:`peak_rss_mb`): in total, and abov
 the process held just before the call (the interpreter and the libraries).  The target:
 the peak for 17 hours at most 1.5 times the peak for 2 hours, the same window.
 ``--function benchmarks.bench_memory:calibrate_windows`` measures the whole windowed
-calibration (``calibrate --window``) instead of the reading alone.
+calibration (``calibrate --window``) instead of the reading alone, and
+``--function benchmarks.bench_memory:calibrate_batch`` the constant-bias calibration
+(``calibrate`` without ``--window``: loaded whole up to 2 hours, from 1-hour windows
+beyond).
 
 The measured function is a parameter, ``--function MODULE:NAME``: any function
 ``NAME(folder: Path, window_s: float) -> dict`` (a summary, printed); the default,
@@ -74,6 +77,19 @@ def calibrate_windows(folder: Path, window_s: float) -> dict:
     return {"windows": cal.info["windows"]["n_windows"], "events": events,
             "radars": len(cal.radar_ids),
             "summaries_s": round(cal.info["timing_s"].get("summaries_s", 0.0), 1)}
+
+
+def calibrate_batch(folder: Path, window_s: float) -> dict:
+    """The constant-bias calibration of the folder (``calibrate`` without ``--window``):
+    loaded whole up to 2 hours, beyond that solved from 1-hour windows read one at a
+    time.  ``window_s`` is not used."""
+    from graphcal.pipeline.calibrate import calibrate
+
+    del window_s
+    cal = calibrate(folder)
+    windows = cal.info.get("windows") or {}
+    return {"windows": windows.get("n_windows", 1), "constant": bool(windows.get("constant")),
+            "radars": len(cal.radar_ids), "plots": int(sum(cal.n_plots.values()))}
 
 
 def load_function(spec: str) -> Callable[[Path, float], dict]:

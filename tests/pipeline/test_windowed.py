@@ -317,3 +317,25 @@ def test_adsb_on_another_time_base_is_refused_before_anything_else(
     adsb.to_csv(folder / "adsb.csv", index=False)
     with pytest.raises(ImplausibleDataError, match="do not overlap"):
         calibrate(folder, window="15min")
+
+
+def test_a_long_recording_is_calibrated_for_constant_biases_window_by_window(
+        demo, demo_dir, monkeypatch) -> None:
+    """Beyond CONSTANT_BATCH_MIN_SPAN_S a folder is not loaded whole: its windows'
+    summaries give the constant biases (here the 30-minute demo against a 15-minute
+    limit, in 10-minute windows), close to the batch's, and the result says how."""
+    import graphcal.pipeline.calibrate as pipeline
+    from graphcal.solvers.graph import graph
+
+    monkeypatch.setattr(pipeline, "CONSTANT_BATCH_MIN_SPAN_S", 900.0)
+    monkeypatch.setattr(pipeline, "CONSTANT_BATCH_WINDOW_S", 600.0)
+    cal = calibrate(demo_dir)
+    assert cal.info["windows"] == pytest.approx(
+        {**cal.info["windows"], "window_s": 600.0, "n_windows": 3, "constant": True})
+    assert cal.series is None and not cal.events
+    assert any("constant biases from 3 windows" in w for w in cal.warnings)
+    batch = graph(demo)
+    for i, label in enumerate(cal.labels):
+        j = batch.labels.index(label)
+        sigma = np.sqrt(batch.covariance[j, j])
+        assert abs(cal.estimate[i] - batch.estimate[j]) < 0.5 * sigma, label

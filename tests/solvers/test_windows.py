@@ -193,3 +193,24 @@ def test_two_windows_with_floored_rates_are_solved_as_one_batch() -> None:
         sd = np.sqrt(batch.covariance[j, j])
         assert abs(result.last_estimate[i] - batch.estimate[j]) < 0.5 * sd, label
         assert np.sqrt(result.last_covariance[i, i]) == pytest.approx(sd, rel=0.3), label
+
+
+def test_constant_biases_from_windows_agree_with_one_batch(demo) -> None:
+    """The demo's three 10-minute windows combined with no random walk: within 0.3 sigma
+    of the batch over the same data, sigmas within 15 % (each window's paths end at its
+    edges, and the summaries are linearised at their own windows' estimates)."""
+    from graphcal.solvers.windows import constant_biases, summarise_window
+
+    summaries = [s for s in (summarise_window(w, judge=False)
+                             for w in split_windows(demo, 600.0)) if s is not None]
+    assert len(summaries) == 3
+    combined = constant_biases(summaries, demo.sites)
+    batch = graph(demo)
+    assert set(combined.labels) <= set(batch.labels)
+    sigma = np.sqrt(np.diag(combined.covariance))
+    for i, label in enumerate(combined.labels):
+        j = batch.labels.index(label)
+        batch_sigma = np.sqrt(batch.covariance[j, j])
+        assert abs(combined.estimate[i] - batch.estimate[j]) < 0.3 * batch_sigma, label
+        assert sigma[i] == pytest.approx(batch_sigma, rel=0.15), label
+    assert sum(combined.n_plots.values()) > 0.95 * sum(batch.n_plots.values())
