@@ -33,6 +33,7 @@ from functools import cached_property
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
@@ -50,16 +51,8 @@ _COEF_A, _AXIS_A = np.divmod(_PAIR_A, 3)
 _COEF_C, _AXIS_C = np.divmod(_PAIR_C, 3)
 
 
-# Distinct entries of a symmetric 4x4 (coefficients) and 3x3 (axes) matrix, and where
-# each lower-triangle pair of the 12 local unknowns finds its product of the two.
-_SYM4_A, _SYM4_B = np.triu_indices(4)
+# The distinct entries ``M[a, b]``, ``a <= b``, of a symmetric 3x3 (axes) matrix.
 _SYM3_A, _SYM3_B = np.triu_indices(3)
-_SYM4_INDEX = np.zeros((4, 4), dtype=np.int64)
-_SYM4_INDEX[_SYM4_A, _SYM4_B] = _SYM4_INDEX[_SYM4_B, _SYM4_A] = np.arange(len(_SYM4_A))
-_SYM3_INDEX = np.zeros((3, 3), dtype=np.int64)
-_SYM3_INDEX[_SYM3_A, _SYM3_B] = _SYM3_INDEX[_SYM3_B, _SYM3_A] = np.arange(len(_SYM3_A))
-_PAIR_FROM_PRODUCT = (_SYM4_INDEX[_COEF_A, _COEF_C] * len(_SYM3_A)
-                      + _SYM3_INDEX[_AXIS_A, _AXIS_C])
 
 
 def basis(u: FloatArray) -> FloatArray:
@@ -214,23 +207,22 @@ def band_zeros(n_unknowns: int) -> FloatArray:
     return np.zeros((HALF_BANDWIDTH + 1, n_unknowns))
 
 
-def _group_by_first(first: IntArray) -> tuple[IntArray, IntArray, IntArray]:
-    """``(order, starts, unique_first)``: measurements sorted by their first coefficient,
-    where each run of one first coefficient starts, and those coefficients."""
-    order = np.argsort(first, kind="stable")
-    first_sorted = first[order]
-    starts = np.flatnonzero(np.r_[True, first_sorted[1:] != first_sorted[:-1]])
-    return order, starts, first_sorted[starts]
+def spread_matrix(first: IntArray, weights: FloatArray, n_coefficients: int,
+                  offset: int | None = None) -> scipy.sparse.csr_matrix:
+    """The sparse ``P`` ``(n_coefficients, n)`` that spreads measurements over coefficients.
 
-
-def _add_pair_values(band: FloatArray, first: IntArray, values: FloatArray) -> None:
-    """Add ``values`` (u, 78) of the lower-triangle pairs at the unique first coefficients
-    ``first`` (u,): for one pair the columns ``3 first + c`` are distinct, so a plain
-    fancy-indexed add is exact."""
-    base = 3 * first
-    for k in range(len(_PAIR_A)):
-        column = base + _PAIR_C[k]
-        band[_PAIR_A[k] - _PAIR_C[k], column] += values[:, k]
+    Without ``offset``, ``P[first_i + j, i] = B_ij`` (``j = 0 .. 3``): ``P @ V`` sums each
+    measurement's row ``V_i`` into its four coefficients, weighted by ``B_ij``.  With
+    ``offset`` ``d``, ``P[first_i + j, i] = B_ij B_i(j + d)`` (``j = 0 .. 3 - d``): the
+    products that the band's blocks ``d`` coefficients apart are made of.  One sparse
+    product sums every measurement of a coefficient at once.
+    """
+    j = np.arange(4 - (offset or 0))
+    values = weights[:, j] if offset is None else weights[:, j] * weights[:, j + offset]
+    rows = (first[:, None] + j).ravel()
+    columns = np.repeat(np.arange(len(first)), len(j))
+    return scipy.sparse.csr_matrix((values.ravel(), (rows, columns)),
+                                   shape=(n_coefficients, len(first)))
 
 
 def add_measurement_blocks(band: FloatArray, first: IntArray, weights: FloatArray,
@@ -239,18 +231,21 @@ def add_measurement_blocks(band: FloatArray, first: IntArray, weights: FloatArra
 
     ``first`` (n,) the first coefficient of each measurement, ``weights`` (n, 4) its
     B-spline weights, ``info`` (n, 3, 3) its information on the position
-    (``H^T W H``, robust weight included).  The measurements sharing a first
-    coefficient are summed first (:func:`numpy.add.reduceat`).
+    (``H^T W H``, robust weight included).  For each distance ``d`` between two
+    coefficients one sparse product (:func:`spread_matrix`) sums ``B_ij B_i(j+d)``
+    times the six distinct entries of every ``M_i`` into the coefficients.
     """
     if len(first) == 0:
         return
-    order, starts, unique_first = _group_by_first(first)
-    w, m = weights[order], info[order]
-    # The 10 distinct products B_j B_l times the 6 distinct entries of M, summed per
-    # first coefficient, then spread over the 78 lower-triangle pairs.
-    products = (w[:, _SYM4_A] * w[:, _SYM4_B])[:, :, None] * m[:, _SYM3_A, _SYM3_B][:, None, :]
-    summed = np.add.reduceat(products.reshape(len(w), -1), starts, axis=0)
-    _add_pair_values(band, unique_first, summed[:, _PAIR_FROM_PRODUCT])
+    n_coefficients = band.shape[1] // 3
+    six = info[:, _SYM3_A, _SYM3_B]  # (n, 6): M[a, b] for a <= b
+    for d in range(4):
+        summed = spread_matrix(first, weights, n_coefficients, d) @ six  # (n_coef, 6)
+        for k, (a, b) in enumerate(zip(_SYM3_A, _SYM3_B, strict=True)):
+            # A[3(c + d) + b, 3c + a] and, off the diagonal blocks, its mirror.
+            band[3 * d + b - a, a::3] += summed[:, k]
+            if d > 0 and a != b:
+                band[3 * d + a - b, b::3] += summed[:, k]
 
 
 def add_motion_prior(band: FloatArray, layout: PathLayout, phase_scale: FloatArray) -> None:
@@ -277,9 +272,9 @@ def motion_prior_energy(coefficients: FloatArray, layout: PathLayout) -> FloatAr
 def scatter_vectors(first: IntArray, weights: FloatArray, vectors: FloatArray,
                     n_unknowns: int) -> FloatArray:
     """``sum_i B_i kron v_i`` as a length-``n_unknowns`` vector (``vectors`` (n, 3))."""
-    values = weights[:, :, None] * vectors[:, None, :]  # (n, 4, 3)
-    index = 3 * first[:, None, None] + np.arange(LOCAL).reshape(4, 3)[None]
-    return np.bincount(index.ravel(), values.ravel(), minlength=n_unknowns)
+    if len(first) == 0:
+        return np.zeros(n_unknowns)
+    return np.asarray(spread_matrix(first, weights, n_unknowns // 3) @ vectors).ravel()
 
 
 def scatter_columns(first: IntArray, weights: FloatArray, blocks: FloatArray,
@@ -287,21 +282,14 @@ def scatter_columns(first: IntArray, weights: FloatArray, blocks: FloatArray,
     """Add ``sum_i B_i kron K_i`` into the columns ``columns`` of ``out`` (n_unknowns, P).
 
     ``blocks`` (n, 3, k): each measurement's position-by-bias block (``H_x^T W H_b``).
-    The measurements sharing a first coefficient are summed first; the 12 rows of each
-    sum are then added row offset by row offset (distinct rows within one offset).
+    One sparse product (:func:`spread_matrix`) sums them into the coefficients; the
+    coefficient-major, axis-minor rows are the unknowns' order.
     """
     if len(first) == 0 or blocks.shape[2] == 0:
         return
-    order, starts, unique_first = _group_by_first(first)
-    k = blocks.shape[2]
-    local = (weights[order][:, :, None, None] * blocks[order][:, None, :, :]).reshape(
-        len(order), LOCAL * k)
-    summed = np.add.reduceat(local, starts, axis=0).reshape(len(starts), LOCAL, k)
-    part = np.zeros((out.shape[0], k))
-    base = 3 * unique_first
-    for offset in range(LOCAL):
-        part[base + offset] += summed[:, offset]
-    out[:, columns] += part
+    n, k = len(first), blocks.shape[2]
+    summed = spread_matrix(first, weights, out.shape[0] // 3) @ blocks.reshape(n, 3 * k)
+    out[:, columns] += np.asarray(summed).reshape(out.shape[0], k)
 
 
 def band_matvec(band: FloatArray, x: FloatArray) -> FloatArray:
