@@ -808,7 +808,9 @@ def graph(
                    "threshold_sigma_2d": kernel.threshold(2),
                    "threshold_sigma_3d": kernel.threshold(3)},
         "initialisation": init_method,
-        "optimizer": "Levenberg-Marquardt (GTSAM)",
+        "optimizer": ("Gauss-Newton on the biases, the paths eliminated (the last step and "
+                      "the marginals in GTSAM)" if cross == "trajectory"
+                      else "Levenberg-Marquardt (GTSAM)"),
         "iterations": result.iterations,
         "initial_error": result.initial_error,
         "final_error": result.final_error,
