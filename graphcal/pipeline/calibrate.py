@@ -236,7 +236,7 @@ def calibrate(
     constant_windows = (
         not isinstance(dataset, Dataset) and window is None and method == "graph"
         and select is None and not bound and init == "auto" and time_offset in ("auto", None)
-        and not (scheduler or drift or breaks) and _long_recording(dataset))
+        and not (scheduler or drift or breaks) and is_long_recording(dataset))
     if constant_windows:
         # A long recording: constant biases from its windows' summaries, read window by
         # window (memory bounded by a window, whatever the recording's length).
@@ -410,7 +410,7 @@ CONSTANT_BATCH_MIN_SPAN_S = 2.0 * 3600.0
 CONSTANT_BATCH_WINDOW_S = 3600.0
 
 
-def _long_recording(folder: str | os.PathLike[str]) -> bool:
+def is_long_recording(folder: str | os.PathLike[str]) -> bool:
     """Whether the dataset folder's plots span more than :data:`CONSTANT_BATCH_MIN_SPAN_S`
     (from the Parquet statistics or the ``time_s`` column alone); ``False`` when that
     cannot be told (the full load then reports the problem)."""
@@ -555,5 +555,6 @@ def _own_bound_info(cal: Calibration) -> dict[str, Any]:
     return {"crlb_sigma": sigma, "efficiency": efficiency, "crlb_model": cal.bound["model"]}
 
 
-__all__ = ["METHODS", "METHOD_OPTIONS", "TIME_OFFSET_CHOICES", "bound_info", "calibrate",
+__all__ = ["CONSTANT_BATCH_MIN_SPAN_S", "CONSTANT_BATCH_WINDOW_S", "METHODS", "METHOD_OPTIONS",
+           "TIME_OFFSET_CHOICES", "bound_info", "calibrate", "is_long_recording",
            "parse_fixed"]

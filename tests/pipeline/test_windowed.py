@@ -339,3 +339,31 @@ def test_a_long_recording_is_calibrated_for_constant_biases_window_by_window(
         j = batch.labels.index(label)
         sigma = np.sqrt(batch.covariance[j, j])
         assert abs(cal.estimate[i] - batch.estimate[j]) < 0.5 * sigma, label
+
+
+def test_the_command_does_not_load_a_long_recording_whole(demo_dir, monkeypatch,
+                                                          tmp_path: Path) -> None:
+    """``graphcal calibrate`` on a long recording (here the demo against a 15-minute
+    limit) passes the folder to the pipeline, which reads it window by window."""
+    import json
+
+    from typer.testing import CliRunner
+
+    import graphcal.cli.calibrate as command
+    import graphcal.io.folder as folder
+    import graphcal.pipeline.calibrate as pipeline
+    from graphcal.cli.app import app
+
+    monkeypatch.setattr(pipeline, "CONSTANT_BATCH_MIN_SPAN_S", 900.0)
+    monkeypatch.setattr(pipeline, "CONSTANT_BATCH_WINDOW_S", 600.0)
+
+    def no_whole_load(*args, **kwargs):
+        raise AssertionError("loaded whole")
+
+    monkeypatch.setattr(folder, "load_dataset", no_whole_load)
+    del command
+    out = tmp_path / "r.json"
+    result = CliRunner().invoke(app, ["calibrate", str(demo_dir), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    info = json.loads(out.read_text())["info"]
+    assert info["windows"]["constant"] is True and info["windows"]["n_windows"] == 3
