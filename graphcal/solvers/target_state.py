@@ -50,6 +50,7 @@ from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, corrected_ecef
 from graphcal.model.measurement import RadarMeasurementModel
 from graphcal.model.parameters import RadarTerms
 from graphcal.model.robust import RobustKernel
+from graphcal.model.trajectory import NetworkFrame
 from graphcal.solvers.gtsam_adapter import FactorGraph, symbol
 
 FloatArray = NDArray[np.float64]
@@ -67,35 +68,6 @@ DEFAULT_CHUNK = 32
 VELOCITY_PRIOR_SIGMA_MPS = 500.0
 #: ADS-B reports farther than this from the nearest state [s] are not used.
 MAX_ADSB_EXTRAPOLATION_S = 2.0
-
-
-@dataclass(frozen=True)
-class NetworkFrame:
-    """ENU frame at the network's centre (mean site latitude and longitude, height 0)."""
-
-    lat_rad: float
-    lon_rad: float
-
-    @property
-    def origin_ecef_m(self) -> FloatArray:
-        return frames.geodetic_to_ecef(self.lat_rad, self.lon_rad, 0.0)
-
-    @property
-    def rotation(self) -> FloatArray:
-        """ECEF -> network ENU."""
-        return frames.ecef_to_enu_rotation(self.lat_rad, self.lon_rad)
-
-    def from_ecef(self, ecef_m: FloatArray) -> FloatArray:
-        return (np.asarray(ecef_m) - self.origin_ecef_m) @ self.rotation.T
-
-    def to_ecef(self, enu_m: FloatArray) -> FloatArray:
-        return np.asarray(enu_m) @ self.rotation + self.origin_ecef_m
-
-    def radar_map(self, site: Site) -> tuple[FloatArray, FloatArray]:
-        """``(A, c)`` with radar ENU = ``A p + c`` for a network-ENU point ``p``."""
-        a = site.ecef_to_enu @ self.rotation.T
-        c = site.ecef_to_enu @ (self.origin_ecef_m - site.ecef_m)
-        return a, c
 
 
 # --------------------------------------------------------------------------- factors
