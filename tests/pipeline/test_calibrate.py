@@ -11,7 +11,7 @@ import pytest
 
 import graphcal
 from graphcal.analysis.crlb import crlb
-from graphcal.data.bias import RadarBias
+from graphcal.data.bias import CONTRACT_KEYS, RadarBias
 from graphcal.pipeline.calibrate import calibrate, parse_fixed
 from graphcal.solvers.graph import graph
 from tests.synthetic import Track, make_dataset, site_at
@@ -33,11 +33,27 @@ def network():
     return make_dataset(rng, [(a, TRUTH["A"]), (b, TRUTH["B"])], tracks)
 
 
-def test_graph_estimate_is_the_solvers_and_the_bound_is_computed_once(network) -> None:
-    """The pipeline's graph result equals the solver's own; the bound it adds equals the
-    Cramér-Rao bound computed separately with the graph's labels and priors."""
+def test_graph_estimate_is_the_solvers_and_the_bound_is_its_models(network) -> None:
+    """The pipeline's graph result equals the solver's own, and the bound it reports is
+    the one the trajectory formulation computed of its own model."""
     cal = calibrate(network, time_offset="off")
     alone = graph(network, time_offset=False)
+    np.testing.assert_array_equal(cal.estimate, alone.estimate)
+    assert "crlb_sigma" in cal.info and "crlb_sigma" not in alone.info
+    assert cal.info["crlb_model"].startswith("trajectory model")
+    bound_sigma = np.sqrt(np.diag(alone.bound["covariance"]))
+    for i, (rid, name) in enumerate(alone.labels):
+        key = f"{rid}.{_key(name)}"
+        scale = CONTRACT_KEYS[name][1]
+        assert cal.info["crlb_sigma"][key] == pytest.approx(bound_sigma[i] * scale, rel=1e-9)
+        assert 0.99 < cal.info["efficiency"][key] < 1.3
+
+
+def test_pairwise_estimate_is_the_solvers_and_the_bound_is_computed_once(network) -> None:
+    """Pairwise: the pipeline's graph result equals the solver's own; the bound it adds
+    equals the Cramér-Rao bound computed separately with the graph's labels and priors."""
+    cal = calibrate(network, time_offset="off", cross="pairwise")
+    alone = graph(network, time_offset=False, cross="pairwise")
     np.testing.assert_array_equal(cal.estimate, alone.estimate)
     assert "crlb_sigma" in cal.info and "crlb_sigma" not in alone.info
     priors = {(rid, name): float(s) for rid, entries in alone.info["priors"].items()
