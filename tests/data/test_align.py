@@ -181,7 +181,8 @@ def test_blocked_bracketing_equals_bracketing_each_track_alone() -> None:
 def test_only_radars_that_saw_a_common_aircraft_are_paired() -> None:
     """Four radars: A and B share an aircraft, C and A another, D's aircraft is its own,
     and a thousand more radars have no plot at all.  The pairs are (A, B) and (A, C),
-    each in the order of the radar list; unlabelled plots pair nothing."""
+    each oriented by pairing_order (scan period, then id; here no periods: by id),
+    whatever the order of the radar list; unlabelled plots pair nothing."""
     from dataclasses import replace
 
     plots = pd.DataFrame({
@@ -197,7 +198,13 @@ def test_only_radars_that_saw_a_common_aircraft_are_paired() -> None:
              for rid in ["A", "B", "C", "D", *(f"R{i:04d}" for i in range(1000))]}
     dataset = replace(base, plots=plots, sites=sites)
     order = ["D", "C", "B", "A", *(f"R{i:04d}" for i in range(1000))]
-    assert overlapping_pairs(dataset, order) == [("C", "A"), ("B", "A")]
+    assert overlapping_pairs(dataset, order) == [("A", "B"), ("A", "C")]
+    assert overlapping_pairs(dataset, order[::-1]) == [("A", "B"), ("A", "C")]
+    # A shorter scan period goes first (its track is the one interpolated).
+    fast = {**sites, "C": replace(sites["C"], scan_period_s=4.0),
+            "A": replace(sites["A"], scan_period_s=10.0),
+            "B": replace(sites["B"], scan_period_s=12.0)}
+    assert overlapping_pairs(replace(dataset, sites=fast), order) == [("C", "A"), ("A", "B")]
     assert overlapping_pairs(replace(dataset, plots=plots.iloc[:0])) == []
 
 
