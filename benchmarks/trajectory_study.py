@@ -113,7 +113,7 @@ def calibrate(dataset: Dataset, cross: str, use_adsb: bool) -> tuple[object | No
     """``graph`` on the dataset: the Calibration (None if it raised) and the run record."""
     t0 = time.perf_counter()
     try:
-        cal = graph(dataset, cross=cross, use_adsb=use_adsb)
+        cal = graph(dataset, cross=cross, use_adsb=use_adsb, bound=True)
     except Exception as exc:  # noqa: BLE001 - a study reports errors, it does not stop
         return None, {"seconds": time.perf_counter() - t0,
                       "error": f"{type(exc).__name__}: {exc}",

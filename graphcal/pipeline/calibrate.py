@@ -295,6 +295,10 @@ def calibrate(
         )
     if method in ("graph", "wls", "wls-pruned"):
         options["progress"] = progress
+    if method == "graph":
+        # The trajectory formulation computes the bound of its own model (one more
+        # elimination of the paths) only when it is reported.
+        options["bound"] = bool(bound is None or bound)
     dataset, sigma_info, sigma_warnings = filled_with_notes(dataset)
     cal = estimator(dataset, **options)
     if sigma_info is not None:

@@ -601,7 +601,7 @@ def graph(
     process_noise_m2_s3: float | None = None,
     time_offset: bool | None = None,
     progress: Progress | None = None,
-    bound: bool = True,
+    bound: bool = False,
 ) -> Calibration:
     """Joint calibration of every radar with a GTSAM factor graph.
 
@@ -641,8 +641,9 @@ def graph(
     progress : callable, optional
         ``progress(stage, done, total)``.
     bound : bool
-        Trajectory formulation: compute the Cramér-Rao bound of the model
+        Trajectory formulation: also compute the Cramér-Rao bound of the model
         (:attr:`Calibration.bound`; one more elimination of the paths).
+        :func:`graphcal.calibrate` asks for it when it reports the bound.
 
     Returns
     -------

@@ -37,9 +37,10 @@ def test_graph_estimate_is_the_solvers_and_the_bound_is_its_models(network) -> N
     """The pipeline's graph result equals the solver's own, and the bound it reports is
     the one the trajectory formulation computed of its own model."""
     cal = calibrate(network, time_offset="off")
-    alone = graph(network, time_offset=False)
+    alone = graph(network, time_offset=False, bound=True)
     np.testing.assert_array_equal(cal.estimate, alone.estimate)
     assert "crlb_sigma" in cal.info and "crlb_sigma" not in alone.info
+    assert graph(network, time_offset=False).bound is None  # only when asked
     assert cal.info["crlb_model"].startswith("trajectory model")
     bound_sigma = np.sqrt(np.diag(alone.bound["covariance"]))
     for i, (rid, name) in enumerate(alone.labels):
