@@ -105,6 +105,57 @@ class RadarMeasurementModel:
         polar = np.stack(frames.enu_to_polar(enu_m), axis=-1)
         return polar, frames.enu_to_polar_jacobian(enu_m)
 
+    def measure(self, enu_m: FloatArray, terms: FloatArray, free: tuple[str, ...]
+                ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The biased measurement of ENU points and its Jacobians in the position and in
+        every free bias term: the model of the trajectory formulation.
+
+        ``terms``: the full vector of :data:`~graphcal.model.parameters.TERM_NAMES`
+        (offset, gain, azimuth bias, elevation bias, time offset, eccentricity ``s, c``).
+        With ``(r, az, el)`` the true (refracted) polar coordinates::
+
+            h = ((1 + g) r + o,  az + b + s sin az + c cos az,  el + e)
+            d h / d enu = diag(1 + g, 1 + s cos az - c sin az, 1) d (r, az, el) / d enu
+            d h / d (o, g, b, e, s, c) = (1, 0, 0), (r, 0, 0), (0, 1, 0), (0, 0, 1),
+                                         (0, sin az, 0), (0, cos az, 0)
+
+        The time offset's column is ``-(d h / d position) v``, the point's velocity times
+        the position Jacobian, which the caller forms (it knows the velocity): here it is 0.
+
+        Returns
+        -------
+        predicted : ndarray (n, 3)
+            ``(range_m, azimuth_rad, elevation_rad)`` measured, azimuth not wrapped.
+        d_enu : ndarray (n, 3, 3)
+        d_terms : ndarray (n, 3, len(free))
+            The free terms' columns, in ``free``'s order.
+        """
+        offset, gain, az_bias, el_bias, _, s_ecc, c_ecc = (float(v) for v in terms)
+        polar, jac_enu = self.enu_jacobian(enu_m)
+        r_t, az_t, el_t = polar[:, 0], polar[:, 1], polar[:, 2]
+        sin_az, cos_az = np.sin(az_t), np.cos(az_t)
+        predicted = np.stack([(1.0 + gain) * r_t + offset,
+                              az_t + az_bias + s_ecc * sin_az + c_ecc * cos_az,
+                              el_t + el_bias], axis=-1)
+        slope = np.stack([np.full_like(r_t, 1.0 + gain),
+                          1.0 + s_ecc * cos_az - c_ecc * sin_az, np.ones_like(r_t)], axis=-1)
+        d_enu = slope[:, :, None] * jac_enu
+        d_terms = np.zeros((len(r_t), 3, len(free)))
+        for k, name in enumerate(free):
+            if name == "range_offset":
+                d_terms[:, 0, k] = 1.0
+            elif name == "range_gain":
+                d_terms[:, 0, k] = r_t
+            elif name == "azimuth_bias":
+                d_terms[:, 1, k] = 1.0
+            elif name == "elevation_bias":
+                d_terms[:, 2, k] = 1.0
+            elif name == "azimuth_sin":
+                d_terms[:, 1, k] = sin_az
+            elif name == "azimuth_cos":
+                d_terms[:, 1, k] = cos_az
+        return predicted, d_enu, d_terms
+
     # ------------------------------------------------------------------ noise
     def covar(self, n: int) -> FloatArray:
         """The radar's random-error covariance ``(n, 3, 3)`` [m², rad²].

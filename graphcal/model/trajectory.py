@@ -384,46 +384,25 @@ class TrajectoryBlock:
                       c: FloatArray, columns: dict[str, IntArray]) -> list[_Group]:
         terms = radar.terms
         full = terms.full_terms(free)
-        offset, gain, az_bias, el_bias, tau, s_ecc, c_ecc = full
+        tau = full[4]
         first, u, interval = self._locate(radar.path, radar.time_s - tau)
         weights = basis(u)
         position = self._evaluate(c, first, weights)
         enu = frames.rotate(position, radar.map_a) + radar.map_c
-        polar, jac_enu = measurement_model(radar.site).enu_jacobian(enu)
-        r_t, az_t, el_t = polar[:, 0], polar[:, 1], polar[:, 2]
-        sin_az, cos_az = np.sin(az_t), np.cos(az_t)
-        predicted = np.stack([
-            (1.0 + gain) * r_t + offset,
-            az_t + az_bias + s_ecc * sin_az + c_ecc * cos_az,
-            el_t + el_bias,
-        ], axis=-1)
+        free_names = terms.free
+        predicted, d_enu, hb = measurement_model(radar.site).measure(enu, full, free_names)
         e = predicted - radar.measured
         e[:, 1] = frames.wrap_to_pi(e[:, 1])
-        slope = np.stack([np.full_like(r_t, 1.0 + gain),
-                          1.0 + s_ecc * cos_az - c_ecc * sin_az, np.ones_like(r_t)], axis=-1)
-        hx = (slope[:, :, None] * jac_enu) @ radar.map_a
+        hx = d_enu @ radar.map_a
         m = radar.ndim
         sigmas = radar.site.measurement_sigmas()[:m]
         hx = hx[:, :m] / sigmas[None, :, None]
         e = e[:, :m] / sigmas[None, :]
-        free_names = terms.free
-        hb = np.zeros((len(e), m, len(free_names)))
-        for k, name in enumerate(free_names):
-            if name == "range_offset":
-                hb[:, 0, k] = 1.0
-            elif name == "range_gain":
-                hb[:, 0, k] = r_t
-            elif name == "azimuth_bias":
-                hb[:, 1, k] = 1.0
-            elif name == "elevation_bias" and m == 3:
-                hb[:, 2, k] = 1.0
-            elif name == "azimuth_sin":
-                hb[:, 1, k] = sin_az
-            elif name == "azimuth_cos":
-                hb[:, 1, k] = cos_az
-            elif name == "time_offset":
-                velocity = self._evaluate(c, first, _basis_rate(u, self.layout.spacing_s))
-                hb[:, :, k] = -np.einsum("nmi,ni->nm", hx * sigmas[None, :, None], velocity)
+        hb = np.ascontiguousarray(hb[:, :m])
+        if "time_offset" in free_names:
+            k = free_names.index("time_offset")
+            velocity = self._evaluate(c, first, _basis_rate(u, self.layout.spacing_s))
+            hb[:, :, k] = -np.einsum("nmi,ni->nm", hx * sigmas[None, :, None], velocity)
         hb /= sigmas[None, :, None]
         cols = columns.get(radar.radar_id, np.zeros(0, dtype=np.int64))
         if len(cols) == 0:
