@@ -35,6 +35,55 @@ ESTIMATOR_PATHS: dict[str, str] = {
     "graph": "graphcal.solvers.graph:graph",
 }
 
+# Each estimator's loader: an import a reader (or a static analysis) can follow, done on
+# first use so that naming or listing the methods imports none of them.
+def _load_ls() -> Estimator:
+    from graphcal.solvers.adsb_reference import ls
+
+    return ls
+
+
+def _load_fl() -> Estimator:
+    from graphcal.solvers.adsb_reference import fl
+
+    return fl
+
+
+def _load_fl_ls() -> Estimator:
+    from graphcal.solvers.adsb_reference import fl_ls
+
+    return fl_ls
+
+
+def _load_wls() -> Estimator:
+    from graphcal.solvers.wls import wls
+
+    return wls
+
+
+def _load_wls_pruned() -> Estimator:
+    from graphcal.solvers.wls import wls_pruned
+
+    return wls_pruned
+
+
+def _load_graph() -> Estimator:
+    from graphcal.solvers.graph import graph
+
+    return graph
+
+
+#: Each estimator's loader (the same functions as :data:`ESTIMATOR_PATHS` names; a test
+#: keeps the two equal).
+ESTIMATOR_LOADERS: dict[str, Callable[[], Estimator]] = {
+    "ls": _load_ls,
+    "fl": _load_fl,
+    "fl-ls": _load_fl_ls,
+    "wls": _load_wls,
+    "wls-pruned": _load_wls_pruned,
+    "graph": _load_graph,
+}
+
 #: One line on each estimator: the first line of its docstring, repeated here so that
 #: ``graphcal methods`` can list them without importing them (a test keeps the two equal).
 METHOD_SUMMARIES: dict[str, str] = {
@@ -49,14 +98,14 @@ METHOD_SUMMARIES: dict[str, str] = {
 
 
 class LazyEstimators(Mapping[str, Estimator]):
-    """Estimators by name, each imported from its ``"module:function"`` path when first
-    looked up.
+    """Estimators by name, each imported when first looked up: from its loader (a
+    function that imports it) or its ``"module:function"`` path.
 
     Names, ``in``, ``len`` and iteration over the names import nothing; ``[name]``,
     ``.get``, ``.values()`` and ``.items()`` import the estimators they return (once).
     """
 
-    def __init__(self, paths: Mapping[str, str]) -> None:
+    def __init__(self, paths: Mapping[str, str | Callable[[], Estimator]]) -> None:
         self._paths = dict(paths)
         self._loaded: dict[str, Estimator] = {}
 
@@ -65,8 +114,12 @@ class LazyEstimators(Mapping[str, Estimator]):
             return self._loaded[name]
         except KeyError:
             pass
-        module, _, function = self._paths[name].partition(":")
-        estimator = getattr(importlib.import_module(module), function)
+        where = self._paths[name]
+        if callable(where):
+            estimator = where()
+        else:
+            module, _, function = where.partition(":")
+            estimator = getattr(importlib.import_module(module), function)
         self._loaded[name] = estimator
         return estimator
 
@@ -84,7 +137,7 @@ class LazyEstimators(Mapping[str, Estimator]):
 
 
 #: Registered estimators by their command-line name.
-METHODS: Mapping[str, Estimator] = LazyEstimators(ESTIMATOR_PATHS)
+METHODS: Mapping[str, Estimator] = LazyEstimators(ESTIMATOR_LOADERS)
 
 #: Methods of the contract that are planned but not available in this version.
 PLANNED_METHODS: tuple[str, ...] = ()
@@ -130,5 +183,6 @@ def calibrate(dataset: Dataset, method: str, **options: Any) -> Calibration:
     return get_estimator(method)(dataset, **options)
 
 
-__all__ = ["ESTIMATOR_PATHS", "METHODS", "METHOD_SUMMARIES", "PLANNED_METHODS", "Estimator",
-           "LazyEstimators", "calibrate", "describe", "get_estimator"]
+__all__ = ["ESTIMATOR_LOADERS", "ESTIMATOR_PATHS", "METHODS", "METHOD_SUMMARIES",
+           "PLANNED_METHODS", "Estimator", "LazyEstimators", "calibrate", "describe",
+           "get_estimator"]

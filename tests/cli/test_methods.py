@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import inspect
 
 import pytest
@@ -9,6 +10,7 @@ from typer.testing import CliRunner
 
 from graphcal.cli.app import app
 from graphcal.solvers.registry import (
+    ESTIMATOR_LOADERS,
     ESTIMATOR_PATHS,
     METHOD_SUMMARIES,
     METHODS,
@@ -29,7 +31,15 @@ def _first_doc_line(function) -> str:
 def test_every_estimator_has_a_path_and_a_summary() -> None:
     assert list(METHODS) == NAMES
     assert list(ESTIMATOR_PATHS) == NAMES
+    assert list(ESTIMATOR_LOADERS) == NAMES
     assert list(METHOD_SUMMARIES) == NAMES
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_each_loader_imports_the_function_its_path_names(name: str) -> None:
+    module, _, function = ESTIMATOR_PATHS[name].partition(":")
+    assert ESTIMATOR_LOADERS[name]() is getattr(importlib.import_module(module), function)
+    assert METHODS[name] is ESTIMATOR_LOADERS[name]()
 
 
 @pytest.mark.parametrize("name", NAMES)
