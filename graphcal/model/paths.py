@@ -321,6 +321,14 @@ class BandFactor:
             raise np.linalg.LinAlgError(f"banded triangular solve failed (info {info})")
         return out.reshape(rhs.shape)
 
+    def backward(self, rhs: FloatArray) -> FloatArray:
+        """``L^-T rhs``: after :meth:`forward`, ``A^-1`` of the original right-hand side."""
+        matrix = rhs.reshape(len(rhs), -1)
+        out, info = lapack.dtbtrs(self.lower, np.asfortranarray(matrix), uplo="L", trans="T")
+        if info != 0:
+            raise np.linalg.LinAlgError(f"banded triangular solve failed (info {info})")
+        return out.reshape(rhs.shape)
+
     def solve(self, rhs: FloatArray) -> FloatArray:
         """``A^-1 rhs``."""
         return scipy.linalg.cho_solve_banded((self.lower, True), rhs, check_finite=False)

@@ -57,6 +57,7 @@ from graphcal.model.paths import (
     band_matvec,
     band_zeros,
     basis,
+    basis_derivative,
     motion_prior_energy,
     scatter_columns,
     scatter_vectors,
@@ -90,8 +91,6 @@ ADSB_GATE_SIGMA = 5.0
 #: only while some report is beyond :data:`ADSB_GROSS_SIGMA` [sigma].
 ADSB_GATE_ITERATIONS = 3
 ADSB_GROSS_SIGMA = 20.0
-#: Gauss-Newton steps of the paths at the initial biases.
-INITIAL_PATH_ITERATIONS = 0
 #: A path step decreasing the cost by more than this [chi2 units] is followed by another
 #: before the reduced system is formed.
 PATH_STEP_TOLERANCE = 0.5
@@ -469,7 +468,7 @@ class TrajectoryBlock:
             lin = self._linearise(named, want_bias=False)
             factor = BandFactor.of(lin.band)
             z = factor.forward(lin.gradient)
-            step = _backward(factor, z)
+            step = factor.backward(z)
             self.coefficients = self.coefficients - step.reshape(-1, 3)
             if 0.5 * float(z @ z) < PATH_STEP_TOLERANCE:
                 break
@@ -506,7 +505,7 @@ class TrajectoryBlock:
         cost = lin.cost - 0.5 * float(zg @ zg)
         # The paths move to their optimum at these biases (the step the reduced system
         # assumes), the start of the next call.
-        self.coefficients = self.coefficients - _backward(factor, zg).reshape(-1, 3)
+        self.coefficients = self.coefficients - factor.backward(zg).reshape(-1, 3)
         self._record_weights(lin)
         out = (cost, gradient, 0.5 * (information + information.T))
         self._reduced_cache = (key, out)
@@ -533,33 +532,6 @@ class TrajectoryBlock:
     def settle(self, values: list[FloatArray], steps: int) -> None:
         """Move the paths towards their optimum at fixed biases (Gauss-Newton steps)."""
         self._settle_paths(self._split(values), steps)
-
-    def gauss_newton(self, values: list[FloatArray], prior_sigmas: list[FloatArray],
-                     steps: int) -> list[FloatArray]:
-        """Up to ``steps`` Gauss-Newton steps on the biases (paths eliminated), with the
-        weak priors ``N(0, prior_sigmas^2)``; a step that raises the cost is taken back
-        and ends the iterations.  A start for GTSAM's Levenberg-Marquardt."""
-        sizes = [len(v) for v in values]
-        x = np.concatenate([np.asarray(v, dtype=float) for v in values])
-        prior = np.concatenate(prior_sigmas) ** -2.0
-        previous: tuple[float, FloatArray] | None = None
-        for _ in range(steps + 1):
-            parts = np.split(x, np.cumsum(sizes)[:-1])
-            cost, gradient, information = self.reduced(parts, True)
-            assert gradient is not None and information is not None
-            total = cost + 0.5 * float(np.sum(prior * x * x))
-            if previous is not None and total > previous[0]:
-                x = previous[1]
-                break
-            previous = (total, x.copy())
-            if _ == steps:
-                break
-            hessian = information + np.diag(prior)
-            scale = np.sqrt(np.maximum(np.diag(hessian), 1e-300))
-            step = np.linalg.lstsq(hessian / np.outer(scale, scale),
-                                   -(gradient + prior * x) / scale, rcond=1e-12)[0] / scale
-            x = x + step
-        return np.split(x, np.cumsum(sizes)[:-1])
 
     def error(self, values: list[FloatArray], want: bool
               ) -> tuple[FloatArray, list[FloatArray] | None]:
@@ -600,7 +572,7 @@ class TrajectoryBlock:
         self.last_weights = {rid: np.concatenate(w) for rid, w in weights.items()}
 
     # ------------------------------------------------------------ process noise
-    def estimate_process_noise(self, values: list[FloatArray] | None = None) -> FloatArray:
+    def estimate_process_noise(self) -> FloatArray:
         """Each phase's process noise [m^2/s^3] by maximum marginal likelihood (grid).
 
         For each ``q`` of :data:`PROCESS_NOISE_GRID_M2_S3` the paths' Laplace
@@ -609,13 +581,11 @@ class TrajectoryBlock:
         intervals); every phase
         takes the ``q`` that maximises its share.  Sets and returns the phases' ``q``.
 
-        ``values``: the biases at which to linearise; ``None``: the last linearisation's
-        data (that of the last :meth:`reduced`), not linearised again.
+        It uses the data of the last linearisation (that of the last :meth:`reduced`), not
+        linearising again.
         """
-        if values is not None or self._data_snapshot is None:
-            self._linearise(self._split(values if values is not None else self.values_of({})),
-                            want_bias=False)
-        assert self._data_snapshot is not None
+        if self._data_snapshot is None:
+            raise RuntimeError("estimate_process_noise needs a linearisation first (reduced)")
         data_band, data_gradient, data_cost, measurement_cost, coefficients = self._data_snapshot
         layout = self.layout
         unknown_phase = layout.unknown_phase()
@@ -675,12 +645,6 @@ class TrajectoryBlock:
     def plots_per_radar(self) -> dict[str, int]:
         return {r.radar_id: int(len(r.rows)) for r in self.radars}
 
-    def plot_rows(self, radar_id: str) -> IntArray:
-        for r in self.radars:
-            if r.radar_id == radar_id:
-                return r.rows
-        return np.zeros(0, dtype=np.int64)
-
     def downweighted(self, bias_values: dict[str, FloatArray], result) -> dict[str, dict[str, int]]:
         """Plots with a final robust weight below 0.5, per radar."""
         del bias_values, result
@@ -693,20 +657,8 @@ class TrajectoryBlock:
 
 
 def _basis_rate(u: FloatArray, spacing_s: float) -> FloatArray:
-    from graphcal.model.paths import basis_derivative
-
+    """``d B_j / dt`` ``(n, 4)`` [1/s]."""
     return basis_derivative(u) / spacing_s
-
-
-def _backward(factor: BandFactor, z: FloatArray) -> FloatArray:
-    """``L^-T z``: with ``z = L^-1 g`` this is ``A^-1 g``."""
-    from scipy.linalg import lapack
-
-    out, info = lapack.dtbtrs(factor.lower, np.asfortranarray(z.reshape(len(z), -1)),
-                              uplo="L", trans="T")
-    if info != 0:
-        raise np.linalg.LinAlgError(f"banded triangular solve failed (info {info})")
-    return out.reshape(z.shape)
 
 
 # --------------------------------------------------------------------------- building
@@ -841,7 +793,6 @@ def build_trajectory_block(
     if progress is not None:
         progress("aircraft paths", 0, 1)
     block.coefficients = _initial_coefficients(block, block._split(start_values))
-    block._settle_paths(block._split(start_values), INITIAL_PATH_ITERATIONS)
     if block.adsb is not None:
         before = block.n_adsb_gated
         _gate_adsb(block, block._split(start_values))

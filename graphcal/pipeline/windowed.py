@@ -171,14 +171,7 @@ def calibrate_windows(
     if constant:
         cal = _constant_calibration(summaries, source.sites, window_s, source.cleaning_warnings)
         cal.info["timing_s"] = {"summaries_s": elapsed, "total_s": time.perf_counter() - start}
-        _finish(cal, source, scheduler, dataset)
-        _record_inflation(cal, widened)
-        verdict = _judge(summaries)
-        if verdict is not None:
-            if not verdict.passed and check_fit:
-                _stop(verdict, cal)
-            _record_verdict(cal, verdict)
-        return cal
+        return _concluded(cal, summaries, source, scheduler, dataset, widened, check_fit)
     if progress is not None:
         progress("smoothing the chain", 0, 1)
     chain = {"random_walk_per_sqrt_s": rates, "breaks": breaks,
@@ -237,6 +230,14 @@ def calibrate_windows(
     result.timing_s["summaries_s"] = elapsed
     result.timing_s["total_s"] = time.perf_counter() - start
     cal = to_calibration(result, source.sites, source.cleaning_warnings)
+    return _concluded(cal, summaries, source, scheduler, dataset, widened, check_fit)
+
+
+def _concluded(cal: Calibration, summaries: Sequence[WindowSummary], source: _Source,
+               scheduler: str, dataset: Dataset | str | os.PathLike[str],
+               widened: Mapping[str, SigmaInflation], check_fit: bool) -> Calibration:
+    """``cal`` with the run's sigmas and scheduler, its widening and the fit verdict over
+    the windows (raised with ``check_fit`` when it fails)."""
     _finish(cal, source, scheduler, dataset)
     _record_inflation(cal, widened)
     verdict = _judge(summaries)
@@ -567,6 +568,16 @@ def series_entry(window: WindowEstimate, terms: RadarTerms, eccentric: bool) -> 
     return entry
 
 
+def _window_warnings(summaries: Sequence[WindowSummary], n_windows: int,
+                     cleaning_warnings: Sequence[str]) -> list[str]:
+    """The cleaning's warnings, then each window warning once with the windows it came
+    from counted."""
+    counted = Counter(w for s in summaries for w in s.warnings)
+    return list(cleaning_warnings) + [
+        f"{text} (in {count} of {n_windows} windows)" if n_windows > 1 else text
+        for text, count in counted.items()]
+
+
 def _constant_calibration(summaries: Sequence[WindowSummary], sites: Mapping[str, Site],
                           window_s: float, cleaning_warnings: Sequence[str]) -> Calibration:
     """Constant biases from the windows' summaries, as one batch's :class:`Calibration`."""
@@ -574,11 +585,8 @@ def _constant_calibration(summaries: Sequence[WindowSummary], sites: Mapping[str
 
     combined = constant_biases(summaries, sites)
     radar_ids = [rid for rid in sites if any(r == rid for r, _ in combined.labels)]
-    warnings = list(cleaning_warnings)
-    counted = Counter(w for s in summaries for w in s.warnings)
     n = combined.n_windows
-    warnings += [f"{text} (in {count} of {n} windows)" if n > 1 else text
-                 for text, count in counted.items()]
+    warnings = _window_warnings(summaries, n, cleaning_warnings)
     info: dict[str, Any] = {
         "windows": {"window_s": window_s, "n_windows": n, "constant": True},
         "cross": "from windows",
@@ -609,11 +617,8 @@ def to_calibration(result: WindowedCalibration, sites: Mapping[str, Site],
         "radars": {rid: [series_entry(w, result.terms[rid], eccentric)
                          for w in windows] for rid, windows in result.series.items()},
     }
-    warnings = list(cleaning_warnings)
-    counted = Counter(w for s in result.summaries for w in s.warnings)
     n = len({s.index for s in result.summaries})
-    warnings += [f"{text} (in {count} of {n} windows)" if n > 1 else text
-                 for text, count in counted.items()]
+    warnings = _window_warnings(result.summaries, n, cleaning_warnings)
     for event in result.events:
         sizes = ", ".join(f"{key} {event.size[key]:+.4g} ± {event.sigma[key]:.2g}"
                           for key in event.parameters)
