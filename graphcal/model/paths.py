@@ -208,20 +208,22 @@ def band_zeros(n_unknowns: int) -> FloatArray:
 
 
 def spread_matrix(first: IntArray, weights: FloatArray, n_coefficients: int,
-                  offset: int | None = None) -> scipy.sparse.csr_matrix:
+                  offset: int | None = None) -> scipy.sparse.csc_matrix:
     """The sparse ``P`` ``(n_coefficients, n)`` that spreads measurements over coefficients.
 
     Without ``offset``, ``P[first_i + j, i] = B_ij`` (``j = 0 .. 3``): ``P @ V`` sums each
     measurement's row ``V_i`` into its four coefficients, weighted by ``B_ij``.  With
     ``offset`` ``d``, ``P[first_i + j, i] = B_ij B_i(j + d)`` (``j = 0 .. 3 - d``): the
     products that the band's blocks ``d`` coefficients apart are made of.  One sparse
-    product sums every measurement of a coefficient at once.
+    product sums every measurement of a coefficient at once.  Every column of ``P`` has
+    the same number of entries, so ``P`` is built column by column (compressed sparse
+    columns) with no sorting.
     """
     j = np.arange(4 - (offset or 0))
     values = weights[:, j] if offset is None else weights[:, j] * weights[:, j + offset]
-    rows = (first[:, None] + j).ravel()
-    columns = np.repeat(np.arange(len(first)), len(j))
-    return scipy.sparse.csr_matrix((values.ravel(), (rows, columns)),
+    rows = (np.asarray(first, dtype=np.int64)[:, None] + j).ravel()
+    pointers = np.arange(0, len(rows) + 1, len(j), dtype=np.int64)
+    return scipy.sparse.csc_matrix((values.ravel(), rows, pointers),
                                    shape=(n_coefficients, len(first)))
 
 

@@ -322,13 +322,9 @@ class TrajectoryBlock:
             adsb_ax = band_matvec(self.adsb.band, flat)
             gradient += adsb_ax - self.adsb.rhs
             cost += 0.5 * float(flat @ adsb_ax) - float(flat @ self.adsb.rhs) + self.adsb.constant
+        # The plots' cost by phase; the ADS-B reports' share is added when the process
+        # noise is estimated (_adsb_phase_cost), not at every linearisation.
         phase_cost = np.zeros(layout.n_phases)
-        if self.adsb is not None:
-            a = self.adsb
-            residual = self._evaluate(c, a.first, a.weights) - a.position
-            chi2 = np.einsum("ni,nij,nj->n", residual, a.information, residual)
-            phase_cost += np.bincount(layout.phase[a.interval], 0.5 * chi2,
-                                      minlength=layout.n_phases)
         groups = []
         height = named.get("") if self.pressure else None
         for radar in self.radars:
@@ -598,6 +594,7 @@ class TrajectoryBlock:
                       + np.bincount(first_phase, minlength=layout.n_phases))
         energy = np.bincount(layout.phase, motion_prior_energy(coefficients, layout),
                              minlength=layout.n_phases)
+        measurement_cost = measurement_cost + self._adsb_phase_cost(coefficients)
         for q in PROCESS_NOISE_GRID_M2_S3:
             lin = _Linear(data_band.copy(), data_gradient.copy(), data_cost, [])
             self._add_prior(lin, coefficients, np.full(layout.n_phases, 1.0 / q))
@@ -613,6 +610,16 @@ class TrajectoryBlock:
             chosen = np.where(better, q, chosen)
         self.phase_scale = 1.0 / chosen
         return chosen
+
+    def _adsb_phase_cost(self, c: FloatArray) -> FloatArray:
+        """The ADS-B reports' cost ``chi2 / 2`` by flight phase, on paths ``c``."""
+        layout = self.layout
+        if self.adsb is None:
+            return np.zeros(layout.n_phases)
+        a = self.adsb
+        residual = self._evaluate(c, a.first, a.weights) - a.position
+        chi2 = np.einsum("ni,nij,nj->n", residual, a.information, residual)
+        return np.bincount(layout.phase[a.interval], 0.5 * chi2, minlength=layout.n_phases)
 
     # ------------------------------------------------------------ reporting
     def summary(self) -> dict:
