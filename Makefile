@@ -1,7 +1,7 @@
 # Two commands set everything up on a machine with only Python 3.11 and pip:
 #   make demo   create .venv, install graphcal, calibrate the bundled demo network
 #               (graph method, with ADS-B and from cross-radar observations alone)
-#   make test   same set-up, then make lint and the whole test suite
+#   make test   same set-up, then make lint and the whole test suite (one worker a core)
 #   make lint   ruff, and import-linter's layer contracts (pyproject.toml)
 #   make docs   same set-up, then the manual and API reference into site/ (mkdocs --strict)
 #   make bench  same set-up, then the benchmarks: bench_graph (graph vs scipy, 10-radar
@@ -35,7 +35,7 @@ demo: $(STAMP)
 	$(BIN)/graphcal calibrate demo-out --no-adsb
 
 test: lint
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto
 
 bench: export GRAPHCAL_BENCH_RESULTS = $(abspath $(BENCH_RESULTS))
 bench: $(STAMP)

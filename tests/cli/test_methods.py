@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import io
 
 import pytest
+from rich.console import Console
 from typer.testing import CliRunner
 
+from graphcal.cli import methods as methods_cli
 from graphcal.cli.app import app
 from graphcal.solvers.registry import (
     ESTIMATOR_LOADERS,
@@ -49,10 +52,13 @@ def test_summary_is_the_first_line_of_the_estimator_docstring(name: str) -> None
     assert describe(name) == _first_doc_line(METHODS[name])
 
 
-def test_methods_command_prints_one_line_per_estimator() -> None:
+def test_methods_command_prints_one_line_per_estimator(monkeypatch: pytest.MonkeyPatch) -> None:
+    # A wide terminal: one line each, unwrapped (at 80 columns the summaries wrap).
+    monkeypatch.setattr(methods_cli, "console", Console(width=200, file=io.StringIO()))
     result = runner.invoke(app, ["methods"])
+    result_output = methods_cli.console.file.getvalue()
     assert result.exit_code == 0
-    assert result.output.splitlines() == [
+    assert result_output.splitlines() == [
         f"{name:12s} {_first_doc_line(function)}" for name, function in METHODS.items()
     ]
 

@@ -154,7 +154,7 @@ def test_import_asterix_date_is_the_recordings_midnight(tmp_path: Path) -> None:
     unknown = runner.invoke(app, ["import-asterix", str(raw), "--out", str(tmp_path / "a")])
     assert unknown.exit_code == 0, unknown.output
     assert load_epoch_utc(tmp_path / "a" / "sites.toml") is None
-    assert "date unknown: give it with --date" in unknown.output
+    assert "date unknown: give it with --date" in " ".join(unknown.output.split())
     dated = runner.invoke(app, ["import-asterix", str(raw), "--out", str(tmp_path / "b"),
                                 "--date", "2021-10-07"])
     assert dated.exit_code == 0, dated.output
