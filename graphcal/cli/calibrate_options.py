@@ -19,6 +19,7 @@ from typing import Any
 import typer
 
 from graphcal.cli.common import EXIT_BAD_INPUT, check_choice, check_count, check_positive, fail
+from graphcal.core.solve_options import GRAPH, WLS, options_of
 
 #: Estimators (:data:`graphcal.solvers.registry.METHODS`).
 METHOD_CHOICES: tuple[str, ...] = ("graph", "ls", "fl", "fl-ls", "wls", "wls-pruned")
@@ -41,14 +42,13 @@ SELECT_CHOICES: tuple[str, ...] = ("greedy", "e-optimal", "d-optimal", "random")
 #: ``--select-unit`` (:data:`graphcal.analysis.selection.SELECTION_UNITS`).
 SELECT_UNIT_CHOICES: tuple[str, ...] = ("observation", "segment", "track")
 
-#: Options of the graph method only: parameter name -> option.
-GRAPH_OPTIONS: dict[str, str] = {
-    "cross": "--cross", "robust": "--robust", "robust_scale": "--robust-scale",
-    "init": "--init", "fix": "--fix", "max_iterations": "--max-iterations",
-    "time_offset": "--time-offset",
-}
+#: Options of the graph method only: parameter name -> option (from the one option table,
+#: :class:`graphcal.core.solve_options.SolveOptions`).  ``--adsb/--no-adsb`` is checked on
+#: its own (:func:`_check_adsb`), with what each method does with ADS-B.
+GRAPH_OPTIONS: dict[str, str] = {name: flag for name, flag in options_of(GRAPH).items()
+                                 if name != "adsb"}
 #: Options of wls and wls-pruned only.
-WLS_OPTIONS: dict[str, str] = {"iterations": "--iterations", "linearise": "--linearise"}
+WLS_OPTIONS: dict[str, str] = options_of(WLS)
 #: Options of ``--select`` only.
 SELECT_OPTIONS: dict[str, str] = {
     "budget": "--budget", "select_unit": "--select-unit", "segment_s": "--segment-s",

@@ -24,11 +24,10 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.grouped import group_order
 from graphcal.core.refraction import refracted_polar_jacobian
+from graphcal.core.solve_options import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.memo import remember
 
-#: Default longest gap [s] between two ADS-B reports that is bridged by interpolation.
-DEFAULT_ADSB_MAX_GAP_S = 10.0
 #: Longest gap between a radar's bracketing plots, in scan periods, for cross-radar pairs.
 DEFAULT_PAIR_MAX_GAP_SCANS = 2.5
 #: Fallback gap limit [s] for cross-radar pairs when the scan period is unknown.

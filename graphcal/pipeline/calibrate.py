@@ -24,6 +24,7 @@ import numpy as np
 
 from graphcal.analysis.crlb import crlb
 from graphcal.analysis.observability import report_from_information
+from graphcal.core.solve_options import SolveOptions, method_defaults, option_methods
 from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY, from_contract_units
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
@@ -37,14 +38,10 @@ Progress = Callable[..., None]
 #: ``time_offset`` choices (``graphcal calibrate --time-offset``) and graph's argument.
 TIME_OFFSET_CHOICES: dict[str, bool | None] = {"auto": None, "on": True, "off": False}
 
-#: Options of each method, with their defaults (those of the command line).
+#: Options of each method, with their defaults (those of the command line), from the one
+#: option table (:class:`~graphcal.core.solve_options.SolveOptions`).
 METHOD_OPTIONS: dict[str, dict[str, Any]] = {
-    "graph": {
-        "cross": "trajectory", "robust": "huber", "robust_scale": 1.0, "use_adsb": True,
-        "init": "auto", "fixed": None, "max_iterations": 100, "time_offset": "auto",
-    },
-    "wls": {"iterations": 1, "linearise": "plots"},
-    "wls-pruned": {"iterations": 1, "linearise": "plots"},
+    method: method_defaults(method) for method in METHODS
 }
 
 
@@ -81,27 +78,28 @@ def parse_fixed(
     return out
 
 
-def _method_options(method: str, given: Mapping[str, Any], sites: Mapping[str, Any]) -> dict:
-    """The solver's keyword arguments; options of other methods given non-default are errors."""
-    own = METHOD_OPTIONS.get(method, {})
-    for other, defaults in METHOD_OPTIONS.items():
-        if other == method:
-            continue
-        for key, default in defaults.items():
-            if key not in own and given.get(key, default) != default:
-                users = sorted(m for m, o in METHOD_OPTIONS.items() if key in o)
-                raise ValueError(
-                    f"option {key} applies to {' and '.join(users)}, not to method '{method}'"
-                )
-    options = {key: given.get(key, default) for key, default in own.items()}
-    if method == "graph":
-        choice = options["time_offset"]
-        if isinstance(choice, str):
-            if choice not in TIME_OFFSET_CHOICES:
-                raise ValueError(f"time_offset must be auto, on or off, not '{choice}'")
-            options["time_offset"] = TIME_OFFSET_CHOICES[choice]
-        options["fixed"] = parse_fixed(options["fixed"], sites)
-    return options
+def solve_options(method: str, given: Mapping[str, Any], sites: Mapping[str, Any]
+                  ) -> SolveOptions:
+    """The options of one calibration, as given to :func:`calibrate`.
+
+    ``time_offset`` may be ``"auto"``, ``"on"`` or ``"off"`` and ``fixed`` is keyed
+    ``"RADAR.key"`` in contract units (:func:`parse_fixed`).  An option that ``method``
+    does not use, given at other than its default, is an error.
+    """
+    values = dict(given)
+    if isinstance(values.get("time_offset"), str):
+        choice = values["time_offset"]
+        if choice not in TIME_OFFSET_CHOICES:
+            raise ValueError(f"time_offset must be auto, on or off, not '{choice}'")
+        values["time_offset"] = TIME_OFFSET_CHOICES[choice]
+    values["fixed"] = parse_fixed(values.get("fixed"), sites)
+    defaults = SolveOptions()
+    for name, value in values.items():
+        users = option_methods(name)
+        if method not in users and value != getattr(defaults, name):
+            raise ValueError(f"option {name} applies to {' and '.join(users)}, "
+                             f"not to method '{method}'")
+    return SolveOptions(**values)
 
 
 @shared
@@ -256,9 +254,7 @@ def calibrate(
         "init": init, "fixed": fixed or None, "max_iterations": max_iterations,
         "time_offset": time_offset, "iterations": iterations, "linearise": linearise,
     }
-    options = _method_options(method, given, sites)
-    if max_gap_s is not None:
-        options["max_gap_s"] = max_gap_s
+    options = solve_options(method, {**given, "max_gap_s": max_gap_s}, sites)
     if constant_windows:
         cal = _calibrate_windows(folder, method, CONSTANT_BATCH_WINDOW_S, options, clean=clean,
                                  select=None, bound=None, progress=progress, force=force,
@@ -293,14 +289,15 @@ def calibrate(
             dataset, method, select, budget, unit=select_unit, segment_s=segment_s,
             use_adsb=use_adsb, rng=np.random.default_rng(select_seed), progress=progress,
         )
+    extra: dict[str, Any] = {}
     if method in ("graph", "wls", "wls-pruned"):
-        options["progress"] = progress
+        extra["progress"] = progress
     if method == "graph":
         # The trajectory formulation computes the bound of its own model (one more
         # elimination of the paths) only when it is reported.
-        options["bound"] = bool(bound is None or bound)
+        extra["bound"] = bool(bound is None or bound)
     dataset, sigma_info, sigma_warnings = filled_with_notes(dataset)
-    cal = estimator(dataset, **options)
+    cal = estimator(dataset, **options.for_method(method), **extra)
     if sigma_info is not None:
         cal.info["estimated_sigmas"] = sigma_info
         cal.warnings.extend(sigma_warnings)
@@ -318,7 +315,7 @@ def calibrate(
         have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
         cal.info.update(bound_info(cal, dataset, use_adsb=have_adsb,
                                    cross=cross != "none" or method != "graph",
-                                   max_gap_s=options.get("max_gap_s")))
+                                   max_gap_s=options.max_gap_s))
         timing = cal.info.setdefault("timing_s", {})
         timing["crlb_s"] = time.perf_counter() - t0
         timing["total_s"] = time.perf_counter() - start
@@ -327,13 +324,13 @@ def calibrate(
         if progress is not None:
             progress("model checks", 0, 1)
         checks = _check_model(cal, dataset, use_adsb=use_adsb,
-                              max_gap_s=options.get("max_gap_s"))
+                              max_gap_s=options.max_gap_s)
         timing = cal.info.setdefault("timing_s", {})
         timing["model_checks_s"] = cal.info["model_checks"]["seconds"]
         timing["total_s"] = time.perf_counter() - start
     _warn_shared_time_offset(cal, dataset.sites)
     if cal.radar_ids:
-        _judge_fit(cal, dataset, checks, use_adsb=use_adsb, max_gap_s=options.get("max_gap_s"),
+        _judge_fit(cal, dataset, checks, use_adsb=use_adsb, max_gap_s=options.max_gap_s,
                    raise_on_failure=check_fit)
     return cal
 
@@ -430,14 +427,13 @@ def is_long_recording(folder: str | os.PathLike[str]) -> bool:
 
 
 def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,
-                       window: float | str, options: dict[str, Any], *, clean: bool,
+                       window: float | str, options: SolveOptions, *, clean: bool,
                        select: str | None, bound: bool | None, progress: Progress | None,
                        force: bool = False, check_fit: bool = True, **chain: Any
                        ) -> Calibration:
     """``calibrate(window=...)``: the graph per window, chained (pipeline.windowed)."""
     from graphcal.core.durations import parse_duration
     from graphcal.pipeline.windowed import calibrate_windows
-    from graphcal.solvers.windows import WindowOptions
 
     if method != "graph":
         raise ValueError(f"window applies to the graph method, not {method}")
@@ -445,19 +441,14 @@ def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,
         raise ValueError("select is not available with window: each window uses all its data")
     if bound:
         raise ValueError("the Cramér-Rao bound is not computed per window; drop bound")
-    if options.get("init", "auto") != "auto":
+    if options.init != "auto":
         raise ValueError("init applies to one batch; each window starts from its own "
                          "closed-form estimate")
-    if options.get("time_offset") is not None:
+    if options.time_offset is not None:
         raise ValueError("time_offset: with window, time offsets are estimated in every "
                          "window with ADS-B")
-    window_options = WindowOptions(
-        use_adsb=options["use_adsb"], cross=options["cross"], robust=options["robust"],
-        robust_scale=options["robust_scale"], fixed=options.get("fixed") or {},
-        max_iterations=options["max_iterations"],
-        **({"max_gap_s": options["max_gap_s"]} if "max_gap_s" in options else {}))
     cal = calibrate_windows(dataset, parse_duration(window), clean=clean,
-                            options=window_options, progress=progress, force=force,
+                            options=options, progress=progress, force=force,
                             check_fit=check_fit, **chain)
     if isinstance(dataset, Dataset):
         sites = dataset.sites
@@ -560,5 +551,6 @@ def _own_bound_info(cal: Calibration) -> dict[str, Any]:
 
 
 __all__ = ["CONSTANT_BATCH_MIN_SPAN_S", "CONSTANT_BATCH_WINDOW_S", "METHODS", "METHOD_OPTIONS",
+           "solve_options",
            "TIME_OFFSET_CHOICES", "bound_info", "calibrate", "is_long_recording",
            "parse_fixed"]

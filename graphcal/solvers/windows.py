@@ -48,7 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core.errors import EstimationError
-from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
+from graphcal.core.solve_options import SolveOptions
 from graphcal.data.bias import CONTRACT_KEYS, RadarBias
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.height import HeightModelEstimate
@@ -93,18 +93,10 @@ MAX_RANDOM_WALK_STIFFNESS = 100.0
 
 
 # --------------------------------------------------------------------------- summaries
-@dataclass(frozen=True)
-class WindowOptions:
-    """How each window is calibrated (the :func:`~graphcal.solvers.graph.graph` options)."""
-
-    use_adsb: bool = True
-    cross: str = "trajectory"
-    robust: str = "huber"
-    robust_scale: float = 1.0
-    fixed: Mapping[tuple[str, str], float] = field(default_factory=dict)
-    max_iterations: int = 100
-    max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S
-    pair_max_gap_s: float | None = None
+#: How each window is calibrated: the estimators' option table (graph's options).
+WindowOptions = SolveOptions
+#: The command line's options (frozen: shared as a default argument).
+DEFAULT_OPTIONS = SolveOptions()
 
 
 @dataclass
@@ -167,7 +159,7 @@ class WindowSummary:
         return information, prior_information * self.estimate
 
 
-def summarise_window(window: Window, options: WindowOptions = WindowOptions(), *,
+def summarise_window(window: Window, options: WindowOptions = DEFAULT_OPTIONS, *,
                      judge: bool = True) -> WindowSummary | None:
     """Calibrate one window on its own and keep its Gaussian summary.
 
@@ -197,7 +189,7 @@ def _summarise_window(window: Window, options: WindowOptions, judge: bool
         cal = graph(dataset, cross=options.cross, robust=options.robust,
                     robust_scale=options.robust_scale, use_adsb=options.use_adsb,
                     fixed=dict(options.fixed), max_iterations=options.max_iterations,
-                    max_gap_s=options.max_gap_s, pair_max_gap_s=options.pair_max_gap_s,
+                    max_gap_s=options.adsb_max_gap_s, pair_max_gap_s=options.pair_max_gap_s,
                     time_offset=None if have_adsb and options.cross != "target-state"
                     else False, bound=False)
     except EstimationError:
@@ -206,7 +198,8 @@ def _summarise_window(window: Window, options: WindowOptions, judge: bool
     prior = np.concatenate([
         prior_sigmas(dataset.sites[rid], RadarTerms(rid, (name,), {})) for rid, name in labels
     ]) if labels else np.zeros(0)
-    fit = (window_fit(dataset, cal, use_adsb=options.use_adsb, max_gap_s=options.max_gap_s)
+    fit = (window_fit(dataset, cal, use_adsb=options.use_adsb,
+                      max_gap_s=options.adsb_max_gap_s)
            if judge else None)
     return WindowSummary(
         window.index, window.t_start_s, window.t_end_s, labels,
@@ -704,7 +697,7 @@ def windowed_graph(
     dataset: Dataset,
     window_s: float,
     *,
-    options: WindowOptions = WindowOptions(),
+    options: WindowOptions = DEFAULT_OPTIONS,
     **chain_options: Any,
 ) -> WindowedCalibration:
     """Calibrate biases per time window, in memory and in this process.
