@@ -73,8 +73,8 @@ from benchmarks import RESULTS
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import CONTRACT_KEYS
 from graphcal.data.dataset import Dataset
+from graphcal.model.factor_set import FactorSet, build_factors
 from graphcal.model.parameters import prior_sigmas, radar_terms
-from graphcal.model.problem import Problem, build_factors
 from graphcal.model.robust import RobustKernel
 from graphcal.simulation.scenario import Scenario, load_scenario
 from graphcal.simulation.simulate import SimulationResult, simulate
@@ -189,7 +189,7 @@ class AdsbModel:
 
     Attributes
     ----------
-    problem : Problem
+    blocks : FactorSet
         Built by the graph calibrator's own ``build_factors`` (no robust
         kernel, no cross-radar factors).
     radars : list of str
@@ -200,7 +200,7 @@ class AdsbModel:
         ``(radar_id, parameter name)`` of every parameter, in solution order.
     """
 
-    problem: Problem
+    blocks: FactorSet
     radars: list[str]
     priors: dict[str, FloatArray]
     labels: list[tuple[str, str]]
@@ -208,12 +208,12 @@ class AdsbModel:
     @property
     def n_plots(self) -> int:
         """ADS-B-matched plots."""
-        return int(sum(len(f.measured) for f in self.problem.adsb.values()))
+        return int(sum(len(f.measured) for f in self.blocks.adsb.values()))
 
     @property
     def n_residuals(self) -> int:
         """Stacked residual length: measurement rows plus one prior row per parameter."""
-        return int(sum(f.dimension for f in self.problem.adsb.values())) + len(self.labels)
+        return int(sum(f.dimension for f in self.blocks.adsb.values())) + len(self.labels)
 
 
 def build_adsb_model(dataset: Dataset) -> AdsbModel:
@@ -232,14 +232,14 @@ def build_adsb_model(dataset: Dataset) -> AdsbModel:
     """
     terms = {rid: radar_terms(dataset.sites[rid], {}) for rid in dataset.radar_ids}
     keys = {rid: symbol("b", i) for i, rid in enumerate(dataset.radar_ids)}
-    problem = Problem(terms, keys)
+    blocks = FactorSet(terms, keys)
     build_factors(
-        dataset, problem, True, "none", RobustKernel("none"), DEFAULT_ADSB_MAX_GAP_S, None, None
+        dataset, blocks, True, "none", RobustKernel("none"), DEFAULT_ADSB_MAX_GAP_S, None, None
     )
-    radars = problem.variable_radars()
+    radars = blocks.variable_radars()
     priors = {rid: prior_sigmas(dataset.sites[rid], terms[rid]) for rid in radars}
     labels = [(rid, name) for rid in radars for name in terms[rid].free]
-    return AdsbModel(problem, radars, priors, labels)
+    return AdsbModel(blocks, radars, priors, labels)
 
 
 def graph_solve(model: AdsbModel) -> tuple[FactorGraph, OptimizationResult, FloatArray]:
@@ -254,23 +254,23 @@ def graph_solve(model: AdsbModel) -> tuple[FactorGraph, OptimizationResult, Floa
     FactorGraph, OptimizationResult, ndarray
         The graph, GTSAM's result and the stacked solution in ``model.labels`` order.
     """
-    problem = model.problem
+    blocks = model.blocks
     fg = FactorGraph()
     for rid in model.radars:
-        k = len(problem.terms[rid].free)
-        fg.add_variable(problem.keys[rid], np.zeros(k))
-        fg.add_prior(problem.keys[rid], np.zeros(k), model.priors[rid])
+        k = len(blocks.terms[rid].free)
+        fg.add_variable(blocks.keys[rid], np.zeros(k))
+        fg.add_prior(blocks.keys[rid], np.zeros(k), model.priors[rid])
     variable = set(model.radars)
-    for factor in problem.adsb.values():
+    for factor in blocks.adsb.values():
         add_factor(fg, factor, variable)
     result = fg.optimize()
-    x = np.concatenate([result.vector(problem.keys[rid]) for rid in model.radars])
+    x = np.concatenate([result.vector(blocks.keys[rid]) for rid in model.radars])
     return fg, result, x
 
 
 def graph_covariance(model: AdsbModel, fg: FactorGraph, result: OptimizationResult) -> FloatArray:
     """Joint marginal covariance of every radar's biases (GTSAM ``Marginals``)."""
-    return fg.joint_covariance(result.values, [model.problem.keys[rid] for rid in model.radars])
+    return fg.joint_covariance(result.values, [model.blocks.keys[rid] for rid in model.radars])
 
 
 class StackedResiduals:
@@ -284,12 +284,12 @@ class StackedResiduals:
 
     def __init__(self, model: AdsbModel) -> None:
         self.model = model
-        self.factors = [model.problem.adsb[rid] for rid in model.radars]
+        self.factors = [model.blocks.adsb[rid] for rid in model.radars]
         self.columns: list[slice] = []
         self.rows: list[slice] = []
         col = row = 0
         for rid, factor in zip(model.radars, self.factors, strict=True):
-            k = len(model.problem.terms[rid].free)
+            k = len(model.blocks.terms[rid].free)
             self.columns.append(slice(col, col + k))
             self.rows.append(slice(row, row + factor.dimension))
             col += k

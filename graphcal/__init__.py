@@ -9,6 +9,9 @@ The public API, importable from the top level::
     cal.value("NORD", "range_offset_m"), cal.sigma("NORD", "range_offset_m")
     cal.write_json("result.json")
 
+    problem = graphcal.build_problem(sim.dataset, graphcal.SolveOptions(cross="pairwise"))
+    cal = graphcal.solve(problem, "graph")                 # one estimator, the problem's options
+
 Names are loaded on first use, so ``import graphcal`` stays light.
 """
 
@@ -41,6 +44,10 @@ _EXPORTS: dict[str, str] = {
     "DatasetError": "graphcal.core.errors",
     "EstimationError": "graphcal.core.errors",
     "METHODS": "graphcal.solvers.registry",
+    "solve": "graphcal.solvers.registry",
+    "build_problem": "graphcal.model.problem",
+    "Problem": "graphcal.model.problem",
+    "SolveOptions": "graphcal.core.solve_options",
 }
 
 __all__ = [
@@ -65,23 +72,29 @@ __all__ = [
     "DatasetError",
     "EstimationError",
     "METHODS",
+    "solve",
+    "build_problem",
+    "Problem",
+    "SolveOptions",
 ]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and the API reference
     from graphcal.core.errors import DatasetError, EstimationError, GraphcalInputError
+    from graphcal.core.solve_options import SolveOptions
     from graphcal.data.bias import RadarBias
     from graphcal.data.calibration import Calibration
     from graphcal.data.correct import correct_dataset
     from graphcal.data.dataset import Dataset, Site
     from graphcal.data.truth import compare_to_truth, load_truth
     from graphcal.io.folder import load_dataset, load_sites, write_dataset
+    from graphcal.model.problem import Problem, build_problem
     from graphcal.pipeline.calibrate import calibrate
     from graphcal.pipeline.compare import compare
     from graphcal.pipeline.correct import correct_folder
     from graphcal.pipeline.simulate import simulate
     from graphcal.simulation.scenario import load_scenario
     from graphcal.simulation.simulate import SimulationResult
-    from graphcal.solvers.registry import METHODS
+    from graphcal.solvers.registry import METHODS, solve
 
 
 def __getattr__(name: str) -> Any:

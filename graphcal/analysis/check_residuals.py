@@ -48,22 +48,21 @@ from graphcal.core.outliers import OUTLIER_SIGMAS, outlier_rows
 from graphcal.data.align import (
     DEFAULT_ADSB_MAX_GAP_S,
     PlotArrays,
-    align_adsb,
     neighbour_plots,
     overlapping_pairs,
     pair_plots,
-    plot_arrays,
 )
 from graphcal.data.bias import ECCENTRICITY, RadarBias
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.height import HeightModel
 from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, convert_plots, corrected_ecef
+from graphcal.model.factor_set import polar_rate
 from graphcal.model.measurement import (
     measured_polar,
     measurement_model,
     reference_polar_covariance,
 )
-from graphcal.model.problem import polar_rate
+from graphcal.model.problem import Problem, as_problem
 
 FloatArray = NDArray[np.float64]
 
@@ -160,7 +159,7 @@ def has_eccentricity(site: Site, bias: RadarBias) -> bool:
 
 
 def adsb_radar_residuals(
-    dataset: Dataset,
+    data: Dataset | Problem,
     radar_id: str,
     bias: RadarBias,
     max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
@@ -174,8 +173,10 @@ def adsb_radar_residuals(
     height by ``height_model`` (the calibration's estimate; identity if none) less
     the ADS-B height, and the height model's two terms are its regressors.
     """
+    problem = as_problem(data)
+    dataset = problem.dataset
     site = dataset.sites[radar_id]
-    al = align_adsb(dataset, radar_id, max_gap_s, time_offset_s=bias.time_offset_s)
+    al = problem.alignment(radar_id, max_gap_s, time_offset_s=bias.time_offset_s)
     if len(al) == 0:
         return None
     model = measurement_model(site)
@@ -221,7 +222,8 @@ def adsb_radar_residuals(
 
 
 def cross_radar_residuals(
-    dataset: Dataset, biases: Mapping[str, RadarBias], height_model: HeightModel | None = None
+    data: Dataset | Problem, biases: Mapping[str, RadarBias],
+    height_model: HeightModel | None = None,
 ) -> dict[str, RadarResiduals]:
     """Every radar's corrected plots against its partners' (module doc).
 
@@ -234,15 +236,18 @@ def cross_radar_residuals(
     (the calibration's estimate; identity if none), whose two terms are then
     regressors too.
     """
+    problem = as_problem(data)
+    dataset = problem.dataset
     radar_ids = [rid for rid in dataset.radar_ids if rid in biases]
     heights = (height_model or HeightModel()) if dataset.pressure_altitudes else None
-    geometry = {rid: _corrected_plots(dataset.sites[rid], plot_arrays(dataset, rid), biases[rid],
+    geometry = {rid: _corrected_plots(dataset.sites[rid], problem.plots(rid), biases[rid],
                                       heights)
                 for rid in radar_ids}
     parts: dict[str, list[dict[str, Any]]] = {rid: [] for rid in radar_ids}
     for ra, rb in overlapping_pairs(dataset, radar_ids):
         ba, bb = biases[ra], biases[rb]
-        pairs = pair_plots(dataset, ra, rb, shift_s=ba.time_offset_s - bb.time_offset_s)
+        pairs = pair_plots(dataset, ra, rb, shift_s=ba.time_offset_s - bb.time_offset_s,
+                           plots=problem.all_plots)
         if len(pairs) == 0:
             continue
         ga, gb = geometry[ra], geometry[rb]

@@ -71,17 +71,17 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.batched import cholesky_inverse, sum_of_products
 from graphcal.core.refraction import apparent_elevation_from_height, target_from_refracted
-from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb, plot_arrays
+from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb
 from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.height import HEIGHT_MODEL_KEYS, HeightModel, height_jacobian
-from graphcal.data.memo import shared
 from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, MAX_2D_ELEVATION_RAD
 from graphcal.model.height import HEIGHT_PRIOR_SIGMA, adsb_height_segments
 from graphcal.model.information import pseudo_inverse
 from graphcal.model.measurement import RadarMeasurementModel, measurement_model
 from graphcal.model.parameters import TERM_NAMES, prior_sigmas, radar_terms
+from graphcal.model.problem import Problem, as_problem
 
 FloatArray = NDArray[np.float64]
 Label = tuple[str, str]
@@ -216,7 +216,7 @@ def _truth_reference(
 
 # --------------------------------------------------------------------------- contributions
 def _adsb_information(
-    dataset: Dataset,
+    problem: Problem,
     columns: dict[str, list[tuple[int, int]]],
     p: int,
     truth: pd.DataFrame | None,
@@ -226,8 +226,9 @@ def _adsb_information(
     fisher = np.zeros((p, p))
     matched: list[NDArray[np.int64]] = []
     counts: dict[str, int] = {}
+    dataset = problem.dataset
     for rid, site in dataset.sites.items():
-        al = align_adsb(dataset, rid, max_gap_s)
+        al = problem.alignment(rid, max_gap_s)
         if len(al) == 0:
             continue
         matched.append(al.plots.index)
@@ -263,7 +264,7 @@ def _adsb_information(
 
 
 def _cross_information(
-    dataset: Dataset,
+    problem: Problem,
     columns: dict[str, list[tuple[int, int]]],
     p: int,
     exclude: NDArray[np.int64],
@@ -275,9 +276,10 @@ def _cross_information(
     ``height``: pressure altitudes, with the height model that places the 2-D plots
     and the two columns of ``(d, k)``.
     """
+    dataset = problem.dataset
     blocks = []  # per radar: event key parts and whitened Jacobians
     for r_index, (rid, site) in enumerate(dataset.sites.items()):
-        plots = plot_arrays(dataset, rid)
+        plots = problem.plots(rid)
         keep = (plots.target_id.astype(str) != "") & ~np.isin(plots.index, exclude)
         plots = plots.subset(keep)
         if len(plots) == 0:
@@ -370,9 +372,8 @@ def _cross_information(
 
 
 # --------------------------------------------------------------------------- main
-@shared
 def crlb(
-    dataset: Dataset,
+    data: Dataset | Problem,
     *,
     use_adsb: bool = True,
     cross: bool = True,
@@ -388,8 +389,9 @@ def crlb(
 
     Parameters
     ----------
-    dataset : Dataset
-        Sites (with their random-error sigmas), plots and optionally ADS-B.
+    data : Dataset or Problem
+        Sites (with their random-error sigmas), plots and optionally ADS-B; or the
+        calibration problem holding them, whose alignments with ADS-B are reused.
     use_adsb : bool
         Use the ADS-B-matched plots (targets known up to the ADS-B noise).
     cross : bool
@@ -428,12 +430,14 @@ def crlb(
     import time
 
     start = time.perf_counter()
+    problem = as_problem(data)
+    dataset = problem.dataset
     have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
     for site in dataset.sites.values():
         _check_sigmas(site)
     with_time = set()
     if time_offset and have_adsb:
-        from graphcal.model.problem import radars_with_adsb
+        from graphcal.model.factor_set import radars_with_adsb
 
         with_time = radars_with_adsb(dataset)
     all_labels = [
@@ -455,7 +459,7 @@ def crlb(
     info: dict[str, Any] = {}
     matched = np.zeros(0, np.int64)
     if have_adsb:
-        f_adsb, matched, counts = _adsb_information(dataset, columns, size, truth, max_gap_s)
+        f_adsb, matched, counts = _adsb_information(problem, columns, size, truth, max_gap_s)
         fisher += f_adsb
         info["n_adsb_plots"] = counts
         if height_cols:
@@ -468,7 +472,7 @@ def crlb(
             periods = [s.scan_period_s for s in dataset.sites.values() if s.scan_period_s]
             event_s = EVENT_SCANS * max(periods) if periods else DEFAULT_EVENT_S
         height = (height_model or HeightModel(), height_cols) if height_cols else None
-        f_cross, counts = _cross_information(dataset, columns, size, matched, event_s, height)
+        f_cross, counts = _cross_information(problem, columns, size, matched, event_s, height)
         fisher += f_cross
         info.update(counts)
         info["event_s"] = event_s

@@ -83,6 +83,7 @@ from graphcal.core.errors import EstimationError
 from graphcal.data.bias import CONTRACT_KEYS, count_non_positive_ranges
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
+from graphcal.model.problem import Problem, as_problem
 from graphcal.solvers.window_fit import WindowFit
 
 #: Chance that a correct model with the stated noise exceeds the limit (given its dof).
@@ -415,7 +416,7 @@ def windows_verdict(windows: Iterable[tuple[float, float, WindowFit]], *, p: flo
 
 
 def fit_verdict(
-    dataset: Dataset,
+    data: Dataset | Problem,
     cal: Calibration,
     *,
     checks: ModelChecks | None = None,
@@ -428,8 +429,8 @@ def fit_verdict(
 
     Parameters
     ----------
-    dataset : Dataset
-        The data the calibration used (sigmas filled in).
+    data : Dataset or Problem
+        The data the calibration used (sigmas filled in), or its calibration problem.
     cal : Calibration
         The estimate.
     checks : ModelChecks, optional
@@ -446,6 +447,8 @@ def fit_verdict(
         A radar whose estimate corrects plots to a negative range fails on that
         alone, and its residuals are not formed (nor are pairs with it).
     """
+    problem = as_problem(data)
+    dataset = problem.dataset
     negative = negative_ranges(dataset, cal)
     if checks is not None:
         sums = {rid: {c: (r.chi2_per_dof[c] * r.n_residuals[c], r.n_residuals[c])
@@ -455,7 +458,7 @@ def fit_verdict(
                                  negative=negative)
     biases = {rid: cal.bias(rid) for rid in cal.radar_ids
               if rid in dataset.sites and not negative.get(rid)}
-    reference, residuals, _ = calibrated_residuals(dataset, biases, use_adsb=use_adsb,
+    reference, residuals, _ = calibrated_residuals(problem, biases, use_adsb=use_adsb,
                                                    adsb_max_gap_s=adsb_max_gap_s)
     sums = {rid: normalised_sums(res) for rid, res in residuals.items()}
     return verdict_from_sums(cal, reference, sums, p=p, floor=floor, negative=negative)

@@ -59,7 +59,7 @@ from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
-from graphcal.data.memo import shared
+from graphcal.model.problem import Problem, as_problem
 
 #: Family-wise false-alarm rate per radar (Bonferroni over its tests).  Nominally 0.2 %:
 #: the tests are somewhat liberal without ADS-B (``benchmarks/model_checks_study.py``),
@@ -391,7 +391,7 @@ def _explaining_partner(res: RadarResiduals, checks: RadarChecks) -> str | None:
 
 
 def calibrated_residuals(
-    dataset: Dataset,
+    data: Dataset | Problem,
     calibration: Calibration | Mapping[str, RadarBias],
     *,
     use_adsb: bool = True,
@@ -405,6 +405,8 @@ def calibrated_residuals(
     radar has any.  ``notes``: the radars without residuals.
     Parameters as for :func:`model_checks`.
     """
+    problem = as_problem(data)
+    dataset = problem.dataset
     height_model = None
     if isinstance(calibration, Calibration):
         biases = {rid: calibration.bias(rid) for rid in calibration.radar_ids
@@ -420,7 +422,7 @@ def calibrated_residuals(
         reference = "adsb"
         gap = DEFAULT_ADSB_MAX_GAP_S if adsb_max_gap_s is None else adsb_max_gap_s
         for rid, bias in biases.items():
-            res = adsb_radar_residuals(dataset, rid, bias, gap, height_model)
+            res = adsb_radar_residuals(problem, rid, bias, gap, height_model)
             if res is None:
                 notes.append(f"{rid}: no plot aligned with ADS-B; not checked")
             else:
@@ -429,7 +431,7 @@ def calibrated_residuals(
         if reference == "adsb":  # ADS-B on another time base or place: nothing aligned
             notes = ["no plot aligned with ADS-B: checked against the other radars"]
         reference = "cross"
-        residuals = cross_radar_residuals(dataset, biases, height_model)
+        residuals = cross_radar_residuals(problem, biases, height_model)
         notes += [f"{rid}: no cross-radar pair; not checked" for rid in biases
                   if rid not in residuals]
     if not residuals:
@@ -437,9 +439,8 @@ def calibrated_residuals(
     return reference, residuals, notes
 
 
-@shared
 def model_checks(
-    dataset: Dataset,
+    data: Dataset | Problem,
     calibration: Calibration | Mapping[str, RadarBias],
     *,
     use_adsb: bool = True,
@@ -450,8 +451,10 @@ def model_checks(
 
     Parameters
     ----------
-    dataset : Dataset
-        The data the calibration used (sigmas filled in).
+    data : Dataset or Problem
+        The data the calibration used (sigmas filled in), or its calibration problem
+        (:func:`graphcal.model.problem.build_problem`), whose alignments with ADS-B
+        the checks then reuse.
     calibration : Calibration or mapping of radar id to RadarBias
         The estimate: its radars are checked, corrected with every bias
         (fixed ones and the time offset included).
@@ -470,8 +473,10 @@ def model_checks(
         ``reference`` "none" and no radars when there is nothing to compare with.
     """
     start = time.perf_counter()
+    problem = as_problem(data)
+    dataset = problem.dataset
     reference, residuals, notes = calibrated_residuals(
-        dataset, calibration, use_adsb=use_adsb, adsb_max_gap_s=adsb_max_gap_s)
+        problem, calibration, use_adsb=use_adsb, adsb_max_gap_s=adsb_max_gap_s)
     radars = {rid: radar_checks(res, dataset.sites[rid], family_false_alarm,
                                 dataset.pressure_altitudes)
               for rid, res in residuals.items()}

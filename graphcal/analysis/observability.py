@@ -181,24 +181,24 @@ def _graph_blocks(
     import dataclasses
 
     from graphcal.data.align import neighbour_plots
+    from graphcal.model.factor_set import FactorSet, build_factors
     from graphcal.model.parameters import radar_terms
-    from graphcal.model.problem import Problem, build_factors
     from graphcal.model.robust import RobustKernel
     from graphcal.solvers.gtsam_adapter import symbol
 
     radar_ids = list(dataset.radar_ids)
     terms = {rid: radar_terms(dataset.sites[rid], {}) for rid in radar_ids}
     keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
-    problem = Problem(terms, keys)
+    factor_set = FactorSet(terms, keys)
     have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
-    build_factors(dataset, problem, have_adsb, "pairwise", RobustKernel("none"), max_gap_s,
+    build_factors(dataset, factor_set, have_adsb, "pairwise", RobustKernel("none"), max_gap_s,
                    None, None)
     labels = [(rid, name) for rid in radar_ids for name in terms[rid].free]
     column = {label: i for i, label in enumerate(labels)}
     out = ObservationBlocks(labels)
     plot_time = dataset.plots["time_s"]
     plot_target = dataset.plots["target_id"].astype(str)
-    for rid, f in problem.adsb.items():
+    for rid, f in factor_set.adsb.items():
         zero = np.zeros(len(terms[rid].free))
         _, (jac,) = f.whitened([zero])
         cols = [column[(rid, name)] for name in terms[rid].free]
@@ -207,7 +207,7 @@ def _graph_blocks(
             plot_time.loc[rows].to_numpy(float), cols, jac, "adsb", rows[:, None],
             plot_target.loc[rows].to_numpy(object),
         ))
-    for f in problem.pairs:
+    for f in factor_set.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
         zeros = [np.zeros(len(terms[ra].free)), np.zeros(len(terms[rb].free))]
         at = f if linearise == "plots" else dataclasses.replace(

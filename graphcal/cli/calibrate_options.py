@@ -27,7 +27,7 @@ METHOD_CHOICES: tuple[str, ...] = ("graph", "ls", "fl", "fl-ls", "wls", "wls-pru
 ADSB_METHODS: tuple[str, ...] = ("ls", "fl", "fl-ls")
 #: Methods that use the radars' common observations only.
 CROSS_RADAR_METHODS: tuple[str, ...] = ("wls", "wls-pruned")
-#: ``--cross`` (:data:`graphcal.model.problem.CROSS_MODES`).
+#: ``--cross`` (:data:`graphcal.model.factor_set.CROSS_MODES`).
 CROSS_CHOICES: tuple[str, ...] = ("trajectory", "pairwise", "target-state", "none")
 #: ``--robust`` (:data:`graphcal.model.robust.KERNELS`).
 ROBUST_CHOICES: tuple[str, ...] = ("huber", "cauchy", "none")

@@ -46,7 +46,7 @@ class SolveOptions:
     Attributes
     ----------
     cross : {"trajectory", "pairwise", "target-state", "none"}
-        graph: how the radars are tied together (:data:`graphcal.model.problem.CROSS_MODES`).
+        graph: how the radars are tied together (:data:`graphcal.model.factor_set.CROSS_MODES`).
     robust : {"huber", "cauchy", "none"}
         graph: the robust kernel of every measurement.
     robust_scale : float

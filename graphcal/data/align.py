@@ -15,7 +15,9 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -26,7 +28,6 @@ from graphcal.core.grouped import group_order
 from graphcal.core.refraction import refracted_polar_jacobian
 from graphcal.core.solve_options import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.dataset import Dataset, Site
-from graphcal.data.memo import remember
 
 #: Longest gap between a radar's bracketing plots, in scan periods, for cross-radar pairs.
 DEFAULT_PAIR_MAX_GAP_SCANS = 2.5
@@ -60,18 +61,15 @@ class PlotArrays:
         )
 
 
-def plot_arrays(dataset: Dataset, radar_id: str) -> PlotArrays:
+def plot_arrays(dataset: Dataset, radar_id: str, table: PlotTable | None = None
+                ) -> PlotArrays:
     """The plots of ``radar_id`` in time order, as SI arrays.
 
-    Shared within a calibration (:mod:`graphcal.data.memo`): treat as read-only.
+    ``table``: the plots table already converted (:func:`plot_table`), when the caller
+    keeps it (:class:`graphcal.model.problem.Problem` does, for all its radars).
     """
-    return remember(("plot_arrays", radar_id), (dataset.plots,),
-                    lambda: _plot_arrays(dataset, radar_id))
-
-
-def _plot_arrays(dataset: Dataset, radar_id: str) -> PlotArrays:
     # The rows of Dataset.plots_of (a stable sort by time), without building its table.
-    table = _plot_table(dataset.plots)
+    table = plot_table(dataset.plots) if table is None else table
     code = table.radar_codes.get(radar_id)
     rows = (table.order[table.start[code]:table.start[code + 1]] if code is not None
             else np.zeros(0, dtype=np.int64))
@@ -80,7 +78,7 @@ def _plot_arrays(dataset: Dataset, radar_id: str) -> PlotArrays:
 
 
 @dataclass(frozen=True)
-class _PlotTable:
+class PlotTable:
     """A plots table as SI arrays, its rows grouped by radar and in time order."""
 
     columns: PlotArrays  # every row, in table order
@@ -89,12 +87,8 @@ class _PlotTable:
     start: NDArray[np.int64]  # radar code k's rows are order[start[k]:start[k + 1]]
 
 
-def _plot_table(plots: pd.DataFrame) -> _PlotTable:
-    """:class:`_PlotTable` of ``plots``, once per table within a calibration."""
-    return remember(("plot_table",), (plots,), lambda: _make_plot_table(plots))
-
-
-def _make_plot_table(plots: pd.DataFrame) -> _PlotTable:
+def plot_table(plots: pd.DataFrame) -> PlotTable:
+    """A plots table as SI arrays, grouped by radar and in time order."""
     def column(name: str) -> NDArray[np.float64]:
         if name not in plots:
             return np.full(len(plots), np.nan)
@@ -113,7 +107,7 @@ def _make_plot_table(plots: pd.DataFrame) -> _PlotTable:
         altitude_m=column("altitude_m"),
         target_id=plots["target_id"].to_numpy(dtype=object),
     )
-    return _PlotTable(columns, {str(name): k for k, name in enumerate(names)}, order, start)
+    return PlotTable(columns, {str(name): k for k, name in enumerate(names)}, order, start)
 
 
 def neighbour_plots(plots: PlotArrays, skip: int = 1, half_width: int = 4) -> PlotArrays:
@@ -223,6 +217,9 @@ class AdsbAlignment:
     time_offset_s: float = 0.0
     reference_polar_jacobian: FloatArray | None = None
     target_code: NDArray[np.int64] | None = None
+    #: Arrays computed from this alignment alone, once (e.g. the reference's polar
+    #: covariance, :func:`graphcal.model.measurement.reference_polar_covariance`).
+    derived: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.plots)
@@ -358,11 +355,7 @@ def bracket_in_blocks(
 
 
 def adsb_track_table(adsb: pd.DataFrame) -> AdsbTrackTable:
-    """The ADS-B table as an :class:`AdsbTrackTable` (shared within a calibration)."""
-    return remember(("adsb_track_table",), (adsb,), lambda: _adsb_track_table(adsb))
-
-
-def _adsb_track_table(adsb: pd.DataFrame) -> AdsbTrackTable:
+    """The ADS-B table as an :class:`AdsbTrackTable`."""
     target = adsb["target_id"]
     valid = (target.notna() & (target.astype(str) != "")).to_numpy(dtype=bool)
     valid = valid & np.isfinite(adsb["alt_m"].to_numpy(float))  # no geometric height: not used
@@ -390,6 +383,9 @@ def align_adsb(
     radar_id: str,
     max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
     time_offset_s: float = 0.0,
+    *,
+    plots: PlotArrays | None = None,
+    tracks: AdsbTrackTable | None = None,
 ) -> AdsbAlignment:
     """Associate one radar's plots with ADS-B and interpolate ADS-B to the plot times.
 
@@ -405,41 +401,40 @@ def align_adsb(
         The radar's time-stamping bias [s]: ADS-B is interpolated at the true plot
         times ``time_s - time_offset_s``.
 
+    plots, tracks : optional
+        The radar's :func:`plot_arrays` and the :func:`adsb_track_table`, when the
+        caller keeps them (:class:`graphcal.model.problem.Problem` does, and keeps
+        each radar's alignment at zero time offset).
+
     Returns
     -------
     AdsbAlignment
-        At zero time offset shared within a calibration (:mod:`graphcal.data.memo`:
-        the initial values, the first factors and the bound align there): read-only.
     """
     if dataset.adsb is None:
         raise ValueError("the dataset has no ADS-B table")
-    if time_offset_s != 0.0:
-        return _align_adsb(dataset, radar_id, max_gap_s, time_offset_s)
-    return remember(("align_adsb", radar_id, float(max_gap_s)),
-                    (dataset.plots, dataset.adsb, dataset.sites[radar_id]),
-                    lambda: _align_adsb(dataset, radar_id, max_gap_s, 0.0))
+    plots = plot_arrays(dataset, radar_id) if plots is None else plots
+    tracks = adsb_track_table(dataset.adsb) if tracks is None else tracks
+    return _align_adsb(dataset, radar_id, max_gap_s, time_offset_s, plots, tracks)
 
 
 def align_adsb_thinned(
+    full: AdsbAlignment,
     dataset: Dataset,
-    thinned: Dataset,
     keep: NDArray[np.bool_],
-    radar_id: str,
-    max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S,
+    radar_plots: PlotArrays,
 ) -> AdsbAlignment:
-    """``thinned``'s zero-offset alignment of ``radar_id``, cut out of ``dataset``'s.
+    """The zero-offset alignment of ``dataset`` thinned to the plot rows ``keep``, cut out
+    of ``full``, ``dataset``'s alignment of the same radar.
 
-    ``thinned`` is ``dataset`` with the plot rows ``keep`` only (renumbered from 0,
-    the same ADS-B table and sites).  A plot's alignment depends only on its own
+    The thinned dataset is ``dataset`` with the plot rows ``keep`` only (renumbered from
+    0, the same ADS-B table and sites).  A plot's alignment depends only on its own
     time and aircraft and on the ADS-B, so the thinned alignment is the full one's
-    rows of the kept plots: this gives the same arrays as :func:`align_adsb` on
-    ``thinned``, without bracketing and converting the plots again.  ``dataset``'s
-    alignment is computed if it is not already shared; the result is shared for
-    ``thinned`` (:mod:`graphcal.data.memo`).
+    rows of the kept plots: this gives the same arrays as :func:`align_adsb` on the
+    thinned dataset, without bracketing and converting the plots again.
+    ``radar_plots``: the radar's :func:`plot_arrays` in ``dataset``.
     """
-    if thinned.adsb is not dataset.adsb:
-        raise ValueError("the thinned dataset must share the ADS-B table of the full one")
-    full = align_adsb(dataset, radar_id, max_gap_s)
+    if full.time_offset_s != 0.0:
+        raise ValueError("a thinned alignment is cut from one at zero time offset")
     new_row = np.cumsum(keep) - 1  # a kept row's number in the thinned table
     labels = dataset.plots.index
 
@@ -449,36 +444,30 @@ def align_adsb_thinned(
             return index
         return labels.get_indexer(index)
 
-    def cut() -> AdsbAlignment:
-        rows = position(full.plots.index)
-        mine = keep[rows]
-        plots = full.plots.subset(mine)
-        plots.index = new_row[rows[mine]]
-        optional = {
-            name: None if (value := getattr(full, name)) is None else value[mine]
-            for name in ("reference_velocity_ecef_m_s", "reference_polar_jacobian",
-                         "target_code")
-        }
-        radar_plots = int(np.count_nonzero(keep[position(plot_arrays(dataset, radar_id).index)]))
-        return AdsbAlignment(
-            radar_id, plots, full.reference_ecef_m[mine], full.reference_polar[mine],
-            full.reference_enu_cov_m2[mine], radar_plots - len(plots),
-            time_offset_s=0.0, **optional,
-        )
-
-    return remember(("align_adsb", radar_id, float(max_gap_s)),
-                    (thinned.plots, thinned.adsb, thinned.sites[radar_id]), cut)
+    rows = position(full.plots.index)
+    mine = keep[rows]
+    plots = full.plots.subset(mine)
+    plots.index = new_row[rows[mine]]
+    optional = {
+        name: None if (value := getattr(full, name)) is None else value[mine]
+        for name in ("reference_velocity_ecef_m_s", "reference_polar_jacobian",
+                     "target_code")
+    }
+    n_radar_plots = int(np.count_nonzero(keep[position(radar_plots.index)]))
+    return AdsbAlignment(
+        full.radar_id, plots, full.reference_ecef_m[mine], full.reference_polar[mine],
+        full.reference_enu_cov_m2[mine], n_radar_plots - len(plots),
+        time_offset_s=0.0, **optional,
+    )
 
 
 def _align_adsb(
-    dataset: Dataset, radar_id: str, max_gap_s: float, time_offset_s: float
+    dataset: Dataset, radar_id: str, max_gap_s: float, time_offset_s: float,
+    plots: PlotArrays, tracks: AdsbTrackTable,
 ) -> AdsbAlignment:
     site = dataset.sites[radar_id]
-    plots = plot_arrays(dataset, radar_id)
-    tracks = adsb_track_table(dataset.adsb)
     n = len(plots)
-    code = remember(("adsb_codes", radar_id), (dataset.plots, dataset.adsb),
-                    lambda: tracks.codes(plots.target_id))
+    code = tracks.codes(plots.target_id)
     j, w, matched = tracks.bracket(code, plots.time_s - time_offset_s, max_gap_s)
     j, w = j[matched], w[matched]
     lo, hi = tracks.start[code[matched]], tracks.start[code[matched] + 1]
@@ -608,6 +597,7 @@ def pair_plots(
     radar_b: str,
     max_gap_s: float | None = None,
     shift_s: float = 0.0,
+    plots: Mapping[str, PlotArrays] | None = None,
 ) -> PlotPairs:
     """Match radar ``b``'s plots to radar ``a``'s plots of the same target and time.
 
@@ -615,12 +605,13 @@ def pair_plots(
     track of radar ``a`` are ordered by time; ``a_index0`` indexes that order.
     ``shift_s`` is added to ``b``'s times before they are looked up in ``a``'s
     track: with time-stamping biases it is ``time_offset_a - time_offset_b``,
-    so that both plots of a pair refer to the same true time.
+    so that both plots of a pair refer to the same true time.  ``plots``: the radars'
+    :func:`plot_arrays`, when the caller keeps them.
     """
     if max_gap_s is None:
         max_gap_s = pair_max_gap_s(dataset.sites[radar_a])
-    a = plot_arrays(dataset, radar_a)
-    b = plot_arrays(dataset, radar_b)
+    a = plots[radar_a] if plots is not None else plot_arrays(dataset, radar_a)
+    b = plots[radar_b] if plots is not None else plot_arrays(dataset, radar_b)
     # Sort a by (target, time) so that each target's plots are contiguous.
     a_targets = a.target_id.astype(str)
     # By aircraft (codes in sorted order, the order of the text) then time.

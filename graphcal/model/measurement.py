@@ -30,7 +30,6 @@ from graphcal.data.align import AdsbAlignment
 from graphcal.data.bias import RadarBias, apply_bias, correct_bias, measurement_bias_jacobian
 from graphcal.data.calibration import ResidualStats
 from graphcal.data.dataset import Site
-from graphcal.data.memo import remember
 
 FloatArray = NDArray[np.float64]
 
@@ -191,14 +190,13 @@ def reference_polar_covariance(al: AdsbAlignment, site: Site | None = None) -> F
 
     ``J C J^T`` with ``J = d polar / d enu`` at the reference (paper 002's
     first-order conversion, eq. 17-19); along refracted rays when ``site`` has
-    an atmosphere.  Shared within a calibration (:mod:`graphcal.data.memo`: the
-    initial values, the factors and the residual statistics use it): read-only.
+    an atmosphere.  Computed once per alignment (kept in ``al.derived``): read-only.
     """
-    if site is not None and site.atmosphere is not None:
-        return remember(("reference_polar_covariance",), (al, site),
-                        lambda: _reference_polar_covariance(al, site))
-    return remember(("reference_polar_covariance",), (al,),
-                    lambda: _reference_polar_covariance(al, None))
+    refracted = site is not None and site.atmosphere is not None
+    key = "reference_polar_covariance" + (" refracted" if refracted else "")
+    if key not in al.derived:
+        al.derived[key] = _reference_polar_covariance(al, site if refracted else None)
+    return al.derived[key]
 
 
 def _reference_polar_covariance(al: AdsbAlignment, site: Site | None) -> FloatArray:

@@ -1,188 +1,185 @@
-"""One calibration problem: its variables and its observation blocks.
+"""One calibration problem: the hand-off from the data to every solver and analysis.
 
-:class:`Problem` holds, per radar, the free terms
-(:class:`~graphcal.model.parameters.RadarTerms`) and the key of its bias
-variable, and the observation blocks that :func:`build_factors` builds from a
-dataset: one vectorised ADS-B factor per radar (plots against the ADS-B
-position of their aircraft) and one pairwise factor per radar pair (paper
-001's differences of converted positions).  With pressure altitudes
-(``height_key`` set) it also holds the height-model variable: the pairs with a
-2-D radar depend on it, and the ADS-B reports with both heights measure it
-(:mod:`graphcal.model.height`).  The graph solver optimises it; the
-observability analysis and the selection read its information.
+:func:`build_problem` takes a dataset and the estimators' options
+(:class:`~graphcal.core.solve_options.SolveOptions`) and returns a :class:`Problem`: the
+dataset, the options and what every stage derives from them, each computed once, on
+first use, by the problem itself:
+
+- every radar's plots as SI arrays in time order (:meth:`Problem.plots`);
+- the ADS-B reports grouped by aircraft (:attr:`Problem.adsb_tracks`);
+- every radar's plots aligned with ADS-B at zero time offset
+  (:meth:`Problem.alignment`; at another time offset computed afresh);
+- one measurement model per radar, with the Jacobian of every bias term
+  (:meth:`Problem.measurement_model`,
+  :meth:`~graphcal.model.measurement.RadarMeasurementModel.measure`).
+
+The solvers (``solve(problem)``, :func:`graphcal.solvers.registry.solve`) and the
+analyses (the bound, the model checks, the fit verdict) all take the problem, so the
+initial values, the factors, the bound and the checks of one calibration share these
+arrays by holding the same problem, not through a cache keyed by object identity.
+
+A problem is immutable: its dataset, options and derived arrays do not change once
+built, and a derived array handed out is read-only.  The problem does not copy the
+dataset's tables: do not modify them while the problem is in use.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
-from graphcal.core import frames
+from graphcal.core.solve_options import SolveOptions
 from graphcal.data.align import (
     AdsbAlignment,
+    AdsbTrackTable,
+    PlotArrays,
+    PlotTable,
     adsb_track_table,
     align_adsb,
-    overlapping_pairs,
-    pair_plots,
+    align_adsb_thinned,
     plot_arrays,
+    plot_table,
 )
 from graphcal.data.dataset import Dataset, Site
-from graphcal.model.cross_radar import RayExcessCache
-from graphcal.model.factors import (
-    AdsbFactor,
-    PairwiseFactor,
-    adsb_factor,
-    pairwise_factor,
-    share_corrections,
-)
-from graphcal.model.height import AdsbHeightFactor, adsb_height_factor
-from graphcal.model.measurement import measurement_model, reference_polar_covariance
-from graphcal.model.parameters import RadarTerms
-from graphcal.model.robust import RobustKernel
+from graphcal.model.measurement import RadarMeasurementModel, measurement_model
 
-FloatArray = NDArray[np.float64]
-Progress = Callable[..., None]
-
-#: Cross-radar formulations.
-CROSS_MODES: tuple[str, ...] = ("trajectory", "pairwise", "target-state", "none")
-#: Fastest plausible aircraft ground speed [m/s]; a faster ADS-B segment holds an outlier.
-ADSB_MAX_SPEED_M_S = 600.0
+T = TypeVar("T")
 
 
-@dataclass
+@dataclass(frozen=True, eq=False)
 class Problem:
-    """Factors and variables of one calibration."""
+    """A dataset and the estimators' options, with the arrays every stage derives from them.
 
-    terms: dict[str, RadarTerms]
-    keys: dict[str, int]
-    adsb: dict[str, AdsbFactor] = field(default_factory=dict)
-    alignments: dict[str, AdsbAlignment] = field(default_factory=dict)
-    pairs: list[PairwiseFactor] = field(default_factory=list)
-    target_state: Any = None
-    height_key: int | None = None
-    height: AdsbHeightFactor | None = None
-    rays: dict[str, RayExcessCache] = field(default_factory=dict)
-
-    def variable_radars(self) -> list[str]:
-        """Radars with at least one factor and one free term, in dataset order."""
-        seen = set(self.adsb)
-        for f in self.pairs:
-            seen.update([f.terms_a.radar_id, f.terms_b.radar_id])
-        if self.target_state is not None:
-            seen.update(self.target_state.radars_seen)
-        return [rid for rid in self.terms if rid in seen and self.terms[rid].free]
-
-
-def without_plots(dataset: Dataset, exclude_rows: NDArray[np.int64]) -> Dataset:
-    """``dataset`` without the plot rows ``exclude_rows``."""
-    if len(exclude_rows) == 0:
-        return dataset
-    plots = dataset.plots.drop(index=exclude_rows)
-    return Dataset(dataset.sites, plots, dataset.adsb, dataset.path,
-                   plot_altitude=dataset.plot_altitude)
-
-
-def polar_rate(site: Site, al: AdsbAlignment) -> FloatArray:
-    """Time derivative of the aligned ADS-B reference in the radar's polar frame ``(n, 3)``.
-
-    A bracketing ADS-B segment faster than :data:`ADSB_MAX_SPEED_M_S` holds an
-    outlier report; its plots get a zero rate (they do not inform the time offset),
-    so that the outlier cannot lever the time offset through its Jacobian.
+    Build it with :func:`build_problem`.  Attributes are read-only; the derived arrays
+    are computed on first use and kept (:meth:`plots`, :meth:`alignment`, ...).
     """
-    enu = site.enu_from_ecef(al.reference_ecef_m)
-    velocity = al.reference_velocity_ecef_m_s
-    plausible = frames.row_norm(velocity) <= ADSB_MAX_SPEED_M_S
-    velocity_enu = frames.rotate(np.where(plausible[:, None], velocity, 0.0), site.ecef_to_enu)
-    jac = al.reference_polar_jacobian
-    if site.atmosphere is None:
-        jac = frames.enu_to_polar_jacobian(enu)  # measurement_model(site).enu_jacobian's
-    elif jac is None:
-        _, jac = measurement_model(site).enu_jacobian(enu)
-    return np.einsum("nij,nj->ni", jac, velocity_enu)
+
+    dataset: Dataset
+    options: SolveOptions = field(default_factory=SolveOptions)
+    _derived: dict[tuple, Any] = field(default_factory=dict, init=False, repr=False)
+
+    # ------------------------------------------------------------ the data
+    @property
+    def sites(self) -> dict[str, Site]:
+        return self.dataset.sites
+
+    @property
+    def radar_ids(self) -> list[str]:
+        return list(self.dataset.radar_ids)
+
+    @property
+    def has_adsb(self) -> bool:
+        """ADS-B is used: the options allow it and the dataset has reports."""
+        adsb = self.dataset.adsb
+        return bool(self.options.use_adsb and adsb is not None and len(adsb) > 0)
+
+    def _once(self, key: tuple, compute: Callable[[], T]) -> T:
+        if key not in self._derived:
+            self._derived[key] = compute()
+        return self._derived[key]
+
+    # ------------------------------------------------------------ derived arrays
+    @property
+    def plot_table(self) -> PlotTable:
+        """The plots table as SI arrays, grouped by radar
+        (:func:`~graphcal.data.align.plot_table`)."""
+        return self._once(("plot_table",), lambda: plot_table(self.dataset.plots))
+
+    def plots(self, radar_id: str) -> PlotArrays:
+        """``radar_id``'s plots in time order, as SI arrays (read-only)."""
+        return self._once(("plots", radar_id),
+                          lambda: plot_arrays(self.dataset, radar_id, self.plot_table))
+
+    @property
+    def all_plots(self) -> dict[str, PlotArrays]:
+        """Every radar's :meth:`plots`."""
+        return {rid: self.plots(rid) for rid in self.radar_ids}
+
+    @property
+    def adsb_tracks(self) -> AdsbTrackTable:
+        """The ADS-B reports grouped by aircraft, in time order."""
+        if self.dataset.adsb is None:
+            raise ValueError("the dataset has no ADS-B table")
+        return self._once(("adsb_tracks",), lambda: adsb_track_table(self.dataset.adsb))
+
+    def alignment(self, radar_id: str, max_gap_s: float | None = None,
+                  time_offset_s: float = 0.0) -> AdsbAlignment:
+        """``radar_id``'s plots aligned with ADS-B (:func:`~graphcal.data.align.align_adsb`).
+
+        ``max_gap_s`` defaults to the options' ADS-B gap.  At zero time offset the
+        alignment is computed once and shared by every stage (read-only); at another
+        time offset it is computed afresh.
+        """
+        gap = self.options.adsb_max_gap_s if max_gap_s is None else float(max_gap_s)
+
+        def compute() -> AdsbAlignment:
+            return align_adsb(self.dataset, radar_id, gap, time_offset_s,
+                              plots=self.plots(radar_id), tracks=self.adsb_tracks)
+
+        if time_offset_s != 0.0:
+            return compute()
+        return self._once(("alignment", radar_id, gap), compute)
+
+    def measurement_model(self, radar_id: str) -> RadarMeasurementModel:
+        """``radar_id``'s measurement model (the Jacobian of every bias term)."""
+        return self._once(("model", radar_id), lambda: measurement_model(self.sites[radar_id]))
+
+    # ------------------------------------------------------------ other problems
+    def with_options(self, **changes: Any) -> Problem:
+        """The same data with other options; the derived arrays that do not depend on
+        the options (plots, ADS-B tracks, alignments by gap) are shared."""
+        other = Problem(self.dataset, self.options.replace(**changes))
+        other._derived.update(self._derived)
+        return other
+
+    def with_dataset(self, dataset: Dataset) -> Problem:
+        """Another dataset with the same options (nothing derived is shared)."""
+        return Problem(dataset, self.options)
+
+    def thinned(self, keep: NDArray[np.bool_]) -> Problem:
+        """The problem of the plot rows ``keep`` only (rows renumbered from 0, the same
+        ADS-B and sites), its zero-offset alignments cut from this problem's
+        (:func:`~graphcal.data.align.align_adsb_thinned`: the same arrays, without
+        aligning again)."""
+        keep = np.asarray(keep, dtype=bool)
+        plots = self.dataset.plots[keep].reset_index(drop=True)
+        thinned = Problem(dataclasses.replace(self.dataset, plots=plots), self.options)
+        if self.dataset.adsb is not None:
+            thinned._derived[("adsb_tracks",)] = self.adsb_tracks
+        for key, value in list(self._derived.items()):
+            if key[0] == "alignment":
+                rid = key[1]
+                thinned._derived[key] = align_adsb_thinned(
+                    value, self.dataset, keep, self.plots(rid))
+        return thinned
 
 
-def build_factors(
-    dataset: Dataset,
-    problem: Problem,
-    use_adsb: bool,
-    cross: str,
-    kernel: RobustKernel,
-    adsb_max_gap_s: float,
-    pair_max_gap_s: float | None,
-    progress: Progress | None,
-    tau0: dict[str, float] | None = None,
-) -> None:
-    """ADS-B and pairwise factors, aligned at the time offsets ``tau0`` [s] (default 0)."""
-    radar_ids = list(dataset.radar_ids)
-    tau0 = {rid: (tau0 or {}).get(rid, 0.0) for rid in radar_ids}
-    problem.adsb.clear()
-    problem.alignments.clear()
-    problem.pairs.clear()
-    problem.height = None
-    if use_adsb and problem.height_key is not None:
-        problem.height = adsb_height_factor(dataset.adsb, problem.height_key, kernel)
-    matched: list[NDArray[np.int64]] = []
-    if use_adsb:
-        for i, rid in enumerate(radar_ids):
-            al = align_adsb(dataset, rid, adsb_max_gap_s, time_offset_s=tau0[rid])
-            if progress is not None:
-                progress("ADS-B association", i + 1, len(radar_ids))
-            if len(al) == 0:
-                continue
-            problem.alignments[rid] = al
-            site = dataset.sites[rid]
-            rate = polar_rate(site, al) if "time_offset" in problem.terms[rid].free else None
-            problem.adsb[rid] = adsb_factor(
-                site, problem.terms[rid], problem.keys[rid], al.plots,
-                al.reference_polar, reference_polar_covariance(al, site), kernel, rate, tau0[rid],
-            )
-            matched.append(al.plots.index)
-    if cross != "pairwise":
-        return
-    rest = without_plots(dataset, np.concatenate(matched) if matched else np.zeros(0, np.int64))
-    _share_rays(rest, problem)
-    todo = overlapping_pairs(rest, radar_ids)
-    for n, (ra, rb) in enumerate(todo):
-        pairs = pair_plots(rest, ra, rb, pair_max_gap_s, shift_s=tau0[ra] - tau0[rb])
-        if progress is not None:
-            progress("cross-radar pairs", n + 1, len(todo))
-        if len(pairs) == 0:
-            continue
-        both_3d = dataset.sites[ra].is_3d and dataset.sites[rb].is_3d
-        factor = pairwise_factor(
-            dataset.sites[ra], dataset.sites[rb], problem.terms[ra], problem.terms[rb],
-            problem.keys[ra], problem.keys[rb], pairs.a_plots, pairs.b_plots,
-            pairs.a_index0, pairs.weight, pairs.b_index, kernel, tau0[ra], tau0[rb],
-            None if both_3d else problem.height_key, problem.rays.get(ra), problem.rays.get(rb),
-            pairs.a_index2, pairs.quadratic_weights,
-        )
-        if factor is not None:
-            problem.pairs.append(factor)
-    share_corrections(problem.pairs)
+def build_problem(dataset: Dataset, options: SolveOptions | None = None, **changes: Any
+                  ) -> Problem:
+    """The :class:`Problem` of ``dataset`` with ``options`` (default: the command line's),
+    changed by ``changes`` (fields of :class:`~graphcal.core.solve_options.SolveOptions`).
+
+    Nothing is computed yet: each derived array is computed when a stage first asks for
+    it, and kept.
+    """
+    options = SolveOptions() if options is None else options
+    if changes:
+        options = options.replace(**changes)
+    return Problem(dataset, options)
 
 
-def _share_rays(rest: Dataset, problem: Problem) -> None:
-    """One :class:`RayExcessCache` per refracting radar over the plots left for pairs,
-    kept from an earlier build when it still holds them all."""
-    for rid, site in rest.sites.items():
-        if site.atmosphere is None:
-            continue
-        plots = plot_arrays(rest, rid)
-        old = problem.rays.get(rid)
-        if old is None or len(old.plots) != len(plots) or not old.covers(plots):
-            problem.rays[rid] = RayExcessCache(site, plots)
+def as_problem(data: Dataset | Problem, options: SolveOptions | None = None) -> Problem:
+    """``data`` as a :class:`Problem`: a problem as it is, a dataset as a new problem
+    with ``options`` (the estimators' own keyword arguments still choose how they solve
+    it)."""
+    if isinstance(data, Problem):
+        return data
+    return build_problem(data, options)
 
 
-def radars_with_adsb(dataset: Dataset) -> set[str]:
-    """Radars with at least one plot whose ``target_id`` has ADS-B reports."""
-    if dataset.adsb is None or len(dataset.adsb) == 0:
-        return set()
-    targets = adsb_track_table(dataset.adsb).targets
-    plots = dataset.plots
-    seen = plots["radar_id"][plots["target_id"].astype(str).isin(targets)]
-    return {str(rid) for rid in pd.unique(seen)}
+__all__ = ["Problem", "as_problem", "build_problem"]

@@ -34,7 +34,7 @@ robust kernel.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -42,7 +42,13 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
-from graphcal.data.align import ADSB_VERTICAL_SIGMA_RATIO, adsb_track_table, plot_arrays
+from graphcal.data.align import (
+    ADSB_VERTICAL_SIGMA_RATIO,
+    AdsbTrackTable,
+    PlotArrays,
+    adsb_track_table,
+    plot_arrays,
+)
 from graphcal.data.bias import correct_bias
 from graphcal.data.dataset import Dataset, Site
 from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, MAX_2D_ELEVATION_RAD
@@ -681,28 +687,34 @@ def build_trajectory_block(
     height_key: int | None = None,
     spacing_s: float = KNOT_SPACING_S,
     progress: Progress | None = None,
+    plots: Mapping[str, PlotArrays] | None = None,
+    tracks: AdsbTrackTable | None = None,
 ) -> TrajectoryBlock | None:
     """The paths of every aircraft that links two radars or a radar and ADS-B, fitted at
     the initial biases, their process noise estimated; ``None`` when there is none.
 
     ``initial_biases``: each radar's free values to start from.  ``variable_radars``:
     the radars whose free terms are variables (others enter with their fixed terms).
+    ``plots`` and ``tracks``: every radar's plots as arrays and the ADS-B tracks, when the
+    caller keeps them (:class:`graphcal.model.problem.Problem`).
     """
+    if plots is None:
+        plots = {rid: plot_arrays(dataset, rid) for rid in dataset.radar_ids}
     sites = dataset.sites
     frame = NetworkFrame.of(list(sites.values()))
     pieces = []
     for rid in sorted(dataset.radar_ids):  # the radars' order does not matter
-        plots = plot_arrays(dataset, rid)
-        target = np.asarray(plots.target_id, dtype=object)
+        mine = plots[rid]
+        target = np.asarray(mine.target_id, dtype=object)
         named = pd.notna(target) & (pd.Series(target).astype(str).str.strip() != "").to_numpy()
-        usable = named & np.isfinite(plots.range_m) & np.isfinite(plots.azimuth_rad)
+        usable = named & np.isfinite(mine.range_m) & np.isfinite(mine.azimuth_rad)
         if sites[rid].is_3d:
-            usable &= np.isfinite(plots.elevation_rad)
+            usable &= np.isfinite(mine.elevation_rad)
         if not np.any(usable):
             continue
         pieces.append(pd.DataFrame({
             "radar": rid, "k": np.flatnonzero(usable), "target": target[usable].astype(str),
-            "time": plots.time_s[usable]}))
+            "time": mine.time_s[usable]}))
     if not pieces:
         return None
     table = pd.concat(pieces, ignore_index=True).sort_values(["target", "time"], kind="stable")
@@ -719,9 +731,8 @@ def build_trajectory_block(
     # ADS-B on the paths.
     adsb_path = np.zeros(0, dtype=np.int64)
     adsb_rows = np.zeros(0, dtype=np.int64)
-    tracks = None
     if use_adsb and dataset.adsb is not None and len(dataset.adsb):
-        tracks = adsb_track_table(dataset.adsb)
+        tracks = adsb_track_table(dataset.adsb) if tracks is None else tracks
         code_of_path = tracks.codes(path_target.astype(object))
         rows, paths = [], []
         for p in np.flatnonzero(code_of_path >= 0):
@@ -756,24 +767,24 @@ def build_trajectory_block(
     radars: list[RadarOnPaths] = []
     for rid, part in table.groupby("radar", sort=True):
         site = sites[str(rid)]
-        plots = plot_arrays(dataset, str(rid))
+        mine = plots[str(rid)]
         # In an order set by the values (path, time, range, azimuth), not by the rows:
         # the same plots in another file order give the same sums, bit for bit.
         k = part["k"].to_numpy()
         path_of = part["path"].to_numpy()
-        order = np.lexsort((plots.azimuth_rad[k], plots.range_m[k], plots.time_s[k], path_of))
+        order = np.lexsort((mine.azimuth_rad[k], mine.range_m[k], mine.time_s[k], path_of))
         part = part.iloc[order]
         k = k[order]
         a, c = frame.radar_map(site)
-        measured = np.stack([plots.range_m[k], plots.azimuth_rad[k],
-                             plots.elevation_rad[k] if site.is_3d else np.full(len(k), np.nan)],
+        measured = np.stack([mine.range_m[k], mine.azimuth_rad[k],
+                             mine.elevation_rad[k] if site.is_3d else np.full(len(k), np.nan)],
                             axis=-1)
         altitude = np.full(len(k), np.nan)
         if not site.is_3d:
-            altitude = plots.altitude_m[k].astype(float)
-        radars.append(RadarOnPaths(str(rid), site, terms[str(rid)], plots.index[k],
+            altitude = mine.altitude_m[k].astype(float)
+        radars.append(RadarOnPaths(str(rid), site, terms[str(rid)], mine.index[k],
                                    part["path"].to_numpy().astype(np.int64),
-                                   plots.time_s[k], measured, altitude, a, c))
+                                   mine.time_s[k], measured, altitude, a, c))
     # Variables: the variable radars seen, in the dataset's order (GTSAM keys), then the
     # height model when 2-D plots carry pressure altitudes.
     seen = {r.radar_id for r in radars}

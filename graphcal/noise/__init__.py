@@ -266,7 +266,8 @@ def filled_with_notes(dataset: Dataset) -> tuple[Dataset, dict[str, Any] | None,
 
 
 def fills_missing_sigmas(estimator: Callable[..., Calibration]) -> Callable[..., Calibration]:
-    """Decorate an estimator ``f(dataset, **options)`` to fill missing site sigmas first.
+    """Decorate an estimator ``f(dataset or problem, **options)`` to fill missing site
+    sigmas first.
 
     The sigmas ``sites.toml`` leaves out are estimated by :func:`fill_missing_sigmas`
     (ADS-B where there is enough, else straight-leg line fits); the result then
@@ -275,9 +276,14 @@ def fills_missing_sigmas(estimator: Callable[..., Calibration]) -> Callable[...,
     """
 
     @functools.wraps(estimator)
-    def run(dataset: Dataset, *args: Any, **options: Any) -> Calibration:
-        dataset, info, warnings = filled_with_notes(dataset)
-        cal = estimator(dataset, *args, **options)
+    def run(data: Any, *args: Any, **options: Any) -> Calibration:
+        # ``data``: a Dataset, or a calibration problem (graphcal.model.problem, a layer
+        # above) holding one, which is given the filled dataset when a sigma is filled.
+        dataset = getattr(data, "dataset", data)
+        filled, info, warnings = filled_with_notes(dataset)
+        if info is not None:
+            data = data.with_dataset(filled) if data is not dataset else filled
+        cal = estimator(data, *args, **options)
         if info is not None:
             cal.info["estimated_sigmas"] = info
             cal.warnings.extend(warnings)

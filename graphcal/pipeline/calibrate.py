@@ -28,10 +28,10 @@ from graphcal.core.solve_options import SolveOptions, method_defaults, option_me
 from graphcal.data.bias import CONTRACT_KEYS, NAME_FROM_KEY, from_contract_units
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
-from graphcal.data.memo import shared
 from graphcal.io.folder import SITES_FILE, load_dataset, load_sites
+from graphcal.model.problem import Problem, build_problem
 from graphcal.noise import filled_with_notes
-from graphcal.solvers.registry import METHODS, get_estimator
+from graphcal.solvers.registry import METHODS, get_estimator, solve
 
 Progress = Callable[..., None]
 
@@ -102,7 +102,6 @@ def solve_options(method: str, given: Mapping[str, Any], sites: Mapping[str, Any
     return SolveOptions(**values)
 
 
-@shared
 def calibrate(
     dataset: Dataset | str | os.PathLike[str],
     method: str = "graph",
@@ -248,7 +247,7 @@ def calibrate(
             dataset = load_dataset(dataset, clean=clean, force=force)
     if folder is None:
         sites = dataset.sites
-    estimator = get_estimator(method)
+    get_estimator(method)  # an unknown method is refused before any data is read
     given = {
         "cross": cross, "robust": robust, "robust_scale": robust_scale, "use_adsb": use_adsb,
         "init": init, "fixed": fixed or None, "max_iterations": max_iterations,
@@ -297,7 +296,10 @@ def calibrate(
         # elimination of the paths) only when it is reported.
         extra["bound"] = bool(bound is None or bound)
     dataset, sigma_info, sigma_warnings = filled_with_notes(dataset)
-    cal = estimator(dataset, **options.for_method(method), **extra)
+    # One problem for the estimate, its bound, its checks and its verdict: the plots'
+    # arrays and their alignments with ADS-B are made once.
+    problem = build_problem(dataset, options)
+    cal = solve(problem, method, **extra)
     if sigma_info is not None:
         cal.info["estimated_sigmas"] = sigma_info
         cal.warnings.extend(sigma_warnings)
@@ -313,7 +315,7 @@ def calibrate(
         if progress is not None:
             progress("Cramér-Rao bound", 0, 1)
         have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb) > 0)
-        cal.info.update(bound_info(cal, dataset, use_adsb=have_adsb,
+        cal.info.update(bound_info(problem, cal, use_adsb=have_adsb,
                                    cross=cross != "none" or method != "graph",
                                    max_gap_s=options.max_gap_s))
         timing = cal.info.setdefault("timing_s", {})
@@ -323,14 +325,14 @@ def calibrate(
     if model_checks and cal.radar_ids and not _impossible(cal, dataset):
         if progress is not None:
             progress("model checks", 0, 1)
-        checks = _check_model(cal, dataset, use_adsb=use_adsb,
+        checks = _check_model(problem, cal, use_adsb=use_adsb,
                               max_gap_s=options.max_gap_s)
         timing = cal.info.setdefault("timing_s", {})
         timing["model_checks_s"] = cal.info["model_checks"]["seconds"]
         timing["total_s"] = time.perf_counter() - start
     _warn_shared_time_offset(cal, dataset.sites)
     if cal.radar_ids:
-        _judge_fit(cal, dataset, checks, use_adsb=use_adsb, max_gap_s=options.max_gap_s,
+        _judge_fit(problem, cal, checks, use_adsb=use_adsb, max_gap_s=options.max_gap_s,
                    raise_on_failure=check_fit)
     return cal
 
@@ -353,12 +355,12 @@ def _impossible(cal: Calibration, dataset: Dataset) -> bool:
     return any(negative_ranges(dataset, cal).values())
 
 
-def _judge_fit(cal: Calibration, dataset: Dataset, checks: Any, *, use_adsb: bool,
+def _judge_fit(problem: Problem, cal: Calibration, checks: Any, *, use_adsb: bool,
                max_gap_s: float | None, raise_on_failure: bool) -> None:
     """Record the fit verdict in ``info["fit_verdict"]``; raise when it failed and asked to."""
     from graphcal.analysis.fit_verdict import ModelMisfitError, fit_verdict
 
-    verdict = fit_verdict(dataset, cal, checks=checks, use_adsb=use_adsb,
+    verdict = fit_verdict(problem, cal, checks=checks, use_adsb=use_adsb,
                           adsb_max_gap_s=max_gap_s)
     cal.info["fit_verdict"] = verdict.to_dict()
     if not verdict.passed:
@@ -458,7 +460,7 @@ def _calibrate_windows(dataset: Dataset | str | os.PathLike[str], method: str,
     return cal
 
 
-def _check_model(cal: Calibration, dataset: Dataset, *, use_adsb: bool,
+def _check_model(problem: Problem, cal: Calibration, *, use_adsb: bool,
                  max_gap_s: float | None) -> Any:
     """Run the model checks on the data the estimator used; record them and their warnings.
 
@@ -466,7 +468,7 @@ def _check_model(cal: Calibration, dataset: Dataset, *, use_adsb: bool,
     """
     from graphcal.analysis.model_checks import model_checks
 
-    checks = model_checks(dataset, cal, use_adsb=use_adsb, adsb_max_gap_s=max_gap_s)
+    checks = model_checks(problem, cal, use_adsb=use_adsb, adsb_max_gap_s=max_gap_s)
     cal.info["model_checks"] = checks.to_dict()
     cal.warnings.extend(checks.warnings())
     return checks
@@ -481,8 +483,8 @@ def _poorly_excited(labels: list[tuple[str, str]], data_information: np.ndarray)
 
 
 def bound_info(
+    data: Dataset | Problem,
     cal: Calibration,
-    dataset: Dataset,
     *,
     use_adsb: bool,
     cross: bool,
@@ -509,7 +511,7 @@ def bound_info(
         options["max_gap_s"] = max_gap_s
     if cal.atmosphere is not None:
         options["height_model"] = cal.atmosphere.model
-    result = crlb(dataset, **options)
+    result = crlb(data, **options)
     sigma, efficiency = {}, {}
     for i, (rid, name) in enumerate(cal.labels):
         key, scale = CONTRACT_KEYS[name]

@@ -49,11 +49,10 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.batched import sum_of_products
 from graphcal.core.errors import EstimationError
-from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, AdsbAlignment, align_adsb
+from graphcal.data.align import AdsbAlignment
 from graphcal.data.bias import PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
-from graphcal.data.memo import shared
 from graphcal.model.information import (
     describe_weak_directions,
     observability,
@@ -66,6 +65,7 @@ from graphcal.model.measurement import (
     residual_stats,
 )
 from graphcal.model.parameters import ParameterLayout
+from graphcal.model.problem import Problem, as_problem
 from graphcal.noise import fills_missing_sigmas
 
 #: Plots per FL window.
@@ -93,13 +93,13 @@ def _plane_reference(site: Site, al: AdsbAlignment) -> tuple[FloatArray, FloatAr
     return frames.polar_to_enu_and_jacobian(*_plane_polar(site, al.reference_polar).T)
 
 
-def _alignments(dataset: Dataset, max_gap_s: float) -> dict[str, AdsbAlignment]:
-    if dataset.adsb is None:
+def _alignments(problem: Problem, max_gap_s: float) -> dict[str, AdsbAlignment]:
+    if problem.dataset.adsb is None:
         raise EstimationError(
             "this method needs ADS-B reports (adsb.csv|parquet): use 'wls' for "
             "cross-radar calibration without ADS-B"
         )
-    return {rid: align_adsb(dataset, rid, max_gap_s) for rid in dataset.radar_ids}
+    return {rid: problem.alignment(rid, max_gap_s) for rid in problem.radar_ids}
 
 
 # --------------------------------------------------------------------------- LS
@@ -253,12 +253,13 @@ def _skip_warning(rid: str, al: AdsbAlignment, needed: int) -> str:
 
 def _run_ls(
     method: str,
-    dataset: Dataset,
+    problem: Problem,
     max_gap_s: float,
     azimuth_precompensation: Callable[[Site, AdsbAlignment, FloatArray], tuple[float, dict]]
     | None,
 ) -> Calibration:
-    alignments = _alignments(dataset, max_gap_s)
+    dataset = problem.dataset
+    alignments = _alignments(problem, max_gap_s)
     layout = ParameterLayout.for_sites(list(dataset.sites.values()))
     per_radar, warnings, details = {}, [], {}
     for rid, al in alignments.items():
@@ -305,11 +306,16 @@ FL_SIGMA_NOTE = ("formal (paper 003: the window angles' inverse-variance mean, i
                  "gain and the time offset, so its sigma holds only when they are zero")
 
 
-@shared
 @fills_missing_sigmas
-def ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
+def ls(data: Dataset | Problem, *, max_gap_s: float | None = None) -> Calibration:
     """Paper 003 LS (eq. 11-19) against ADS-B, every radar on its own."""
-    return _run_ls("ls", dataset, max_gap_s, None)
+    problem = as_problem(data)
+    return _run_ls("ls", problem, _gap(problem, max_gap_s), None)
+
+
+def _gap(problem: Problem, max_gap_s: float | None) -> float:
+    """The ADS-B gap limit [s]: the one given, else the problem's."""
+    return problem.options.adsb_max_gap_s if max_gap_s is None else float(max_gap_s)
 
 
 # --------------------------------------------------------------------------- FL
@@ -411,11 +417,13 @@ def fl_azimuth(
     return mean, variance, detail
 
 
-@shared
 @fills_missing_sigmas
-def fl(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
+def fl(data: Dataset | Problem, *, max_gap_s: float | None = None) -> Calibration:
     """Paper 003 FL: line-fit azimuth bias, mean range (and elevation) difference."""
-    alignments = _alignments(dataset, max_gap_s)
+    problem = as_problem(data)
+    dataset = problem.dataset
+    max_gap_s = _gap(problem, max_gap_s)
+    alignments = _alignments(problem, max_gap_s)
     allowed = ("range_offset", "azimuth_bias", "elevation_bias")
     layout = ParameterLayout.for_sites(list(dataset.sites.values()), allowed)
     per_radar, warnings, details = {}, [], {}
@@ -468,13 +476,13 @@ def _mean_variance(diff: FloatArray, aircraft: NDArray[np.int64] | None) -> floa
                                                np.sqrt(2.0 / k)) else iid
 
 
-@shared
 @fills_missing_sigmas
-def fl_ls(dataset: Dataset, *, max_gap_s: float = DEFAULT_ADSB_MAX_GAP_S) -> Calibration:
+def fl_ls(data: Dataset | Problem, *, max_gap_s: float | None = None) -> Calibration:
     """Paper 003 FL-LS: FL azimuth compensation (eq. 10, sign corrected), then LS."""
 
     def precompensate(site: Site, al: AdsbAlignment, enu: FloatArray) -> tuple[float, dict]:
         az, _, detail = fl_azimuth(site, al, reference_enu=enu)
         return az, detail
 
-    return _run_ls("fl-ls", dataset, max_gap_s, precompensate)
+    problem = as_problem(data)
+    return _run_ls("fl-ls", problem, _gap(problem, max_gap_s), precompensate)

@@ -38,7 +38,7 @@ factors:
   "not determined" rule of the radar terms.
 
 Every measurement goes through a robust kernel (:mod:`graphcal.model.robust`).
-The problem is solved by Levenberg-Marquardt from the closed-form estimates
+The blocks is solved by Levenberg-Marquardt from the closed-form estimates
 (``fl-ls``/``ls`` with ADS-B, ``wls`` without; zero if they fail), and the
 joint covariance of all biases comes from GTSAM's marginals.
 """
@@ -56,13 +56,13 @@ from numpy.typing import NDArray
 
 from graphcal.core import frames
 from graphcal.core.errors import EstimationError
-from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb, align_adsb_thinned
+from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY, RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.data.height import HEIGHT_MODEL_KEYS, HeightModelEstimate
-from graphcal.data.memo import shared
 from graphcal.model.cross_radar import PlotCovariances, gradient_noise_middle_of_blocks
+from graphcal.model.factor_set import CROSS_MODES, FactorSet, build_factors, radars_with_adsb
 from graphcal.model.factors import AdsbFactor, PairwiseFactor
 from graphcal.model.height import HEIGHT_PRIOR_SIGMA
 from graphcal.model.information import describe_weak_directions, observability
@@ -74,7 +74,7 @@ from graphcal.model.parameters import (
     radar_terms,
     terms_vector,
 )
-from graphcal.model.problem import CROSS_MODES, Problem, build_factors, radars_with_adsb
+from graphcal.model.problem import Problem, as_problem
 from graphcal.model.robust import RobustKernel
 from graphcal.noise import fills_missing_sigmas
 from graphcal.solvers.gtsam_adapter import (
@@ -115,14 +115,14 @@ TIME_OFFSET_MAX_REALIGNMENTS = 5
 # --------------------------------------------------------------------------- set-up
 # --------------------------------------------------------------------------- initial values
 def initial_biases(
-    dataset: Dataset, use_adsb: bool, cross: str, init: str, *, aligned: bool = False
+    data: Dataset | Problem, use_adsb: bool, cross: str, init: str
 ) -> tuple[dict[str, RadarBias], str, list[str]]:
     """Initial biases from the closed-form estimators, or zero.
 
     ``init``: ``auto`` (``fl-ls`` then ``ls`` with ADS-B; ``wls`` without),
-    a method name, or ``zero``.  ``aligned``: the plots are already aligned with
-    ADS-B at the default gap (see :func:`thinned_for_initial_values`).  Returns the
-    biases, the method used and notes on the methods that failed.
+    a method name, or ``zero``.  With ADS-B and ``auto`` the estimators see the
+    problem thinned (:func:`thinned_for_initial_values`).  Returns the biases, the
+    method used and notes on the methods that failed.
     """
     from graphcal.solvers.registry import METHODS
 
@@ -137,11 +137,12 @@ def initial_biases(
             )
         candidates = [init]
     notes = []
+    problem = as_problem(data)
     if use_adsb and init == "auto":
-        dataset = thinned_for_initial_values(dataset, aligned=aligned)
+        problem = thinned_for_initial_values(problem)
     for method in candidates:
         try:
-            cal = METHODS[method](dataset)
+            cal = METHODS[method](problem)
         except (EstimationError, ValueError, np.linalg.LinAlgError) as exc:
             notes.append(f"initialisation by {method} failed ({exc}); trying the next")
             continue
@@ -154,10 +155,9 @@ def initial_biases(
 
 
 def thinned_for_initial_values(
-    dataset: Dataset, max_plots_per_radar: int = INIT_MAX_PLOTS_PER_RADAR,
-    *, aligned: bool = False,
-) -> Dataset:
-    """``dataset`` with at most ``max_plots_per_radar`` plots of each radar, for the
+    problem: Problem, max_plots_per_radar: int = INIT_MAX_PLOTS_PER_RADAR,
+) -> Problem:
+    """``problem`` with at most ``max_plots_per_radar`` plots of each radar, for the
     closed-form initial values.
 
     Every ``k``-th plot of a radar (in table order, ``k`` the smallest stride that
@@ -167,25 +167,16 @@ def thinned_for_initial_values(
     which a few thousand plots give as well as a million: the closed forms then
     cost a fixed time per radar instead of growing with the recording.
 
-    ``aligned``: the full dataset's plots are already aligned with ADS-B at the
-    default gap (:func:`~graphcal.data.align.align_adsb`, shared): the thinned
-    dataset's alignments are cut out of those
-    (:func:`~graphcal.data.align.align_adsb_thinned`).
+    The alignments with ADS-B the problem already holds are cut for the thinned one
+    (:meth:`~graphcal.model.problem.Problem.thinned`), not made again.
     """
-    by_radar = dataset.plots.groupby("radar_id", sort=False)["radar_id"]
+    by_radar = problem.dataset.plots.groupby("radar_id", sort=False)["radar_id"]
     count = by_radar.transform("size").to_numpy(dtype=np.int64)
     if count.max(initial=0) <= max_plots_per_radar:
-        return dataset
+        return problem
     stride = -(-count // max_plots_per_radar)  # ceil, per row: its radar's stride
     keep = by_radar.cumcount().to_numpy() % stride == 0
-    thinned = dataclasses.replace(dataset,
-                                  plots=dataset.plots.loc[keep].reset_index(drop=True))
-    if aligned and dataset.adsb is not None:
-        # The closed forms align at the default gap: cut those alignments out of the
-        # full dataset's (already made by the association) instead of aligning again.
-        for rid in dataset.radar_ids:
-            align_adsb_thinned(dataset, thinned, keep, rid)
-    return thinned
+    return problem.thinned(keep)
 
 
 def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) -> FloatArray:
@@ -198,7 +189,7 @@ def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) 
 
 # --------------------------------------------------------------------------- covariance
 def _pairwise_sandwich_terms(
-    problem: Problem, values: dict[str, FloatArray], columns: dict[str, list[int]], p: int
+    blocks: FactorSet, values: dict[str, FloatArray], columns: dict[str, list[int]], p: int
 ) -> tuple[FloatArray, FloatArray]:
     """``A_pair = sum w J^T J`` and the shared-noise ``M_pair`` over the pairwise factors.
 
@@ -215,7 +206,7 @@ def _pairwise_sandwich_terms(
     by_radar: dict[str, list[tuple[list[int], FloatArray, NDArray[np.int64], FloatArray]]] = {}
     cov_labels: list[NDArray[np.int64]] = []
     cov_parts: list[FloatArray] = []
-    for f in problem.pairs:
+    for f in blocks.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
         e, jacobians = f.whitened(_pair_values(f, values))
         w = f.kernel.weight(frames.row_norm(e), 3)
@@ -278,7 +269,7 @@ class _Solved:
     """One Levenberg-Marquardt solution with its factors."""
 
     terms: dict[str, RadarTerms]
-    problem: Problem
+    blocks: FactorSet
     fg: FactorGraph
     result: Any
     radars: list[str]
@@ -292,7 +283,7 @@ class _Solved:
 
 
 def _solve(
-    dataset: Dataset,
+    problem: Problem,
     fixed: dict[tuple[str, str], float],
     tau_radars: set[str],
     keys: dict[str, int],
@@ -308,11 +299,12 @@ def _solve(
     :data:`TIME_OFFSET_REALIGN_TOLERANCE_S` (usually once or twice).
     """
     s = settings
+    dataset = problem.dataset
     radar_ids = list(dataset.radar_ids)
     terms = {
         rid: radar_terms(dataset.sites[rid], fixed, rid in tau_radars) for rid in radar_ids
     }
-    problem = Problem(terms, keys, height_key=s.height_key)
+    blocks = FactorSet(terms, keys, height_key=s.height_key)
     tau0 = {rid: terms[rid].time_offset(np.zeros(len(terms[rid].free))) for rid in radar_ids}
     start_values: dict[str, FloatArray] = {}
     iterations = realignments = 0
@@ -321,7 +313,7 @@ def _solve(
         if s.cross == "target-state":
             from graphcal.solvers.target_state import build_target_state
 
-            problem.target_state = build_target_state(
+            blocks.target_state = build_target_state(
                 dataset, terms, keys, s.kernel, use_adsb=s.have_adsb,
                 adsb_max_gap_s=s.max_gap_s, process_noise_m2_s3=s.process_noise_m2_s3,
                 progress=s.progress,
@@ -329,17 +321,17 @@ def _solve(
             if s.have_adsb:
                 # Residual statistics against ADS-B, for the report only.
                 for rid in radar_ids:
-                    al = align_adsb(dataset, rid, s.max_gap_s)
+                    al = problem.alignment(rid, s.max_gap_s)
                     if len(al):
-                        problem.alignments[rid] = al
+                        blocks.alignments[rid] = al
         elif s.cross == "trajectory":
-            if problem.target_state is None:
-                _build_paths(dataset, problem, init_biases, s)
+            if blocks.target_state is None:
+                _build_paths(problem, blocks, init_biases, s)
         else:
-            build_factors(dataset, problem, s.have_adsb, s.cross, s.kernel, s.max_gap_s,
+            build_factors(problem, blocks, s.have_adsb, s.cross, s.kernel, s.max_gap_s,
                            s.pair_max_gap_s, s.progress, tau0)
         timing["factors_s"] = timing.get("factors_s", 0.0) + time.perf_counter() - t0
-        radars = problem.variable_radars()
+        radars = blocks.variable_radars()
         if not radars:
             raise EstimationError(
                 "nothing to calibrate: no plot matched ADS-B and no two radars saw the same "
@@ -358,25 +350,25 @@ def _solve(
             fg.add_variable(keys[rid], start)
             fg.add_prior(keys[rid], np.zeros(len(terms[rid].free)), priors[rid])
         variable = set(radars)
-        height_used = problem.height is not None or any(
-            f.height_key is not None for f in problem.pairs) or bool(
-            getattr(problem.target_state, "height_key", None) is not None)
+        height_used = blocks.height is not None or any(
+            f.height_key is not None for f in blocks.pairs) or bool(
+            getattr(blocks.target_state, "height_key", None) is not None)
         if height_used:
             fg.add_variable(s.height_key, start_values.get(HEIGHT, np.zeros(2)))
             fg.add_prior(s.height_key, np.zeros(2), np.array(HEIGHT_PRIOR_SIGMA))
             variable.add(HEIGHT)
-            if problem.height is not None:
-                fg.add_custom(problem.height.keys, problem.height.dimension,
-                              problem.height.error)
-        for factor in [*problem.adsb.values(), *problem.pairs]:
+            if blocks.height is not None:
+                fg.add_custom(blocks.height.keys, blocks.height.dimension,
+                              blocks.height.error)
+        for factor in [*blocks.adsb.values(), *blocks.pairs]:
             add_factor(fg, factor, variable)
-        if problem.target_state is not None and s.cross != "trajectory":
-            problem.target_state.add_to(fg, variable, initial_free)
+        if blocks.target_state is not None and s.cross != "trajectory":
+            blocks.target_state.add_to(fg, variable, initial_free)
         t0 = time.perf_counter()
         if s.progress is not None:
             s.progress("optimising", 0, 1)
         if s.cross == "trajectory":
-            result = _solve_paths(problem, fg, initial_free, priors, s)
+            result = _solve_paths(blocks, fg, initial_free, priors, s)
         else:
             result = fg.optimize(max_iterations=s.max_iterations)
         iterations += result.iterations
@@ -396,18 +388,19 @@ def _solve(
         start_values = values
         realignments += 1
     result = dataclasses.replace(result, iterations=iterations)
-    return _Solved(terms, problem, fg, result, radars, values, priors, variable, realignments,
+    return _Solved(terms, blocks, fg, result, radars, values, priors, variable, realignments,
                    values.get(HEIGHT))
 
 
-def _build_paths(dataset: Dataset, problem: Problem, init_biases: dict[str, RadarBias],
+def _build_paths(problem: Problem, blocks: FactorSet, init_biases: dict[str, RadarBias],
                  s: _Settings) -> None:
     """The trajectory block (every aircraft's path, eliminated inside one factor), the
     ADS-B height factor and, for the report, the plots aligned with ADS-B."""
     from graphcal.model.height import adsb_height_factor
     from graphcal.model.trajectory import build_trajectory_block
 
-    terms = problem.terms
+    dataset = problem.dataset
+    terms = blocks.terms
     free = [rid for rid in dataset.radar_ids if terms[rid].free]
     start = {rid: _initial_free(terms[rid], init_biases.get(rid),
                                 prior_sigmas(dataset.sites[rid], terms[rid])) for rid in free}
@@ -419,9 +412,11 @@ def _build_paths(dataset: Dataset, problem: Problem, init_biases: dict[str, Rada
                        else v) for rid, v in start.items()}
     else:
         block = build_trajectory_block(
-            dataset, terms, problem.keys, free, s.kernel, use_adsb=s.have_adsb,
-            initial_biases=start, height_key=s.height_key, progress=s.progress)
-    problem.target_state = block
+            dataset, terms, blocks.keys, free, s.kernel, use_adsb=s.have_adsb,
+            initial_biases=start, height_key=s.height_key, progress=s.progress,
+            plots=problem.all_plots,
+            tracks=problem.adsb_tracks if s.have_adsb else None)
+    blocks.target_state = block
     s.paths_block = block
     if block is None:
         return
@@ -429,12 +424,12 @@ def _build_paths(dataset: Dataset, problem: Problem, init_biases: dict[str, Rada
     s.estimate_process_noise = earlier is None
     s.path_start = {name: v for (_, name, _), v in zip(block.variables, values, strict=True)}
     if s.have_adsb and s.height_key is not None:
-        problem.height = adsb_height_factor(dataset.adsb, s.height_key, s.kernel)
+        blocks.height = adsb_height_factor(dataset.adsb, s.height_key, s.kernel)
     if s.have_adsb:
         for rid in dataset.radar_ids:
-            al = align_adsb(dataset, rid, s.max_gap_s)
+            al = problem.alignment(rid, s.max_gap_s)
             if len(al):
-                problem.alignments[rid] = al
+                blocks.alignments[rid] = al
 
 
 #: Trajectory formulation: Gauss-Newton on the biases stops when no step exceeds this
@@ -446,7 +441,7 @@ PATHS_STEP_TOLERANCE_SIGMA = 0.1
 PATHS_MAX_ITERATIONS = 20
 
 
-def _solve_paths(problem: Problem, fg: FactorGraph, initial_free: dict[str, FloatArray],
+def _solve_paths(blocks: FactorSet, fg: FactorGraph, initial_free: dict[str, FloatArray],
                  priors: dict[str, FloatArray], s: _Settings) -> OptimizationResult:
     """Gauss-Newton on the biases with the paths eliminated, then GTSAM's bias-level graph.
 
@@ -457,8 +452,8 @@ def _solve_paths(problem: Problem, fg: FactorGraph, initial_free: dict[str, Floa
     biases in ``fg`` (beside the priors and the height factor already there): GTSAM takes
     the last step and gives the marginals of the same system.
     """
-    block = problem.target_state
-    height = problem.height
+    block = blocks.target_state
+    height = blocks.height
     layout = [(key, name, size) for key, name, size in block.variables]
     if height is not None and all(name != HEIGHT for _, name, _ in layout):
         layout.append((height.key, HEIGHT, 2))
@@ -557,8 +552,8 @@ def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
     (e.g. one straight flight: a time offset then looks like a range offset
     and an azimuth bias).
     """
-    keys = [solved.problem.keys[rid] for rid in solved.radars]
-    marginal = named_joint_covariance(solved.fg, solved.result.values, keys, solved.problem.keys)
+    keys = [solved.blocks.keys[rid] for rid in solved.radars]
+    marginal = named_joint_covariance(solved.fg, solved.result.values, keys, solved.blocks.keys)
     solved.joint = (keys, marginal)  # the marginals of the result, when nothing is re-solved
     labels = [(rid, name) for rid in solved.radars for name in solved.terms[rid].free]
     information = np.linalg.inv(marginal)
@@ -584,10 +579,9 @@ def _poorly_determined_time_offsets(solved: _Solved) -> dict[str, str]:
 
 
 # --------------------------------------------------------------------------- the estimator
-@shared
 @fills_missing_sigmas
 def graph(
-    dataset: Dataset,
+    data: Dataset | Problem,
     *,
     cross: str = "trajectory",
     robust: str = "huber",
@@ -607,8 +601,11 @@ def graph(
 
     Parameters
     ----------
-    dataset : Dataset
-    cross : {"pairwise", "target-state", "none"}
+    data : Dataset or Problem
+        The data, or the calibration problem built from them
+        (:func:`~graphcal.model.problem.build_problem`), whose plots and alignments
+        with ADS-B the stages share.
+    cross : {"trajectory", "pairwise", "target-state", "none"}
         Cross-radar formulation (see the module docstring).
     robust : {"huber", "cauchy", "none"}
         Robust kernel on every measurement; ``robust_scale`` multiplies its
@@ -655,6 +652,8 @@ def graph(
         raise ValueError(
             f"unknown cross-radar mode '{cross}'; use one of: {', '.join(CROSS_MODES)}"
         )
+    problem = as_problem(data)
+    dataset = problem.dataset
     if max_iterations < 1:
         raise ValueError("max_iterations must be at least 1")
     kernel = RobustKernel(robust, robust_scale)
@@ -691,11 +690,11 @@ def graph(
     want_time = have_adsb and cross != "target-state" if auto_time else bool(time_offset)
     # ---------------------------------------------------------------- ADS-B association
     if have_adsb and cross != "target-state":
-        # Every radar's plots aligned with ADS-B at zero time offset, kept for the
-        # initial values and the first factors (graph runs inside data.memo.sharing).
+        # Every radar's plots aligned with ADS-B at zero time offset, kept by the
+        # problem for the initial values and the first factors.
         t0 = time.perf_counter()
         for i, rid in enumerate(radar_ids):
-            align_adsb(dataset, rid, max_gap_s)
+            problem.alignment(rid, max_gap_s)
             if progress is not None:
                 progress("ADS-B association", i + 1, len(radar_ids))
         timing["association_s"] = time.perf_counter() - t0
@@ -706,14 +705,12 @@ def graph(
     if progress is not None:
         progress("initial values", 0, 1)
     init_biases, init_method, init_notes = initial_biases(
-        dataset, have_adsb, "none" if cross == "none" else cross, init,
-        aligned=have_adsb and cross != "target-state" and max_gap_s == DEFAULT_ADSB_MAX_GAP_S,
-    )
+        problem, have_adsb, "none" if cross == "none" else cross, init)
     timing["initialisation_s"] = time.perf_counter() - t0
     settings = _Settings(have_adsb, cross, kernel, max_gap_s, pair_max_gap_s,
                          process_noise_m2_s3, max_iterations, progress,
                          symbol("h", 0) if dataset.pressure_altitudes else None)
-    solved = _solve(dataset, fixed, tau_radars, keys, init_biases, settings, timing)
+    solved = _solve(problem, fixed, tau_radars, keys, init_biases, settings, timing)
     time_notes: list[str] = []
     if auto_time and tau_radars:
         t0 = time.perf_counter()
@@ -725,8 +722,8 @@ def graph(
                 for rid, why in poor.items()
             ]
             tau_radars = tau_radars - set(poor)
-            solved = _solve(dataset, fixed, tau_radars, keys, init_biases, settings, timing)
-    terms, problem, fg, result = solved.terms, solved.problem, solved.fg, solved.result
+            solved = _solve(problem, fixed, tau_radars, keys, init_biases, settings, timing)
+    terms, blocks, fg, result = solved.terms, solved.blocks, solved.fg, solved.result
     radars, values, priors, variable = solved.radars, solved.values, solved.priors, solved.variable
     full_values = {
         rid: values[rid] if rid in values else np.zeros(0) for rid in radar_ids
@@ -755,8 +752,8 @@ def graph(
     information = 0.5 * (information + information.T)
     covariance = marginal
     covariance_note = "GTSAM marginals"
-    if problem.pairs:
-        a_pair, m_pair = _pairwise_sandwich_terms(problem, full_values, columns, len(marginal))
+    if blocks.pairs:
+        a_pair, m_pair = _pairwise_sandwich_terms(blocks, full_values, columns, len(marginal))
         covariance = marginal @ (information - a_pair + m_pair) @ marginal
         covariance = 0.5 * (covariance + covariance.T)
         covariance_note = "GTSAM marginals, corrected for plots shared between pairs"
@@ -797,12 +794,12 @@ def graph(
     for rid in radar_ids:
         if rid not in variable and terms[rid].free:
             warnings.append(f"radar {rid} has no usable observations; not calibrated")
-    n_plots = _plots_used(problem, radars)
-    total_dimension = sum(f.dimension for f in [*problem.adsb.values(), *problem.pairs])
-    if problem.target_state is not None:
-        total_dimension += problem.target_state.dimension
+    n_plots = _plots_used(blocks, radars)
+    total_dimension = sum(f.dimension for f in [*blocks.adsb.values(), *blocks.pairs])
+    if blocks.target_state is not None:
+        total_dimension += blocks.target_state.dimension
     if solved.height is not None:
-        total_dimension += (0 if problem.height is None else problem.height.dimension) - 2
+        total_dimension += (0 if blocks.height is None else blocks.height.dimension) - 2
     info: dict[str, Any] = {
         "cross": cross,
         "robust": {"kernel": kernel.name, "scale": kernel.scale,
@@ -819,8 +816,8 @@ def graph(
         "chi2_per_dof": 2.0 * result.final_error / max(total_dimension - p, 1),
         "covariance": covariance_note,
         "n_factors": len(fg),
-        "n_adsb_plots": int(sum(len(f.measured) for f in problem.adsb.values())),
-        "n_pairs": int(sum(len(f) for f in problem.pairs)),
+        "n_adsb_plots": int(sum(len(f.measured) for f in blocks.adsb.values())),
+        "n_pairs": int(sum(len(f) for f in blocks.pairs)),
         "priors": {
             rid: {CONTRACT_KEYS[name][0]: float(s * CONTRACT_KEYS[name][1])
                   for name, s in zip(terms[rid].free, priors[rid], strict=True)}
@@ -839,10 +836,10 @@ def graph(
             "not_estimated": time_notes,
             "realignments": solved.realignments,
         },
-        "downweighted": _downweighted(problem, full_values, radars, result),
+        "downweighted": _downweighted(blocks, full_values, radars, result),
     }
-    if problem.target_state is not None:
-        info["target_state"] = problem.target_state.summary()
+    if blocks.target_state is not None:
+        info["target_state"] = blocks.target_state.summary()
     if atmosphere is not None:
         info["plot_altitude"] = dataset.plot_altitude
     timing["total_s"] = time.perf_counter() - start
@@ -862,16 +859,16 @@ def graph(
         atmosphere=atmosphere,
     )
     cal.information = data_information
-    if bound and cross == "trajectory" and problem.target_state is not None:
-        cal.bound = _trajectory_bound(problem, full_values, labels, priors, radars, settings)
-    for rid, al in problem.alignments.items():
+    if bound and cross == "trajectory" and blocks.target_state is not None:
+        cal.bound = _trajectory_bound(blocks, full_values, labels, priors, radars, settings)
+    for rid, al in blocks.alignments.items():
         if rid in radars:
             bias = terms[rid].bias(values[rid])
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, bias)
     return cal
 
 
-def _trajectory_bound(problem: Problem, values: dict[str, FloatArray],
+def _trajectory_bound(blocks: FactorSet, values: dict[str, FloatArray],
                       labels: list[tuple[str, str]], priors: dict[str, FloatArray],
                       radars: list[str], settings: _Settings) -> dict[str, Any]:
     """The Cramér-Rao bound of the trajectory model at the estimate.
@@ -882,12 +879,12 @@ def _trajectory_bound(problem: Problem, values: dict[str, FloatArray],
     segments and the weak priors, inverted.  The paths and their process noise are the
     estimate's: the bound of this same model, evaluated where the data put it.
     """
-    block = problem.target_state
+    block = blocks.target_state
     fisher_block = dataclasses.replace(block, kernel=RobustKernel("none"), _reduced_cache=None)
     _, _, fisher = fisher_block.reduced(block.values_of(values), True)
     names = [name for _, name, _ in block.variables]
     sizes = [size for _, _, size in block.variables]
-    has_height = HEIGHT in names or problem.height is not None
+    has_height = HEIGHT in names or blocks.height is not None
     p = len(labels)
     size = p + (2 if has_height else 0)
     full = np.zeros((size, size))
@@ -899,8 +896,8 @@ def _trajectory_bound(problem: Problem, values: dict[str, FloatArray],
         start = sum(len(priors[rid]) for rid in radars[:radars.index(name)])
         position.extend(range(start, start + n))
     full[np.ix_(position, position)] += fisher
-    if problem.height is not None:
-        e, jac = problem.height.whitened([values.get(HEIGHT, np.zeros(2))])
+    if blocks.height is not None:
+        e, jac = blocks.height.whitened([values.get(HEIGHT, np.zeros(2))])
         j = jac[0].reshape(len(e), 2)
         full[p:, p:] += j.T @ j
     prior = [priors[rid] for rid in radars]
@@ -931,7 +928,7 @@ def _height_model_estimate(
     prior variance is not determined by the data, as for the radar terms.
     """
     prior = np.array(HEIGHT_PRIOR_SIGMA)
-    problem = solved.problem
+    blocks = solved.blocks
     if solved.height is None:
         value = np.zeros(2)
         covariance = np.diag(prior**2)
@@ -945,10 +942,10 @@ def _height_model_estimate(
         height_offset_m=float(value[0]), height_scale=float(value[1]),
         covariance=covariance, prior_sigma=prior, determined=not undetermined,
         cross_labels=cross_labels, cross_covariance=cross,
-        n_adsb_segments=0 if problem.height is None else len(problem.height),
-        n_pressure_pairs=int(sum(len(f) for f in problem.pairs if f.height_key is not None))
-        + (problem.target_state.n_pressure_plots()
-           if hasattr(problem.target_state, "n_pressure_plots") else 0),
+        n_adsb_segments=0 if blocks.height is None else len(blocks.height),
+        n_pressure_pairs=int(sum(len(f) for f in blocks.pairs if f.height_key is not None))
+        + (blocks.target_state.n_pressure_plots()
+           if hasattr(blocks.target_state, "n_pressure_plots") else 0),
     )
     notes = []
     if undetermined:
@@ -990,40 +987,40 @@ def add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: s
     fg.add_custom(keys, factor.dimension, error)
 
 
-def _plots_used(problem: Problem, radars: list[str]) -> dict[str, int]:
-    used: dict[str, list[NDArray[np.int64]]] = {rid: [] for rid in problem.terms}
-    for rid, f in problem.adsb.items():
+def _plots_used(blocks: FactorSet, radars: list[str]) -> dict[str, int]:
+    used: dict[str, list[NDArray[np.int64]]] = {rid: [] for rid in blocks.terms}
+    for rid, f in blocks.adsb.items():
         used[rid].append(f.plot_rows)
-    for f in problem.pairs:
+    for f in blocks.pairs:
         used[f.terms_a.radar_id].append(f.a_plots.index)
         used[f.terms_b.radar_id].append(f.b_plots.index)
     counts = {rid: len(np.unique(np.concatenate(used[rid]))) if used[rid] else 0
               for rid in radars}
-    if problem.target_state is not None:
+    if blocks.target_state is not None:
         counts.update({
-            rid: n for rid, n in problem.target_state.plots_per_radar().items() if rid in counts
+            rid: n for rid, n in blocks.target_state.plots_per_radar().items() if rid in counts
         })
     return counts
 
 
 def _downweighted(
-    problem: Problem, values: dict[str, FloatArray], radars: list[str], result
+    blocks: FactorSet, values: dict[str, FloatArray], radars: list[str], result
 ) -> dict[str, dict[str, int]]:
     """Measurements with a final robust weight below 0.5, per radar and factor type."""
     out: dict[str, dict[str, int]] = {rid: {} for rid in radars}
-    for rid, f in problem.adsb.items():
+    for rid, f in blocks.adsb.items():
         if rid in out:
             e, _ = f.whitened([values[rid]])
             out[rid]["adsb_plots"] = int(f.kernel.downweighted(e).sum())
-    for f in problem.pairs:
+    for f in blocks.pairs:
         ra, rb = f.terms_a.radar_id, f.terms_b.radar_id
         e, _ = f.whitened(_pair_values(f, values))
         n = int(f.kernel.downweighted(e).sum())
         for rid in (ra, rb):
             if rid in out:
                 out[rid]["pairs"] = out[rid].get("pairs", 0) + n
-    if problem.target_state is not None:
-        for rid, counts in problem.target_state.downweighted(values, result).items():
+    if blocks.target_state is not None:
+        for rid, counts in blocks.target_state.downweighted(values, result).items():
             if rid in out:
                 out[rid].update(counts)
     return out

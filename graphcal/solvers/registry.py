@@ -1,5 +1,7 @@
-"""Estimators: every one takes a :class:`~graphcal.data.dataset.Dataset` and returns a
-:class:`~graphcal.data.calibration.Calibration`, so comparisons are a loop over names.
+"""Estimators: every one takes a calibration problem (:class:`~graphcal.model.problem.Problem`,
+or a :class:`~graphcal.data.dataset.Dataset` made into one) and returns a
+:class:`~graphcal.data.calibration.Calibration`, so comparisons are a loop over names:
+``solve(problem, method)`` with the problem's options (:func:`solve`).
 
 =============  ==========================================================  ========
 name           what                                                         needs
@@ -20,8 +22,10 @@ from collections.abc import Callable, Iterator, Mapping
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # pragma: no cover - the estimators' types, without importing them
+    from graphcal.core.solve_options import SolveOptions
     from graphcal.data.calibration import Calibration
     from graphcal.data.dataset import Dataset
+    from graphcal.model.problem import Problem
 
 Estimator = Callable[..., "Calibration"]
 
@@ -178,6 +182,27 @@ def describe(method: str) -> str:
     raise _unavailable(method)
 
 
+def solve(problem: Problem, method: str = "graph", options: SolveOptions | None = None,
+          **run: Any) -> Calibration:
+    """Solve ``problem`` with the estimator ``method``.
+
+    Parameters
+    ----------
+    problem : Problem
+        :func:`graphcal.model.problem.build_problem`'s result.
+    method : str
+        A name of :data:`METHODS`.
+    options : SolveOptions, optional
+        The estimator's options (those it uses, :meth:`SolveOptions.for_method`);
+        default: the problem's.
+    **run
+        How to run it, not what to estimate: ``progress`` (graph, wls), ``bound``
+        (graph).
+    """
+    options = problem.options if options is None else options
+    return get_estimator(method)(problem, **options.for_method(method), **run)
+
+
 def calibrate(dataset: Dataset, method: str, **options: Any) -> Calibration:
     """Run the estimator ``method`` on ``dataset``."""
     return get_estimator(method)(dataset, **options)
@@ -185,4 +210,4 @@ def calibrate(dataset: Dataset, method: str, **options: Any) -> Calibration:
 
 __all__ = ["ESTIMATOR_LOADERS", "ESTIMATOR_PATHS", "METHODS", "METHOD_SUMMARIES",
            "PLANNED_METHODS", "Estimator", "LazyEstimators", "calibrate", "describe",
-           "get_estimator"]
+           "get_estimator", "solve"]

@@ -12,8 +12,8 @@ pipeline combines the windows into the run's verdict
 The residuals are those of the model checks against ADS-B
 (:func:`graphcal.analysis.check_residuals.adsb_radar_residuals`), computed cheaply
 from what the window's fit already holds: each radar's plots aligned with ADS-B at
-zero time offset (shared with the estimator inside one
-:func:`graphcal.data.memo.sharing` block, so not aligned again), corrected with the
+zero time offset (the estimator's, held by the calibration problem both are given, so
+not aligned again), corrected with the
 window's biases, the reference moved to the estimated time offset ``tau`` to first
 order (``reference - rate * tau``, as the estimator's own ADS-B factors do); per
 coordinate ``sum e^2 / v`` and the count over the plots that are not gross outliers
@@ -39,16 +39,15 @@ import numpy as np
 
 from graphcal.core import frames
 from graphcal.core.outliers import outlier_rows
-from graphcal.data.align import align_adsb, plot_arrays
 from graphcal.data.bias import count_non_positive_ranges
 from graphcal.data.calibration import Calibration
-from graphcal.data.dataset import Dataset
+from graphcal.model.factor_set import polar_rate
 from graphcal.model.measurement import (
     measured_polar,
     measurement_model,
     reference_polar_covariance,
 )
-from graphcal.model.problem import polar_rate
+from graphcal.model.problem import Problem
 
 #: Largest estimated time offset [s] for which the ADS-B reference is moved to it to first
 #: order; beyond it the plots are aligned again.  The first order's error, the rate's
@@ -100,17 +99,16 @@ class WindowFit:
                 "n_outliers": dict(self.n_outliers)}
 
 
-def window_fit(dataset: Dataset, cal: Calibration, *, use_adsb: bool, max_gap_s: float
+def window_fit(problem: Problem, cal: Calibration, *, use_adsb: bool, max_gap_s: float
                ) -> WindowFit:
-    """The fit numbers of ``cal``, the calibration of the window ``dataset`` (module doc).
+    """The fit numbers of ``cal``, the calibration of the window's ``problem`` (module doc).
 
-    Call it inside the :func:`graphcal.data.memo.sharing` block in which ``cal`` was
-    estimated, so that the alignments with ADS-B are reused.
+    Given the problem ``cal`` was estimated from, the alignments with ADS-B are reused.
 
     Parameters
     ----------
-    dataset : Dataset
-        The window's data, as calibrated (sigmas filled in).
+    problem : Problem
+        The window's calibration problem, as calibrated (sigmas filled in).
     cal : Calibration
         Its calibration.
     use_adsb : bool
@@ -118,6 +116,7 @@ def window_fit(dataset: Dataset, cal: Calibration, *, use_adsb: bool, max_gap_s:
     max_gap_s : float
         Longest ADS-B gap bridged [s], as for the calibration.
     """
+    dataset = problem.dataset
     have_adsb = bool(use_adsb and dataset.adsb is not None and len(dataset.adsb))
     fit = WindowFit("none")
     for rid in cal.radar_ids:
@@ -126,24 +125,24 @@ def window_fit(dataset: Dataset, cal: Calibration, *, use_adsb: bool, max_gap_s:
         bias = cal.bias(rid)
         fit.n_terms[rid] = sum(1 for r, _ in cal.labels if r == rid)
         fit.range_gain[rid] = cal.value(rid, "range_gain")
-        r = plot_arrays(dataset, rid).range_m  # shared with the estimator
+        r = problem.plots(rid).range_m  # the estimator's
         fit.negative_ranges[rid] = count_non_positive_ranges(r, bias)
         if have_adsb and not fit.negative_ranges[rid]:
-            sums = _adsb_sums(dataset, rid, bias, max_gap_s)
+            sums = _adsb_sums(problem, rid, bias, max_gap_s)
             if sums is not None:
                 fit.sums[rid], fit.n_outliers[rid] = sums
                 fit.reference = "adsb"
     return fit
 
 
-def _adsb_sums(dataset: Dataset, rid: str, bias: Any, max_gap_s: float
+def _adsb_sums(problem: Problem, rid: str, bias: Any, max_gap_s: float
                ) -> tuple[dict[str, tuple[float, int]], int] | None:
     """One radar's ``{coordinate: (sum e^2 / v, count)}`` against ADS-B and its outliers."""
-    site = dataset.sites[rid]
+    site = problem.sites[rid]
     tau = bias.time_offset_s
     exact = abs(tau) > FIRST_ORDER_MAX_S
-    # At zero time offset: the estimator's alignment, shared.
-    al = align_adsb(dataset, rid, max_gap_s, time_offset_s=tau if exact else 0.0)
+    # At zero time offset: the estimator's alignment, the problem's.
+    al = problem.alignment(rid, max_gap_s, time_offset_s=tau if exact else 0.0)
     if len(al) == 0:
         return None
     model = measurement_model(site)

@@ -52,9 +52,9 @@ from graphcal.core.solve_options import SolveOptions
 from graphcal.data.bias import CONTRACT_KEYS, RadarBias
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.height import HeightModelEstimate
-from graphcal.data.memo import sharing
 from graphcal.data.windows import Window, split_windows
 from graphcal.model.parameters import TERM_NAMES, RadarTerms, prior_sigmas
+from graphcal.model.problem import build_problem
 from graphcal.solvers.drift import DEFAULT_STEP_FALSE_ALARM, ChainAnalysis, analyse_chain
 from graphcal.solvers.gtsam_adapter import FactorGraph, symbol
 from graphcal.solvers.window_fit import WindowFit, window_fit
@@ -168,8 +168,7 @@ def summarise_window(window: Window, options: WindowOptions = DEFAULT_OPTIONS, *
     Returns ``None`` when the window has nothing to calibrate (no plot matched
     ADS-B and no two radars saw the same aircraft).
     """
-    with sharing():  # the fit numbers reuse the estimator's alignments with ADS-B
-        return _summarise_window(window, options, judge)
+    return _summarise_window(window, options, judge)
 
 
 def _summarise_window(window: Window, options: WindowOptions, judge: bool
@@ -185,8 +184,11 @@ def _summarise_window(window: Window, options: WindowOptions, judge: bool
         dataset = replace(dataset, plots=dataset.plots[~dataset.plots["radar_id"].isin(few)])
     if dataset.plots.empty:
         return None
+    # One problem for the estimate and its fit numbers: the alignments with ADS-B are
+    # made once.
+    problem = build_problem(dataset, options)
     try:
-        cal = graph(dataset, cross=options.cross, robust=options.robust,
+        cal = graph(problem, cross=options.cross, robust=options.robust,
                     robust_scale=options.robust_scale, use_adsb=options.use_adsb,
                     fixed=dict(options.fixed), max_iterations=options.max_iterations,
                     max_gap_s=options.adsb_max_gap_s, pair_max_gap_s=options.pair_max_gap_s,
@@ -198,7 +200,7 @@ def _summarise_window(window: Window, options: WindowOptions, judge: bool
     prior = np.concatenate([
         prior_sigmas(dataset.sites[rid], RadarTerms(rid, (name,), {})) for rid, name in labels
     ]) if labels else np.zeros(0)
-    fit = (window_fit(dataset, cal, use_adsb=options.use_adsb,
+    fit = (window_fit(problem, cal, use_adsb=options.use_adsb,
                       max_gap_s=options.adsb_max_gap_s)
            if judge else None)
     return WindowSummary(

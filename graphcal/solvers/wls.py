@@ -30,12 +30,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core.errors import EstimationError
-from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S, align_adsb
+from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import RadarBias, compose_bias
 from graphcal.data.calibration import Calibration
 from graphcal.data.correct import correct_plots
 from graphcal.data.dataset import Dataset
-from graphcal.data.memo import shared
 from graphcal.model.cross_radar import CrossObservations, cross_observations, shared_noise_middle
 from graphcal.model.information import (
     describe_weak_directions,
@@ -46,6 +45,7 @@ from graphcal.model.information import (
 )
 from graphcal.model.measurement import residual_stats
 from graphcal.model.parameters import ParameterLayout
+from graphcal.model.problem import Problem, as_problem
 from graphcal.noise import fills_missing_sigmas
 
 FloatArray = NDArray[np.float64]
@@ -108,7 +108,7 @@ FORMAL_SIGMA_CHI2 = 1.5
 
 def _run_wls(
     method: str,
-    dataset: Dataset,
+    problem: Problem,
     prune: bool,
     iterations: int,
     max_gap_s: float | None,
@@ -117,6 +117,7 @@ def _run_wls(
 ) -> Calibration:
     if iterations < 1:
         raise ValueError("iterations must be at least 1")
+    dataset = problem.dataset
     layout = ParameterLayout.for_sites(list(dataset.sites.values()))
     biases = {rid: RadarBias() for rid in dataset.radar_ids}
     info: dict = {"iterations": iterations, "pruned": prune, "linearise": linearise}
@@ -189,7 +190,7 @@ def _run_wls(
             "above the ellipsoid (it has no height model; graph estimates one): its range "
             "terms carry the difference"
         )
-    _adsb_residuals(cal, dataset)
+    _adsb_residuals(cal, problem)
     return cal
 
 
@@ -228,20 +229,20 @@ def _drop_unseen(
         cal.observability = observability(information[np.ix_(keep, keep)])
 
 
-def _adsb_residuals(cal: Calibration, dataset: Dataset) -> None:
+def _adsb_residuals(cal: Calibration, problem: Problem) -> None:
     """Residuals against ADS-B, for information, when the dataset has ADS-B."""
+    dataset = problem.dataset
     if dataset.adsb is None:
         return
     for rid in cal.radar_ids:
-        al = align_adsb(dataset, rid, DEFAULT_ADSB_MAX_GAP_S)
+        al = problem.alignment(rid, DEFAULT_ADSB_MAX_GAP_S)
         if len(al) > 0:
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, cal.bias(rid))
 
 
-@shared
 @fills_missing_sigmas
 def wls(
-    dataset: Dataset,
+    data: Dataset | Problem,
     *,
     iterations: int = 1,
     max_gap_s: float | None = None,
@@ -254,13 +255,12 @@ def wls(
     instead of the plot itself (:func:`~graphcal.model.cross_radar.cross_observations`),
     which removes the errors-in-variables bias of the paper's choice.
     """
-    return _run_wls("wls", dataset, False, iterations, max_gap_s, progress, linearise)
+    return _run_wls("wls", as_problem(data), False, iterations, max_gap_s, progress, linearise)
 
 
-@shared
 @fills_missing_sigmas
 def wls_pruned(
-    dataset: Dataset,
+    data: Dataset | Problem,
     *,
     iterations: int = 1,
     max_gap_s: float | None = None,
@@ -268,7 +268,8 @@ def wls_pruned(
     linearise: str = "plots",
 ) -> Calibration:
     """Paper 001 greedy pruning (eq. 12), then WLS (eq. 10) on the kept observations."""
-    return _run_wls("wls-pruned", dataset, True, iterations, max_gap_s, progress, linearise)
+    return _run_wls("wls-pruned", as_problem(data), True, iterations, max_gap_s, progress,
+                    linearise)
 
 
 __all__ = ["LINEARISATION_LIMITS", "beyond_one_linearisation", "greedy_prune", "whiten", "wls",

@@ -84,7 +84,7 @@ def test_options_that_apply_run(folder: Path, tmp_path: Path, argv: list[str]) -
 def test_choices_match_the_modules_that_own_them() -> None:
     from graphcal.analysis.selection import SELECTION_METHODS, SELECTION_UNITS
     from graphcal.model.cross_radar import LINEARISE_CHOICES
-    from graphcal.model.problem import CROSS_MODES
+    from graphcal.model.factor_set import CROSS_MODES
     from graphcal.model.robust import KERNELS
     from graphcal.pipeline.calibrate import TIME_OFFSET_CHOICES
     from graphcal.solvers.registry import METHODS

@@ -212,7 +212,7 @@ def test_thinned_alignment_equals_aligning_the_thinned_plots_afresh() -> None:
     from dataclasses import fields, replace
 
     from graphcal.data.align import align_adsb_thinned
-    from graphcal.data.memo import sharing
+    from graphcal.model.problem import build_problem
 
     rng = np.random.default_rng(5)
     site = site_at("A", 0, 0)
@@ -226,17 +226,21 @@ def test_thinned_alignment_equals_aligning_the_thinned_plots_afresh() -> None:
     ds.plots.index = 1000 + 3 * np.arange(len(ds.plots))  # labels that are not positions
     keep = rng.uniform(size=len(ds.plots)) < 0.4
     thinned = replace(ds, plots=ds.plots.loc[keep].reset_index(drop=True))
+    problem = build_problem(ds)
     for rid in ("A", "B"):
-        with sharing():
-            cut = align_adsb_thinned(ds, thinned, keep, rid)
-            assert align_adsb(thinned, rid) is cut  # shared for the thinned dataset
+        full = problem.alignment(rid)
+        cut = align_adsb_thinned(full, ds, keep, problem.plots(rid))
         afresh = align_adsb(thinned, rid)
-        assert 0 < len(cut) < len(align_adsb(ds, rid))
+        assert 0 < len(cut) < len(full)
         assert cut.n_unmatched == afresh.n_unmatched > 0
-        for field in fields(afresh.plots):
-            np.testing.assert_array_equal(getattr(cut.plots, field.name),
-                                          getattr(afresh.plots, field.name))
-        for field in fields(afresh):
-            if field.name != "plots":
-                np.testing.assert_array_equal(getattr(cut, field.name),
-                                              getattr(afresh, field.name), err_msg=field.name)
+        # The thinned problem holds the cut alignment, not one aligned again.
+        held = problem.thinned(keep).alignment(rid)
+        for one in (cut, held):
+            for field in fields(afresh.plots):
+                np.testing.assert_array_equal(getattr(one.plots, field.name),
+                                              getattr(afresh.plots, field.name))
+            for field in fields(afresh):
+                if field.name not in ("plots", "derived"):
+                    np.testing.assert_array_equal(getattr(one, field.name),
+                                                  getattr(afresh, field.name),
+                                                  err_msg=field.name)

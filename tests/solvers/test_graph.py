@@ -242,13 +242,15 @@ def test_cli_calibrates_with_graph_by_default_and_writes_the_result(tmp_path: Pa
 
 
 def test_thinned_initial_values_keep_a_strided_subset_per_radar(demo_runs) -> None:
+    from graphcal.model.problem import build_problem
     from graphcal.solvers.graph import thinned_for_initial_values
 
     dataset = demo_runs[0].dataset
+    problem = build_problem(dataset)
     counts = dataset.plots["radar_id"].value_counts()
-    assert thinned_for_initial_values(dataset, int(counts.max())) is dataset
+    assert thinned_for_initial_values(problem, int(counts.max())) is problem
     cap = int(counts.min()) // 3
-    thin = thinned_for_initial_values(dataset, cap)
+    thin = thinned_for_initial_values(problem, cap).dataset
     thin_counts = thin.plots["radar_id"].value_counts()
     for rid, count in counts.items():
         stride = -(-int(count) // cap)

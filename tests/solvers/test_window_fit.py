@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from graphcal.analysis.model_checks import calibrated_residuals, normalised_sums
-from graphcal.data.memo import sharing
 from graphcal.data.windows import split_windows
+from graphcal.model.problem import build_problem
 from graphcal.simulation.scenario import parse_scenario
 from graphcal.simulation.simulate import simulate
 from graphcal.solvers.graph import graph
@@ -37,9 +37,9 @@ def test_the_sums_are_the_model_checks_sums(window) -> None:
     time offset): the same counts and chi2/dof within 0.5 % (2 % for SUD, whose reference
     is moved to first order); NORD's 0.8 s, left out, would misfit."""
     dataset = window.dataset
-    with sharing():
-        cal = graph(dataset, time_offset=None)
-        fit = window_fit(dataset, cal, use_adsb=True, max_gap_s=WindowOptions().max_gap_s)
+    problem = build_problem(dataset)
+    cal = graph(problem, time_offset=None)
+    fit = window_fit(problem, cal, use_adsb=True, max_gap_s=WindowOptions().adsb_max_gap_s)
     assert cal.value("NORD", "time_offset_s") == pytest.approx(0.8, abs=0.02)
     assert FIRST_ORDER_MAX_S > cal.value("SUD", "time_offset_s") > NEGLIGIBLE_TIME_OFFSET_S
     reference, residuals, _ = calibrated_residuals(dataset, cal)
@@ -67,10 +67,9 @@ def test_the_sums_are_the_model_checks_sums(window) -> None:
 
 def test_the_summary_carries_its_window_fit(window) -> None:
     summary = summarise_window(window)
-    with sharing():
-        cal = graph(window.dataset, time_offset=None)
-        fit = window_fit(window.dataset, cal, use_adsb=True,
-                         max_gap_s=WindowOptions().max_gap_s)
+    problem = build_problem(window.dataset)
+    cal = graph(problem, time_offset=None)
+    fit = window_fit(problem, cal, use_adsb=True, max_gap_s=WindowOptions().adsb_max_gap_s)
     assert summary.fit == fit  # the same fit, plain numbers
     assert summarise_window(window, judge=False).fit is None
     assert summarise_window(window, WindowOptions(use_adsb=False)).fit.reference == "none"
@@ -82,8 +81,8 @@ def test_negative_ranges_and_the_gain_are_counted_without_residuals(window) -> N
     sud = plots["radar_id"] == "SUD"
     plots.loc[sud, "range_m"] *= 1e-3
     dataset = replace(window.dataset, plots=plots)
-    with sharing():
-        cal = graph(dataset, time_offset=None)
-        fit = window_fit(dataset, cal, use_adsb=False, max_gap_s=10.0)
+    problem = build_problem(dataset)
+    cal = graph(problem, time_offset=None)
+    fit = window_fit(problem, cal, use_adsb=False, max_gap_s=10.0)
     assert fit.reference == "none" and fit.sums == {}
     assert fit.range_gain["SUD"] == pytest.approx(-0.999, abs=1e-3)
