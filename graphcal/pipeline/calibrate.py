@@ -31,6 +31,7 @@ from graphcal.data.dataset import Dataset
 from graphcal.io.folder import SITES_FILE, load_dataset, load_sites
 from graphcal.model.problem import Problem, build_problem
 from graphcal.noise import filled_with_notes
+from graphcal.pipeline.associate import calibrate_associated, needs_association
 from graphcal.solvers.registry import METHODS, get_estimator, solve
 
 Progress = Callable[..., None]
@@ -298,8 +299,12 @@ def calibrate(
     dataset, sigma_info, sigma_warnings = filled_with_notes(dataset)
     # One problem for the estimate, its bound, its checks and its verdict: the plots'
     # arrays and their alignments with ADS-B are made once.
-    problem = build_problem(dataset, options)
-    cal = solve(problem, method, **extra)
+    if needs_association(dataset):  # radars without addresses: associate, then calibrate
+        cal, problem, _ = calibrate_associated(dataset, method, options, **extra)
+        dataset = problem.dataset
+    else:
+        problem = build_problem(dataset, options)
+        cal = solve(problem, method, **extra)
     if sigma_info is not None:
         cal.info["estimated_sigmas"] = sigma_info
         cal.warnings.extend(sigma_warnings)

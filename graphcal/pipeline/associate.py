@@ -1,0 +1,148 @@
+"""Calibration with plots that carry no address: associate, calibrate, associate again.
+
+A radar whose plots have an empty ``target_id`` (primary radars, Mode A/C SSRs) cannot be
+tied to ADS-B or to the other radars by identity.  :func:`calibrate_associated` gives its
+plots the addresses of the aircraft they measure (:mod:`graphcal.tracking.association`),
+calibrates the network on the addressed plots (clutter and ambiguous plots left out),
+and associates again with the new biases and their covariance, until at most
+:data:`MAX_CHANGED_FRACTION` of the associations change (at most :data:`MAX_ROUNDS`
+calibrations).  The first association starts from a coarse search for each such radar's
+range offset and azimuth bias (:func:`~graphcal.tracking.association.coarse_bias`), and a
+quick closed-form estimate on it (``ls`` with ADS-B, ``wls`` without) narrows the gates
+before the first full calibration.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from graphcal.core.errors import EstimationError
+from graphcal.core.solve_options import SolveOptions
+from graphcal.data.align import plot_arrays
+from graphcal.data.bias import RadarBias
+from graphcal.data.calibration import Calibration
+from graphcal.data.dataset import Dataset
+from graphcal.model.problem import Problem, build_problem
+from graphcal.solvers.registry import solve
+from graphcal.tracking.association import (
+    ASSOCIATED,
+    Association,
+    associate,
+    coarse_bias,
+    reference_tracks,
+    unaddressed_radars,
+)
+
+#: At most this many calibrations, each followed by an association.
+MAX_ROUNDS = 3
+#: The associations have settled when at most this fraction of the plots without an
+#: address changes from one round to the next.
+MAX_CHANGED_FRACTION = 1e-3
+#: The first association's bias uncertainty around the coarse search's start:
+#: (range offset m, range gain, azimuth rad, elevation rad) 1-sigma.
+COARSE_SIGMA = (300.0, 1e-3, 2e-3, 2e-3)
+#: The terms the association's gate widens by, in the calibration's names.
+GATED_TERMS = ("range_offset", "range_gain", "azimuth_bias", "elevation_bias")
+
+
+def needs_association(dataset: Dataset) -> bool:
+    """Whether some radar has plots without an address."""
+    return bool(unaddressed_radars(dataset))
+
+
+def calibrate_associated(dataset: Dataset, method: str, options: SolveOptions, **run: Any
+                         ) -> tuple[Calibration, Problem, Association]:
+    """Associate the plots without an address, calibrate, and repeat (module docstring).
+
+    ``run``: how the estimator runs (:func:`graphcal.solvers.registry.solve`); its
+    ``progress`` also reporting the association.  Returns the calibration, the problem of
+    the associated dataset it was solved on (for the bound, the checks and the verdict)
+    and the last association.
+    """
+    start = time.perf_counter()
+    progress: Callable[..., None] | None = run.get("progress")
+    radars = unaddressed_radars(dataset)
+    refs = reference_tracks(dataset, {}, use_adsb=options.use_adsb)
+    biases: dict[str, RadarBias] = {}
+    covariances: dict[str, np.ndarray] = {}
+    coarse_notes = []
+    for rid in radars:
+        plots = plot_arrays(dataset, rid)
+        plots = plots.subset(np.isin(plots.target_id.astype(str), ["", "nan"]))
+        found = coarse_bias(dataset.sites[rid], refs, plots)
+        if found is None:
+            coarse_notes.append(f"{rid}: no plot near any known aircraft; not associated")
+            continue
+        biases[rid] = found
+        covariances[rid] = np.diag(np.square(COARSE_SIGMA))
+    if progress is not None:
+        progress("association", 0, MAX_ROUNDS)
+    association = associate(dataset, biases, covariances, use_adsb=options.use_adsb,
+                            radars=radars)
+    # A quick estimate on the first association narrows the gates before the full one.
+    quick = "ls" if options.use_adsb and dataset.adsb is not None and len(dataset.adsb) else "wls"
+    try:
+        first = solve(build_problem(association.applied(dataset), options), quick)
+    except (EstimationError, ValueError, np.linalg.LinAlgError):
+        first = None
+    if first is not None:
+        biases.update({rid: first.bias(rid) for rid in first.radar_ids})
+        covariances.update(_gate_covariances(first))
+        association = associate(dataset, biases, covariances, use_adsb=options.use_adsb,
+                                radars=radars)
+    cal = problem = None
+    rounds = 0
+    for rounds in range(1, MAX_ROUNDS + 1):  # noqa: B007 - the count is reported
+        problem = build_problem(association.applied(dataset), options)
+        cal = solve(problem, method, **run)
+        biases = {rid: cal.bias(rid) for rid in cal.radar_ids}
+        covariances = _gate_covariances(cal)
+        again = associate(dataset, biases, covariances, use_adsb=options.use_adsb,
+                          radars=radars)
+        if progress is not None:
+            progress("association", rounds, MAX_ROUNDS)
+        if _changed(again, association) <= MAX_CHANGED_FRACTION:
+            break
+        association = again
+    if cal is None or problem is None:
+        raise EstimationError("nothing to calibrate")
+    info = association.to_dict()
+    cal.info["association"] = {"radars": info, "rounds": rounds,
+                               "seconds": time.perf_counter() - start}
+    cal.warnings.extend(coarse_notes)
+    for rid, figures in info.items():
+        if figures["associated"] == 0 and rid in biases:
+            cal.warnings.append(f"{rid}: no plot without an address associated with a known "
+                                "aircraft; not calibrated")
+    return cal, problem, association
+
+
+def _gate_covariances(cal: Calibration) -> dict[str, np.ndarray]:
+    """Each radar's covariance over :data:`GATED_TERMS` (SI; zero where not estimated)."""
+    out = {}
+    labels = list(cal.labels)
+    cov = np.asarray(cal.covariance, dtype=float)
+    for rid in cal.radar_ids:
+        block = np.zeros((4, 4))
+        index = {name: labels.index((rid, name)) for name in GATED_TERMS
+                 if (rid, name) in labels}
+        for a, na in enumerate(GATED_TERMS):
+            for b, nb in enumerate(GATED_TERMS):
+                if na in index and nb in index:
+                    block[a, b] = cov[index[na], index[nb]]
+        out[rid] = block
+    return out
+
+
+def _changed(a: Association, b: Association) -> float:
+    """The fraction of the plots without an address whose association differs."""
+    ta = a.target_id.where(a.status == ASSOCIATED, "")
+    tb = b.target_id.where(b.status == ASSOCIATED, "").reindex(ta.index, fill_value="")
+    return float(np.mean(ta.to_numpy() != tb.to_numpy())) if len(ta) else 0.0
+
+
+__all__ = ["MAX_ROUNDS", "calibrate_associated", "needs_association"]

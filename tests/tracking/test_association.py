@@ -1,0 +1,106 @@
+"""Plots without an address associated by gating (graphcal.tracking.association) and the
+calibration that associates, solves and associates again (graphcal.pipeline.associate),
+scored against the simulator's truth: which aircraft each plot came from, or clutter."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import graphcal
+from graphcal.data.align import plot_arrays
+from graphcal.tracking.association import (
+    ASSOCIATED,
+    associate,
+    coarse_bias,
+    reference_tracks,
+    unaddressed_radars,
+)
+from tests.paths import SCENARIOS
+
+PRIMARY = ["EST3D", "OUEST3D"]
+CLUTTER_PER_SCAN = 8.0
+
+
+@pytest.fixture(scope="module")
+def network():
+    """The demo network (seed 1) with the 3-D radars' addresses removed and 8 false plots a
+    scan added to EST3D; the plots' true aircraft ("clutter" for the false ones)."""
+    sim = graphcal.simulate(SCENARIOS / "demo_network.toml", seed=1)
+    ds = sim.dataset
+    plots = ds.plots.copy()
+    truth = plots["target_id"].astype(str).copy()
+    plots.loc[plots["radar_id"].isin(PRIMARY), "target_id"] = ""
+    rng = np.random.default_rng(7)
+    period = ds.sites["EST3D"].scan_period_s
+    t0, t1 = plots["time_s"].min(), plots["time_s"].max()
+    n = rng.poisson(CLUTTER_PER_SCAN * (t1 - t0) / period)
+    clutter = pd.DataFrame({
+        "radar_id": "EST3D", "time_s": rng.uniform(t0, t1, n), "target_id": "",
+        "range_m": rng.uniform(5e3, 250e3, n), "azimuth_deg": rng.uniform(0.0, 360.0, n),
+        "elevation_deg": rng.uniform(0.5, 10.0, n)})
+    plots = pd.concat([plots, clutter.reindex(columns=plots.columns)], ignore_index=True)
+    truth = pd.concat([truth, pd.Series(["clutter"] * n)], ignore_index=True)
+    return sim, ds, replace(ds, plots=plots), truth, n
+
+
+def test_the_radars_without_addresses_are_found(network) -> None:
+    _, ds, blank, _, _ = network
+    assert unaddressed_radars(ds) == []
+    assert sorted(unaddressed_radars(blank)) == sorted(PRIMARY)
+
+
+def test_the_coarse_search_finds_the_biases_to_within_the_first_gate(network) -> None:
+    """From zero, the vote lands within a few sigma of the first gate's widths (300 m,
+    2 mrad) of the truth, with range gains of a few 1e-4 folded into the offset."""
+    sim, _, blank, _, _ = network
+    refs = reference_tracks(blank, {})
+    for rid in PRIMARY:
+        plots = plot_arrays(blank, rid)
+        plots = plots.subset(plots.target_id.astype(str) == "")
+        found = coarse_bias(blank.sites[rid], refs, plots)
+        true = sim.truth[rid]
+        mean_range = float(np.nanmean(plots.range_m))
+        assert found.range_offset_m == pytest.approx(
+            true.range_offset_m + true.range_gain * mean_range, abs=300.0)
+        assert found.azimuth_bias_rad == pytest.approx(true.azimuth_bias_rad, abs=1e-3)
+        assert found.elevation_bias_rad == pytest.approx(true.elevation_bias_rad, abs=1e-3)
+
+
+def test_association_at_the_true_biases_against_the_truth(network) -> None:
+    """At the true biases: no plot given to the wrong aircraft, no clutter associated, at
+    least 99 % of the plots of aircraft with a reference associated, and the false-plot
+    rate near the 8 a scan added (Poisson: within 5 %)."""
+    sim, _, blank, truth, n_clutter = network
+    cov = {rid: np.diag([1.0, 1e-10, 1e-10, 1e-10]) for rid in PRIMARY}
+    result = associate(blank, {rid: sim.truth[rid] for rid in sim.truth}, cov)
+    given = result.target_id[result.status == ASSOCIATED]
+    true = truth.loc[given.index]
+    assert (true.to_numpy() == "clutter").sum() == 0
+    assert (true.to_numpy() != given.to_numpy()).sum() == 0
+    real = truth.loc[result.status.index] != "clutter"
+    assert (result.status[real] == ASSOCIATED).mean() > 0.99
+    est = result.radars["EST3D"]
+    assert est.false_plots_per_scan == pytest.approx(CLUTTER_PER_SCAN, rel=0.05)
+    assert est.n_left_out >= n_clutter
+
+
+@pytest.mark.parametrize("use_adsb", [True, False])
+def test_calibrating_without_addresses_matches_the_addressed_run(network, use_adsb) -> None:
+    """Every radar calibrated; the 3-D radars' estimates within 0.3 sigma of the addressed
+    run's and their sigmas within 1 % of it (the clutter left out, the same plots used)."""
+    _, ds, blank, _, _ = network
+    cal = graphcal.calibrate(blank, use_adsb=use_adsb, model_checks=False, check_fit=False,
+                             bound=False)
+    ref = graphcal.calibrate(ds, use_adsb=use_adsb, model_checks=False, check_fit=False,
+                             bound=False)
+    assert set(cal.radar_ids) == set(ref.radar_ids)
+    figures = cal.info["association"]["radars"]
+    assert set(figures) == set(PRIMARY)
+    for rid in PRIMARY:
+        for key in ("range_offset_m", "range_gain", "azimuth_bias_mrad", "elevation_bias_mrad"):
+            assert abs(cal.value(rid, key) - ref.value(rid, key)) < 0.3 * ref.sigma(rid, key)
+            assert cal.sigma(rid, key) == pytest.approx(ref.sigma(rid, key), rel=0.01)
