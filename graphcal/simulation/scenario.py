@@ -8,6 +8,8 @@ The format is documented in ``scenarios/README.md``.  In short::
                  min_elevation_deg, horizon_check, estimate, antenna_phase_deg,
                  altitude_sigma_m, altitude_quantum_ft, refraction,
                  refractivity_n_s, refractivity_scale_height_m,
+                 identity ("mode_s", "mode_ac", "psr"), track_numbers,
+                 clutter_per_scan (contract v3),
                  [radar.bias] range_offset_m, range_gain, azimuth_bias_mrad,
                  elevation_bias_mrad, time_offset_s, azimuth_sin_mrad, azimuth_cos_mrad
                  [radar.drift] the same keys (but time_offset_s) with ``_per_h``
@@ -17,6 +19,7 @@ The format is documented in ``scenarios/README.md``.  In short::
     [opensky]    replay of an OpenSky-style state-vector table
     [adsb]       ADS-B reports of every equipped aircraft (equipped_fraction,
                  baro_altitude)
+    [mode_3a]    Mode 3/A codes (contract v3): vfr_fraction, vfr_code, code_changes
     [dataset]    plot_altitude: "geometric" (default) or "pressure" (contract v2);
                  epoch_utc: the UTC time of 0 s, written to the dataset (v1.6;
                  default: an [opensky] replay's start, else none)
@@ -74,8 +77,15 @@ DEFAULT_NACP = 9
 VERTICAL_TO_HORIZONTAL_SIGMA = 1.5
 #: Base of the ICAO addresses given to ``[[aircraft]]`` entries without ``id``.
 GENERATED_ID_BASE = 0xF00000
+#: What a radar's plots tell of the aircraft (``identity``, contract v3): ``"mode_s"``
+#: the address (``target_id``), the Mode 3/A code when codes are simulated, and the
+#: altitude; ``"mode_ac"`` the code and the altitude, no address; ``"psr"`` nothing.
+IDENTITIES: tuple[str, ...] = ("mode_s", "mode_ac", "psr")
+#: Default Mode 3/A code of VFR flights (Europe's conspicuity code 7000).
+DEFAULT_VFR_CODE = "7000"
 
 _ICAO_RE = re.compile(r"^[0-9a-f]{6}$")
+_MODE_3A_RE = re.compile(r"^[0-7]{4}$")
 _REQUIRED = object()
 
 
@@ -135,6 +145,15 @@ class RadarSpec:
         Rate of change of each bias [SI per s] (``[radar.drift]``, per hour in the file).
     steps : tuple of BiasStep
         Changes of the biases at given times (``[[radar.step]]``).
+    identity : {"mode_s", "mode_ac", "psr"}
+        What the plots carry of the aircraft (:data:`IDENTITIES`): ``"mode_s"``
+        its address as ``target_id``; ``"mode_ac"`` no address (``target_id``
+        empty), its Mode 3/A code and its altitude; ``"psr"`` neither address,
+        code nor altitude.
+    track_numbers : bool
+        Whether the plots carry the radar's own ``track_number``.
+    clutter_per_scan : float
+        Mean number of false plots per antenna revolution (Poisson); 0: none.
     """
 
     id: str
@@ -160,6 +179,9 @@ class RadarSpec:
     refractivity_scale_height_m: float = DEFAULT_SCALE_HEIGHT_M
     drift_per_s: RadarBias = field(default_factory=RadarBias)
     steps: tuple[BiasStep, ...] = ()
+    identity: str = "mode_s"
+    track_numbers: bool = False
+    clutter_per_scan: float = 0.0
 
     @property
     def schedule(self) -> BiasSchedule:
@@ -170,6 +192,12 @@ class RadarSpec:
     def is_3d(self) -> bool:
         """True when the radar measures elevation."""
         return self.sigma_elevation_rad is not None
+
+    @property
+    def addressed(self) -> bool:
+        """True when every plot of the radar carries its aircraft's address: a Mode S
+        radar without clutter."""
+        return self.identity == "mode_s" and self.clutter_per_scan == 0.0
 
     @property
     def atmosphere(self) -> Atmosphere | None:
@@ -261,6 +289,32 @@ class AdsbSpec:
 
 
 @dataclass(frozen=True)
+class Mode3aSpec:
+    """The Mode 3/A codes of the simulated aircraft (``[mode_3a]``, contract v3).
+
+    Every aircraft gets a discrete code (4 octal digits, distinct while the
+    4096-code space lasts, never a special code such as 7000, 7500, 7600 or 7700),
+    or the VFR code.
+
+    Attributes
+    ----------
+    vfr_fraction : float
+        Fraction of the aircraft, in ``[0, 1]``, that fly VFR and share
+        ``vfr_code``: that many (rounded to the nearest whole number, halves up)
+        are drawn without replacement.
+    vfr_code : int
+        The VFR code, as an integer (``0o7000``).
+    code_changes : float
+        Fraction of the aircraft, in ``[0, 1]``, whose code changes once, at a time
+        uniform within their flight (inside the scenario), to a new discrete code.
+    """
+
+    vfr_fraction: float = 0.0
+    vfr_code: int = int(DEFAULT_VFR_CODE, 8)
+    code_changes: float = 0.0
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A parsed scenario.
 
@@ -298,6 +352,9 @@ class Scenario:
         The UTC time of scenario time 0, written to the simulated dataset's
         ``sites.toml`` (``[dataset] epoch_utc``; default: an ``[opensky]``
         replay's ``start``, else ``None``: no epoch).
+    mode_3a : Mode3aSpec or None
+        The ``[mode_3a]`` table; ``None`` without it (codes are then simulated,
+        with its defaults, only when a radar is ``"mode_ac"``).
     """
 
     name: str
@@ -313,6 +370,7 @@ class Scenario:
     plot_altitude: str = GEOMETRIC
     true_height_model: HeightModel | None = None
     epoch_utc: dt.datetime | None = None
+    mode_3a: Mode3aSpec | None = None
 
     @property
     def height_model(self) -> HeightModel:
@@ -330,6 +388,27 @@ class Scenario:
         if self.adsb.baro_altitude is None:
             return self.has_pressure
         return self.adsb.baro_altitude
+
+    @property
+    def codes(self) -> Mode3aSpec | None:
+        """The Mode 3/A codes simulated: ``[mode_3a]``, or its defaults when a radar is
+        ``"mode_ac"`` and the table is absent; ``None``: no codes (no ``mode_3a`` column)."""
+        if self.mode_3a is not None:
+            return self.mode_3a
+        if any(r.identity == "mode_ac" for r in self.radars):
+            return Mode3aSpec()
+        return None
+
+    @property
+    def track_numbers(self) -> bool:
+        """Whether the plots have a ``track_number`` column (a radar numbers its tracks)."""
+        return any(r.track_numbers for r in self.radars)
+
+    @property
+    def addressed(self) -> bool:
+        """True when every plot carries its aircraft's address (every radar Mode S, no
+        clutter): the plots' ``target_id`` is then their whole truth."""
+        return all(r.addressed for r in self.radars)
 
     def radar(self, radar_id: str) -> RadarSpec:
         """The radar with this id (``KeyError`` if there is none)."""
@@ -616,6 +695,20 @@ def _radar_refraction(t: _Table) -> tuple[str, float, float]:
     return model, n_s, height
 
 
+def _radar_identity(t: _Table, max_range_m: float) -> tuple[str, bool, float]:
+    """``(identity, track_numbers, clutter_per_scan)`` (contract v3 keys)."""
+    identity = t.string("identity", "mode_s")
+    if identity not in IDENTITIES:
+        known = ", ".join(f'"{v}"' for v in IDENTITIES)
+        raise t.error("identity", f"must be one of {known}, got {identity!r}")
+    track_numbers = t.boolean("track_numbers", False)
+    clutter = t.number("clutter_per_scan", 0.0, low=0.0, high=1e5)
+    if clutter > 0.0 and not math.isfinite(max_range_m):
+        raise t.error("clutter_per_scan",
+                      "needs a finite max_range_m (clutter is spread over the range)")
+    return identity, track_numbers, clutter
+
+
 def _model_value(t: _Table, key: str, model_value: Any, **checks: Any) -> Any:
     """The file's value if given, else the model's, else a missing-field error."""
     if not t.has(key) and model_value is None:
@@ -670,6 +763,7 @@ def _parse_radar(t: _Table, duration_s: float | None = None) -> RadarSpec:
         high=90.0,
     )
     phase = t.number("antenna_phase_deg", None)
+    identity, track_numbers, clutter = _radar_identity(t, max_range)
     refraction, n_s, scale_height = _radar_refraction(t)
     drift, steps = _radar_drift(t, dims == 3, duration_s)
     spec = RadarSpec(
@@ -699,6 +793,9 @@ def _parse_radar(t: _Table, duration_s: float | None = None) -> RadarSpec:
         refractivity_scale_height_m=scale_height,
         drift_per_s=drift,
         steps=steps,
+        identity=identity,
+        track_numbers=track_numbers,
+        clutter_per_scan=clutter,
     )
     t.finish()
     return spec
@@ -904,6 +1001,22 @@ def _parse_adsb(t: _Table | None) -> AdsbSpec:
     return spec
 
 
+def _parse_mode_3a(t: _Table | None) -> Mode3aSpec | None:
+    """``[mode_3a]``: ``vfr_fraction``, ``vfr_code`` (4 octal digits) and ``code_changes``."""
+    if t is None:
+        return None
+    code = t.string("vfr_code", DEFAULT_VFR_CODE)
+    if not _MODE_3A_RE.match(code):
+        raise t.error("vfr_code", f"must be a Mode 3/A code of 4 octal digits, got {code!r}")
+    spec = Mode3aSpec(
+        vfr_fraction=t.number("vfr_fraction", 0.0, low=0.0, high=1.0),
+        vfr_code=int(code, 8),
+        code_changes=t.number("code_changes", 0.0, low=0.0, high=1.0),
+    )
+    t.finish()
+    return spec
+
+
 def _parse_dataset(t: _Table | None) -> tuple[str, dt.datetime | None]:
     """``[dataset]``: ``plot_altitude`` (``"geometric"``, the default, or ``"pressure"``)
     and ``epoch_utc`` (:func:`graphcal.data.epoch.parse_epoch_utc`; ``None`` when absent)."""
@@ -992,6 +1105,7 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
     opensky_table = root.table("opensky")
     opensky = None if opensky_table is None else _parse_opensky(opensky_table, duration)
     adsb = _parse_adsb(root.table("adsb"))
+    mode_3a = _parse_mode_3a(root.table("mode_3a"))
     plot_altitude, epoch_utc = _parse_dataset(root.table("dataset"))
     if epoch_utc is None and opensky is not None:
         epoch_utc = opensky.start.to_pydatetime()  # the replay's time 0 is real UTC
@@ -1013,6 +1127,7 @@ def parse_scenario(document: Mapping[str, Any], path: str | Path | None = None) 
         plot_altitude=plot_altitude,
         true_height_model=true_height_model,
         epoch_utc=epoch_utc,
+        mode_3a=mode_3a,
     )
 
 

@@ -44,23 +44,36 @@ altitudes, each report also carries ``baro_alt_m``: the pressure altitude of the
 true height, quantised to 25 ft (no random draw, so the random stream is that
 of the same scenario without it).
 
+Contract v3 adds what a plot tells of its aircraft.  A radar's ``identity`` is
+``"mode_s"`` (the address as ``target_id``), ``"mode_ac"`` (no address; the
+Mode 3/A code and the Mode C altitude) or ``"psr"`` (no address, no code, no
+altitude); a radar with ``track_numbers`` numbers its tracks
+(:class:`TrackNumbers`); ``clutter_per_scan`` adds false plots
+(:func:`clutter_plots`).  Mode 3/A codes (:func:`draw_mode_3a_codes`) are
+simulated with a ``[mode_3a]`` table or a ``"mode_ac"`` radar; plots and ADS-B
+reports then carry ``mode_3a``.  :attr:`SimulationResult.plot_truth` says for
+every plot which aircraft made it (``truth_target_id``, ``"clutter"`` for a
+false plot).
+
 Every random number is drawn from the one :class:`numpy.random.Generator`
 passed in, in a fixed order (traffic, antenna phases, radars in file order,
-ADS-B: equipage when ``equipped_fraction < 1``, then phases and noise), so one
-seed reproduces a dataset exactly.
+ADS-B: equipage when ``equipped_fraction < 1``, then phases and noise; then, only
+when the scenario asks for them, the Mode 3/A codes and each radar's clutter in
+file order), so one seed reproduces a dataset exactly, and a scenario without
+the contract v3 keys draws exactly what it drew before them.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from graphcal.core import frames
 from graphcal.core.errors import ScenarioError
@@ -76,7 +89,7 @@ from graphcal.data.dataset import PLOT_COLUMNS, Dataset
 from graphcal.data.height import HeightModel
 from graphcal.io.folder import write_dataset
 from graphcal.simulation.chunks import TimeSpan, chunk_edges, true_span
-from graphcal.simulation.scenario import AdsbSpec, RadarSpec, Scenario
+from graphcal.simulation.scenario import AdsbSpec, Mode3aSpec, RadarSpec, Scenario
 from graphcal.simulation.trajectories import (
     ReplayStats,
     Trajectory,
@@ -94,6 +107,24 @@ CROSSING_TOLERANCE_S = 1e-9
 #: Maximum fixed-point iterations per beam crossing.
 CROSSING_MAX_ITER = 30
 
+#: ``truth_target_id`` of a false plot (clutter).
+CLUTTER = "clutter"
+#: Scans a radar keeps a track without a plot: a longer gap starts a new track number.
+TRACK_COAST_SCANS = 3
+#: Track numbers wrap modulo this (12 bits, ASTERIX I048/161).
+TRACK_NUMBER_MODULUS = 4096
+#: Upper edge [deg] of the elevations of a 3-D radar's clutter (drawn uniformly from
+#: the radar's ``min_elevation_deg`` up to this).
+CLUTTER_MAX_ELEVATION_DEG = 20.0
+#: Mode 3/A codes never given as discrete codes: 0000, VFR 1200 and 7000, 2000,
+#: the emergency codes 7500, 7600, 7700, and 7777.
+SPECIAL_CODES: tuple[int, ...] = (0o0000, 0o1200, 0o2000, 0o7000, 0o7500, 0o7600, 0o7700,
+                                  0o7777)
+#: Number of Mode 3/A codes (4 octal digits).
+N_CODES = 4096
+
+_OCTAL = np.array([f"{code:04o}" for code in range(N_CODES)], dtype=object)
+
 _TRUTH_COLUMNS = (
     "time_true_s",
     "x_m",
@@ -103,6 +134,7 @@ _TRUTH_COLUMNS = (
     "azimuth_true_deg",
     "elevation_true_deg",
     "height_true_m",
+    "truth_target_id",
 )
 
 
@@ -122,9 +154,11 @@ class SimulationResult:
     plot_truth : pandas.DataFrame
         One row per plot, same order as ``dataset.plots``: ``time_true_s``,
         true ECEF position ``x_m, y_m, z_m``, true ``range_true_m``,
-        ``azimuth_true_deg``, ``elevation_true_deg`` and ``height_true_m``.
-        For a refracted radar the true range and elevation are the contract's:
-        the electrical length and the apparent elevation.
+        ``azimuth_true_deg``, ``elevation_true_deg`` and ``height_true_m``, and
+        ``truth_target_id``: the address of the aircraft that made the plot, or
+        :data:`CLUTTER` for a false plot (whose other truth columns are NaN but
+        ``time_true_s``).  For a refracted radar the true range and elevation are
+        the contract's: the electrical length and the apparent elevation.
     adsb_truth : pandas.DataFrame or None
         One row per ADS-B report, same order: ``x_m, y_m, z_m`` true ECEF
         position and ``outlier`` (bool).
@@ -142,6 +176,10 @@ class SimulationResult:
         ``trajectories`` (every aircraft unless ``[adsb] equipped_fraction`` is
         below 1; empty when ADS-B is off).  An equipped aircraft can still
         have no report (dropouts, or no report time inside the scenario).
+    mode_3a : Mode3aCodes or None
+        The aircraft's Mode 3/A codes, ``None`` when the scenario simulates none.
+    n_clutter : dict of str to int
+        Per radar, the false plots among its plots.
     """
 
     scenario: Scenario
@@ -154,6 +192,8 @@ class SimulationResult:
     replay_stats: ReplayStats | None = None
     n_candidates: dict[str, int] = field(default_factory=dict)
     adsb_equipped: tuple[str, ...] = ()
+    mode_3a: Mode3aCodes | None = None
+    n_clutter: dict[str, int] = field(default_factory=dict)
 
     @property
     def truth(self) -> dict[str, RadarBias]:
@@ -429,6 +469,7 @@ def _radar_plots(
             "azimuth_true_deg": np.degrees(az),
             "elevation_true_deg": np.degrees(el),
             "height_true_m": height,
+            "truth_target_id": target,
         }
     )[detected]
     return plots, truth, n
@@ -532,6 +573,257 @@ def _adsb_reports(
     return reports, truth
 
 
+# --------------------------------------------------------------------------- identity (v3)
+
+
+def _share(fraction: float, n: int, rng: np.random.Generator) -> NDArray[np.bool_]:
+    """A mask of ``round(fraction * n)`` (halves up) of ``n`` items, drawn without replacement.
+
+    Draws one permutation of ``n`` whatever the fraction (fixed draw shapes).
+    """
+    order = rng.permutation(n)
+    mask = np.zeros(n, dtype=bool)
+    mask[order[:min(int(math.floor(fraction * n + 0.5)), n)]] = True
+    return mask
+
+
+def mode_3a_strings(codes: ArrayLike) -> NDArray[np.object_]:
+    """Mode 3/A codes (integers 0-4095) as 4 octal digits (``0o413`` -> ``"0413"``)."""
+    return _OCTAL[np.asarray(codes, dtype=np.int64)]
+
+
+@dataclass(frozen=True)
+class Mode3aCodes:
+    """The Mode 3/A codes of the simulated aircraft (:func:`draw_mode_3a_codes`).
+
+    Attributes
+    ----------
+    target_ids : tuple of str
+        The aircraft's addresses, in the order of the simulation's trajectories.
+    first_code : ndarray of int
+        Each aircraft's code from its start (an integer, 0-4095; ``mode_3a_strings``
+        writes it).
+    change_time_s : ndarray of float
+        True time [s] at which the code becomes ``second_code``; NaN: no change.
+    second_code : ndarray of int
+        The code after the change (drawn for every aircraft, used by those that change).
+    vfr : ndarray of bool
+        The aircraft that start with the VFR code.
+    """
+
+    target_ids: tuple[str, ...]
+    first_code: NDArray[np.int64]
+    change_time_s: Array
+    second_code: NDArray[np.int64]
+    vfr: NDArray[np.bool_]
+
+    def at(self, target_id: ArrayLike, time_s: ArrayLike) -> NDArray[np.object_]:
+        """The codes of aircraft ``target_id`` at true times ``time_s`` [s], as strings of 4
+        octal digits; ``""`` for an address that is not one of :attr:`target_ids`."""
+        index = pd.Index(self.target_ids).get_indexer(np.asarray(target_id, dtype=object))
+        time = np.asarray(time_s, dtype=float)
+        known = index >= 0
+        which = np.where(known, index, 0)
+        if not self.target_ids:
+            return np.full(index.size, "", dtype=object)
+        changed = time >= self.change_time_s[which]  # NaN: never
+        codes = np.where(changed, self.second_code[which], self.first_code[which])
+        return np.where(known, mode_3a_strings(codes), "").astype(object)
+
+
+def draw_mode_3a_codes(
+    spec: Mode3aSpec, flights: list[Trajectory], duration_s: float, rng: np.random.Generator
+) -> Mode3aCodes:
+    """Every aircraft's Mode 3/A code, drawn from ``rng``.
+
+    Two discrete codes per aircraft (its first one and the one it may change to)
+    are drawn without replacement from the codes that are not
+    :data:`SPECIAL_CODES` nor the VFR code (with replacement when the aircraft
+    outnumber them); then the VFR aircraft (:attr:`Mode3aSpec.vfr_fraction`) and
+    those whose code changes (:attr:`Mode3aSpec.code_changes`, each a permutation
+    of the aircraft), and a change time per aircraft, uniform within its flight
+    clipped to ``[0, duration_s]`` [s].
+
+    Parameters
+    ----------
+    spec : Mode3aSpec
+        The ``[mode_3a]`` settings.
+    flights : list of Trajectory
+        The aircraft.
+    duration_s : float
+        The scenario's duration [s].
+    rng : numpy.random.Generator
+        The simulation's generator.
+
+    Returns
+    -------
+    Mode3aCodes
+    """
+    n = len(flights)
+    special = {*SPECIAL_CODES, spec.vfr_code}
+    pool = np.array([c for c in range(N_CODES) if c not in special], dtype=np.int64)
+    drawn = rng.choice(pool, size=2 * n, replace=2 * n > pool.size)
+    vfr = _share(spec.vfr_fraction, n, rng)
+    changes = _share(spec.code_changes, n, rng)
+    u = rng.uniform(size=n)
+    start = np.clip(np.array([f.start_s for f in flights], dtype=float), 0.0, duration_s)
+    end = np.clip(np.array([f.end_s for f in flights], dtype=float), start, duration_s)
+    return Mode3aCodes(
+        target_ids=tuple(f.target_id for f in flights),
+        first_code=np.where(vfr, spec.vfr_code, drawn[:n]).astype(np.int64),
+        change_time_s=np.where(changes, start + u * (end - start), np.nan),
+        second_code=drawn[n:].astype(np.int64),
+        vfr=vfr,
+    )
+
+
+class TrackNumbers:
+    """A radar's track numbers, carried from one chunk of plots to the next.
+
+    Each aircraft the radar plots is one track with one number while the radar
+    keeps seeing it; when the gap to its previous plot exceeds
+    ``(coast_scans + 1.5)`` scan periods (more than ``coast_scans`` scans
+    missed), the next plot starts a new track with a new number.  New tracks take
+    consecutive numbers in the order of their first plot, from 0, modulo
+    :data:`TRACK_NUMBER_MODULUS` (12 bits).  No random number is drawn.
+
+    Parameters
+    ----------
+    scan_period_s : float
+        The radar's scan period [s].
+    coast_scans : int, optional
+        Scans a track survives without a plot.
+    """
+
+    def __init__(self, scan_period_s: float, coast_scans: int = TRACK_COAST_SCANS) -> None:
+        self.max_gap_s = (coast_scans + 1.5) * scan_period_s
+        self.next_number = 0
+        self._last_time: dict[str, float] = {}
+        self._last_number: dict[str, int] = {}
+
+    def number(self, target_id: ArrayLike, time_s: ArrayLike) -> pd.api.extensions.ExtensionArray:
+        """Track numbers of the radar's next plots (aircraft ``target_id`` at true times
+        ``time_s`` [s], after every plot numbered before), as a pandas ``Int64`` array."""
+        target = np.asarray(target_id, dtype=object)
+        time = np.asarray(time_s, dtype=float)
+        n = target.size
+        if n == 0:
+            return pd.array(np.empty(0, dtype=np.int64), dtype="Int64")
+        codes, uniques = pd.factorize(target)
+        order = np.lexsort((time, codes))
+        c, t = codes[order], time[order]
+        first = np.ones(n, dtype=bool)
+        first[1:] = c[1:] != c[:-1]
+        last_time = np.array([self._last_time.get(u, -np.inf) for u in uniques])
+        last_number = np.array([self._last_number.get(u, -1) for u in uniques], dtype=np.int64)
+        previous = np.empty(n)
+        previous[1:] = t[:-1]
+        previous[first] = last_time[c[first]]
+        new = t - previous > self.max_gap_s
+        number = np.full(n, -1, dtype=np.int64)
+        starts = np.flatnonzero(new)
+        starts = starts[np.argsort(t[starts], kind="stable")]
+        number[starts] = (self.next_number + np.arange(starts.size)) % TRACK_NUMBER_MODULUS
+        self.next_number = (self.next_number + starts.size) % TRACK_NUMBER_MODULUS
+        carried = first & ~new
+        number[carried] = last_number[c[carried]]
+        # Every group starts with a number: fill each row with its group's latest one.
+        number = number[np.maximum.accumulate(np.where(number >= 0, np.arange(n), 0))]
+        last = np.ones(n, dtype=bool)
+        last[:-1] = c[:-1] != c[1:]
+        for code, when, value in zip(c[last], t[last], number[last], strict=True):
+            self._last_time[uniques[code]] = float(when)
+            self._last_number[uniques[code]] = int(value)
+        out = np.empty(n, dtype=np.int64)
+        out[order] = number
+        return pd.array(out, dtype="Int64")
+
+
+def clutter_plots(
+    radar: RadarSpec, phase: float, span: TimeSpan, rng: np.random.Generator
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """False plots of one radar whose true times fall in ``span``, and their truth.
+
+    Their number is Poisson with mean ``clutter_per_scan`` times the scans in the
+    span; each has a uniform true time in the span, the beam's azimuth at that
+    time (so the azimuths are uniform), a range uniform in ``(0, max_range_m]``
+    and, for a 3-D radar, an elevation uniform from ``min_elevation_deg`` to
+    :data:`CLUTTER_MAX_ELEVATION_DEG`.  They carry no ``target_id``, no
+    ``mode_3a``, no altitude and no ``track_number``; their ``truth_target_id``
+    is :data:`CLUTTER` and their other truth columns NaN but ``time_true_s``.
+
+    Parameters
+    ----------
+    radar : RadarSpec
+        The radar (its ``max_range_m`` finite).
+    phase : float
+        Beam azimuth at time 0 [rad].
+    span : TimeSpan
+        True times [s].
+    rng : numpy.random.Generator
+        The simulation's generator.
+
+    Returns
+    -------
+    plots, truth : pandas.DataFrame
+        Sorted by time; the plot columns with ``mode_3a`` and ``track_number``.
+    """
+    length = max(span.t1_s - span.t0_s, 0.0)
+    n = int(rng.poisson(radar.clutter_per_scan * length / radar.scan_period_s))
+    t_true = np.sort(span.t0_s + length * rng.uniform(size=n))
+    range_m = radar.max_range_m * (1.0 - rng.uniform(size=n))
+    if radar.is_3d:
+        low = math.degrees(radar.min_elevation_rad)
+        elevation_deg = rng.uniform(low, max(low, CLUTTER_MAX_ELEVATION_DEG), size=n)
+    else:
+        elevation_deg = np.full(n, np.nan)
+    azimuth = frames.wrap_to_2pi(phase + 2.0 * np.pi / radar.scan_period_s * t_true)
+    az_deg = np.degrees(azimuth)
+    nothing = np.full(n, np.nan)
+    plots = pd.DataFrame({
+        "radar_id": np.full(n, radar.id, dtype=object),
+        "time_s": t_true + radar.bias.time_offset_s,
+        "range_m": range_m,
+        "azimuth_deg": np.where(az_deg >= 360.0, 0.0, az_deg),
+        "elevation_deg": elevation_deg,
+        "target_id": np.full(n, "", dtype=object),
+        "altitude_m": nothing,
+        "mode_3a": np.full(n, "", dtype=object),
+        "track_number": pd.array(np.full(n, pd.NA), dtype="Int64"),
+    })
+    truth = pd.DataFrame({
+        "time_true_s": t_true,
+        **{column: np.full(n, np.nan) for column in _TRUTH_COLUMNS[1:-1]},
+        "truth_target_id": np.full(n, CLUTTER, dtype=object),
+    })
+    return plots, truth
+
+
+def _identify(
+    radar: RadarSpec, plots: pd.DataFrame, truth: pd.DataFrame, codes: Mode3aCodes | None,
+    tracks: TrackNumbers | None, track_column: bool,
+) -> pd.DataFrame:
+    """A radar's plots as its ``identity`` reports them: ``mode_3a`` (with ``codes``),
+    ``track_number`` (with ``track_column``: numbered by ``tracks``, else empty), and
+    ``target_id`` or ``altitude_m`` emptied where the radar does not report them."""
+    target = truth["truth_target_id"].to_numpy(dtype=object)
+    time = truth["time_true_s"].to_numpy(dtype=float)
+    n = target.size
+    columns: dict[str, object] = {}
+    if codes is not None:
+        columns["mode_3a"] = (np.full(n, "", dtype=object) if radar.identity == "psr"
+                              else codes.at(target, time))
+    if track_column:
+        columns["track_number"] = (tracks.number(target, time) if tracks is not None
+                                   else pd.array(np.full(n, pd.NA), dtype="Int64"))
+    if radar.identity != "mode_s":
+        columns["target_id"] = np.full(n, "", dtype=object)
+    if radar.identity == "psr":
+        columns["altitude_m"] = np.full(n, np.nan)
+    return plots.assign(**columns) if columns else plots
+
+
+
 # --------------------------------------------------------------------------- simulate
 
 
@@ -554,6 +846,8 @@ class SimulationChunk:
         The reports (possibly none) and their truth; ``None`` when ADS-B is off.
     n_candidates : dict of str to int
         Per radar, the beam hits in coverage before the detection draw.
+    n_clutter : dict of str to int
+        Per radar, the false plots among ``plots``.
     """
 
     index: int
@@ -564,6 +858,7 @@ class SimulationChunk:
     adsb: pd.DataFrame | None
     adsb_truth: pd.DataFrame | None
     n_candidates: dict[str, int]
+    n_clutter: dict[str, int] = field(default_factory=dict)
 
 
 class ChunkedSimulation:
@@ -572,7 +867,10 @@ class ChunkedSimulation:
     The traffic and the antenna phases are drawn when it is made; :meth:`chunks`
     then simulates chunk after chunk, each radar in file order and then the ADS-B
     (the equipage and the report phases are drawn before the first chunk's
-    ADS-B), so one seed and one chunk length give one dataset.  With a single
+    ADS-B), then the Mode 3/A codes (after the first chunk's ADS-B, when the
+    scenario has codes) and each radar's clutter (when it has any), so one seed
+    and one chunk length give one dataset.  Track numbers carry over from chunk
+    to chunk.  With a single
     chunk (``chunk_s`` ``None``) every draw comes in the order :func:`simulate`
     has always used, so its output does not change.  With several chunks the
     radars' hits (times and true positions) are the same, as the chunks partition
@@ -612,6 +910,9 @@ class ChunkedSimulation:
         self._total = 1 + (len(scenario.radars) + 1) * self.n_chunks
         self._equipped: NDArray[np.bool_] | None = None
         self._adsb_phases: Array | None = None
+        self._codes: Mode3aCodes | None = None
+        self._tracks = {r.id: TrackNumbers(r.scan_period_s) for r in scenario.radars
+                        if r.track_numbers}
         self._started = False
         self.flights, self.replay_stats = build_trajectories(scenario, rng)
         self._report(f"{len(self.flights)} flights")
@@ -629,6 +930,11 @@ class ChunkedSimulation:
             return ()
         return tuple(f.target_id for f, e in zip(self.flights, self._equipped, strict=True)
                      if e)
+
+    @property
+    def mode_3a(self) -> Mode3aCodes | None:
+        """The aircraft's Mode 3/A codes (``None`` before the first chunk, or without codes)."""
+        return self._codes
 
     def _report(self, stage: str) -> None:
         self._done += 1
@@ -654,20 +960,14 @@ class ChunkedSimulation:
         prefix = f"chunk {k + 1}/{self.n_chunks}: " if self.n_chunks > 1 else ""
         duration = scenario.duration_s
         pressure = scenario.height_model if scenario.plot_altitude == "pressure" else None
-        plot_frames, truth_frames, candidates = [], [], {}
+        radar_frames, candidates = [], {}
         for radar in scenario.radars:
             span = true_span(self.edges, k, duration, radar.bias.time_offset_s)
             plots, truth, n_hits = _radar_plots(
                 radar, self.antenna_phase_rad[radar.id], self.flights, span, rng, pressure)
-            plot_frames.append(plots)
-            truth_frames.append(truth)
+            radar_frames.append((radar, span, plots, truth))
             candidates[radar.id] = n_hits
             self._report(f"{prefix}radar {radar.id}: {len(plots)} plots")
-        plots = pd.concat(plot_frames, ignore_index=True)
-        truth = pd.concat(truth_frames, ignore_index=True)
-        order = np.argsort(plots["time_s"].to_numpy(), kind="stable")
-        plots = plots.iloc[order].reset_index(drop=True)[list(PLOT_COLUMNS) + ["altitude_m"]]
-        truth = truth.iloc[order].reset_index(drop=True)[list(_TRUTH_COLUMNS)]
         adsb = adsb_truth = None
         if scenario.adsb.enabled:
             if self._equipped is None:
@@ -679,9 +979,44 @@ class ChunkedSimulation:
                 true_span(self.edges, k, duration), rng,
                 scenario.height_model if scenario.adsb_baro else None,
             )
+        code_spec = scenario.codes
+        if code_spec is not None and self._codes is None:
+            self._codes = draw_mode_3a_codes(code_spec, self.flights, duration, rng)
+        if adsb is not None and self._codes is not None:
+            adsb = adsb.assign(mode_3a=self._codes.at(adsb["target_id"].to_numpy(dtype=object),
+                                                      adsb["time_s"].to_numpy(dtype=float)))
+        plots, truth, n_clutter = self._plots(radar_frames)
         self._report(f"{prefix}ADS-B: {0 if adsb is None else len(adsb)} reports")
         return SimulationChunk(k, self.edges[k], self.edges[k + 1], plots, truth, adsb,
-                               adsb_truth, candidates)
+                               adsb_truth, candidates, n_clutter)
+
+    def _plots(
+        self, radar_frames: list[tuple[RadarSpec, TimeSpan, pd.DataFrame, pd.DataFrame]]
+    ) -> tuple[pd.DataFrame, pd.DataFrame, dict[str, int]]:
+        """A chunk's plots and truth, sorted by time, from each radar's aircraft plots:
+        their identity columns, and each radar's clutter (drawn here, in file order)."""
+        scenario = self.scenario
+        columns = list(PLOT_COLUMNS) + ["altitude_m"]
+        columns += ["mode_3a"] if self._codes is not None else []
+        columns += ["track_number"] if scenario.track_numbers else []
+        plot_frames, truth_frames, n_clutter = [], [], {}
+        for radar, span, plots, truth in radar_frames:
+            plot_frames.append(_identify(radar, plots, truth, self._codes,
+                                         self._tracks.get(radar.id), scenario.track_numbers))
+            truth_frames.append(truth)
+            n_clutter[radar.id] = 0
+            if radar.clutter_per_scan > 0.0:
+                false_plots, false_truth = clutter_plots(
+                    radar, self.antenna_phase_rad[radar.id], span, self._rng)
+                plot_frames.append(false_plots[columns])
+                truth_frames.append(false_truth)
+                n_clutter[radar.id] = len(false_plots)
+        plots = pd.concat(plot_frames, ignore_index=True)
+        truth = pd.concat(truth_frames, ignore_index=True)
+        order = np.argsort(plots["time_s"].to_numpy(), kind="stable")
+        plots = plots.iloc[order].reset_index(drop=True)[columns]
+        truth = truth.iloc[order].reset_index(drop=True)[list(_TRUTH_COLUMNS)]
+        return plots, truth, n_clutter
 
 
 def simulate(
@@ -730,6 +1065,7 @@ def simulate(
             # dataset's ADS-B file must have rows to be read back.
             adsb = adsb_truth = None
     candidates = {r.id: sum(c.n_candidates[r.id] for c in chunks) for r in scenario.radars}
+    n_clutter = {r.id: sum(c.n_clutter[r.id] for c in chunks) for r in scenario.radars}
     sites = {r.id: r.site() for r in scenario.radars}
     dataset = Dataset(sites=sites, plots=plots, adsb=adsb,
                       plot_altitude=scenario.plot_altitude, epoch_utc=scenario.epoch_utc)
@@ -744,6 +1080,8 @@ def simulate(
         replay_stats=run.replay_stats,
         n_candidates=candidates,
         adsb_equipped=run.adsb_equipped,
+        mode_3a=run.mode_3a,
+        n_clutter=n_clutter,
     )
 
 
@@ -751,11 +1089,18 @@ def simulate(
 
 
 def truth_document(result: SimulationResult) -> dict:
-    """The true biases of a simulation in the contract's result schema (:func:`scenario_truth`)."""
-    return scenario_truth(result.scenario, result.n_plots())
+    """The true biases of a simulation in the contract's result schema, with the plots'
+    truth when some plots lack an address (:func:`scenario_truth`)."""
+    return scenario_truth(result.scenario, result.n_plots(),
+                          result.plot_truth["truth_target_id"], result.n_clutter)
 
 
-def scenario_truth(scenario: Scenario, n_plots: Mapping[str, int]) -> dict:
+def scenario_truth(
+    scenario: Scenario,
+    n_plots: Mapping[str, int],
+    plot_targets: Sequence[str] | pd.Series | None = None,
+    n_clutter: Mapping[str, int] | None = None,
+) -> dict:
     """The true biases in the contract's result schema (``method = "truth"``).
 
     Every radar gets the four bias keys in contract units
@@ -769,12 +1114,24 @@ def scenario_truth(scenario: Scenario, n_plots: Mapping[str, int]) -> dict:
     changed term); ``radars`` then holds the biases at t = 0
     (:class:`graphcal.data.bias_schedule.BiasSchedule`).
 
+    A scenario some of whose plots carry no address (a radar whose ``identity``
+    is not ``"mode_s"``, or clutter; contract v3) adds, given ``plot_targets``,
+    the ``plot_truth`` block: ``truth_target_id``, one entry per plot in the
+    order of the plots table (the address of the aircraft that made it, or
+    ``"clutter"``), and ``radars``: per radar its ``identity``,
+    ``track_numbers``, ``detection_probability``, ``clutter_per_scan`` and
+    ``n_clutter`` (its false plots).
+
     Parameters
     ----------
     scenario : Scenario
         The scenario simulated.
     n_plots : mapping of str to int
         Plots simulated per radar.
+    plot_targets : sequence of str, optional
+        Each plot's ``truth_target_id``, in the order of the plots table.
+    n_clutter : mapping of str to int, optional
+        False plots per radar (default: none).
     """
     radars = {}
     for radar in scenario.radars:
@@ -808,6 +1165,17 @@ def scenario_truth(scenario: Scenario, n_plots: Mapping[str, int]) -> dict:
              if not radar.schedule.constant}
     if drift:
         document["drift"] = drift
+    if plot_targets is not None and not scenario.addressed:
+        clutter = n_clutter or {}
+        document["plot_truth"] = {
+            "truth_target_id": [str(v) for v in plot_targets],
+            "radars": {radar.id: {"identity": radar.identity,
+                                  "track_numbers": radar.track_numbers,
+                                  "detection_probability": radar.detection_probability,
+                                  "clutter_per_scan": radar.clutter_per_scan,
+                                  "n_clutter": int(clutter.get(radar.id, 0))}
+                       for radar in scenario.radars},
+        }
     return document
 
 

@@ -5,7 +5,10 @@
 appends each chunk's plots and ADS-B reports to the dataset folder's tables as it
 goes (:class:`graphcal.io.folder.DatasetWriter`: Parquet row groups, or CSV rows),
 so a day of a large network (tens of millions of plots) is written in the memory
-of an hour.  Neither the plots' truth nor the trajectories' samples are kept.
+of an hour.  Neither the plots' truth nor the trajectories' samples are kept, but
+for a scenario some of whose plots carry no address (contract v3: a radar whose
+``identity`` is not ``"mode_s"``, or clutter): each plot's ``truth_target_id`` is
+kept (one reference per plot) for the ``plot_truth`` block of ``truth.json``.
 
 The folder is the one :func:`graphcal.simulation.simulate.write_simulation` writes
 for ``simulate(scenario, rng, chunk_s=chunk_s)`` with the same seed: the same
@@ -50,6 +53,8 @@ class StreamedSimulation:
         Beam azimuth at time 0 of each radar [rad].
     adsb_equipped : tuple of str
         Addresses of the aircraft that broadcast ADS-B.
+    n_clutter : dict of str to int
+        Per radar, the false plots among its plots.
     """
 
     path: Path
@@ -59,6 +64,7 @@ class StreamedSimulation:
     n_candidates: dict[str, int] = field(default_factory=dict)
     antenna_phase_rad: dict[str, float] = field(default_factory=dict)
     adsb_equipped: tuple[str, ...] = ()
+    n_clutter: dict[str, int] = field(default_factory=dict)
 
     @property
     def total_plots(self) -> int:
@@ -119,6 +125,8 @@ def simulate_to_folder(
         run = ChunkedSimulation(scenario, rng, chunk_s=chunk_s, progress=progress)
         n_plots = dict.fromkeys(sites, 0)
         candidates = dict.fromkeys(sites, 0)
+        n_clutter = dict.fromkeys(sites, 0)
+        targets: list[np.ndarray] | None = None if scenario.addressed else []
         n_adsb = 0
         for chunk in run.chunks():
             writer.write_plots(chunk.plots)
@@ -126,13 +134,19 @@ def simulate_to_folder(
                 n_plots[str(radar_id)] += int(count)
             for radar_id, count in chunk.n_candidates.items():
                 candidates[radar_id] += count
+            for radar_id, count in chunk.n_clutter.items():
+                n_clutter[radar_id] += count
+            if targets is not None:
+                targets.append(chunk.plot_truth["truth_target_id"].to_numpy(dtype=object))
             if chunk.adsb is not None and len(chunk.adsb):
                 writer.write_adsb(chunk.adsb)
                 n_adsb += len(chunk.adsb)
-        document = scenario_truth(scenario, n_plots)
+        plot_targets = None if targets is None else np.concatenate(
+            [np.empty(0, dtype=object), *targets])
+        document = scenario_truth(scenario, n_plots, plot_targets, n_clutter)
         writer.write_text("truth.json", json.dumps(document, indent=2) + "\n")
     return StreamedSimulation(Path(out_dir), n_plots, n_adsb, run.n_chunks, candidates,
-                              run.antenna_phase_rad, run.adsb_equipped)
+                              run.antenna_phase_rad, run.adsb_equipped, n_clutter)
 
 
 __all__ = ["DEFAULT_CHUNK_S", "StreamedSimulation", "simulate_to_folder"]
