@@ -42,11 +42,11 @@ from graphcal.data.align import (
     overlapping_pairs,
     pair_plots,
 )
-from graphcal.data.bias import RadarBias, true_azimuth
+from graphcal.data.bias import ECCENTRICITY_NAMES, PARAMETER_NAMES
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.height import height_jacobian
-from graphcal.model.measurement import RadarMeasurementModel
-from graphcal.model.parameters import ParameterLayout
+from graphcal.model.measurement import RadarMeasurementModel, corrected_polar
+from graphcal.model.parameters import TERM_NAMES, ParameterLayout
 
 FloatArray = NDArray[np.float64]
 
@@ -107,13 +107,17 @@ def corrected_ecef(
 ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
     """Plots corrected by ``bias`` -> ECEF, with the Jacobian w.r.t. the bias.
 
-    The correction is the inverse bias model (:func:`graphcal.data.bias.correct_bias`):
-    ``r = (r_m - offset) / (1 + gain)``, ``az`` from ``az_m = az + az_bias +
-    s sin(az) + c cos(az)`` (:func:`graphcal.data.bias.true_azimuth`; ``az_m -
-    az_bias`` without eccentricity), ``el = el_m - el_bias`` (3-D) or the
-    elevation of the reported height at the corrected range (2-D).  Implicit
-    differentiation of the azimuth model gives ``d az / d (az_bias, s, c) =
-    -(1, sin az, cos az) / (1 + s cos az - c sin az)``.
+    The correction is the inverse bias model
+    (:func:`graphcal.model.measurement.corrected_polar`): ``r = (r_m - offset) /
+    (1 + gain)``, ``az`` from ``az_m = az + az_bias + s sin(az) + c cos(az)``,
+    ``el = el_m - el_bias`` (3-D), with its Jacobian in the terms ``d (r, az, el) /
+    d terms = -slope^-1 d_terms`` of the forward model
+    (:func:`graphcal.model.measurement.biased_polar`) at the corrected point; the
+    plot is then placed at ``(r, az, el)`` and ``d ecef / d terms = (d ecef / d (r,
+    az, el)) (d (r, az, el) / d terms)``.  A 2-D radar measures no elevation: its
+    plot's elevation is that of the reported height at the corrected range, which
+    ``d ecef / d r`` carries, so the elevation row of the correction's Jacobian is
+    not used.
 
     With pressure altitudes, a 2-D plot is placed at the height ``h = (1 + k) p + d``
     of its reported pressure altitude ``p`` (``height_model = (d, k)``,
@@ -144,34 +148,40 @@ def corrected_ecef(
     usable : ndarray (n,) of bool
         False for 2-D plots without a reported height or 3-D plots without elevation.
     """
-    offset, gain, az_bias, el_bias = (float(v) for v in bias)
-    s, c = (0.0, 0.0) if eccentricity is None else (float(v) for v in eccentricity)
-    r = (plots.range_m - offset) / (1.0 + gain)
-    az = true_azimuth(plots.azimuth_rad, RadarBias(azimuth_bias_rad=az_bias, azimuth_sin_rad=s,
-                                                   azimuth_cos_rad=c))
+    terms = _terms(bias, eccentricity)
+    free = PARAMETER_NAMES if eccentricity is None else (*PARAMETER_NAMES, *ECCENTRICITY_NAMES)
+    true, d_polar = corrected_polar(_measured_polar(plots), terms, free)
+    r, az = true[:, 0], true[:, 1]
     pressure_m = plots.altitude_m
     if height_model is not None and not site.is_3d:
         offset_m, scale = (float(v) for v in height_model)
         plots = replace(plots, altitude_m=(1.0 + scale) * pressure_m + offset_m)
-    geometry = _plot_geometry(site, r, az, plots, el_bias, refraction, covariance=False)
-    d_polar = np.zeros((len(r), 3, 4 if eccentricity is None else 6))
-    d_polar[:, 0, 0] = -1.0 / (1.0 + gain)
-    d_polar[:, 0, 1] = -r / (1.0 + gain)
-    if eccentricity is None:
-        d_polar[:, 1, 2] = -1.0
-    else:
-        slope = 1.0 + s * np.cos(az) - c * np.sin(az)
-        d_polar[:, 1, 2] = -1.0 / slope
-        d_polar[:, 1, 4] = -np.sin(az) / slope
-        d_polar[:, 1, 5] = -np.cos(az) / slope
-    if site.is_3d:
-        d_polar[:, 2, 3] = -1.0
+    geometry = _plot_geometry(site, r, az, plots, true[:, 2] if site.is_3d else None,
+                              refraction, covariance=False)
+    if not site.is_3d:
+        d_polar[:, 2, :] = 0.0  # the elevation follows the range, in ecef_jacobian
     jacobian = geometry.ecef_jacobian @ d_polar
     if height_model is not None:
         d_height = geometry.height_jacobian[:, :, None] * height_jacobian(
             np.nan_to_num(pressure_m))[:, None, :]
         jacobian = np.concatenate([jacobian, d_height], axis=2)
     return geometry.ecef_m, jacobian, geometry.usable
+
+
+def _measured_polar(plots: PlotArrays) -> FloatArray:
+    """The plots' measured ``(range_m, azimuth_rad, elevation_rad)`` ``(n, 3)``, held
+    coordinate by coordinate (each column contiguous)."""
+    return np.stack([plots.range_m, plots.azimuth_rad, plots.elevation_rad]).T
+
+
+def _terms(bias: FloatArray, eccentricity: tuple[float, float] | None = None) -> FloatArray:
+    """The full vector of :data:`~graphcal.model.parameters.TERM_NAMES` of the four
+    biases and the eccentricity ``(s, c)`` (time offset 0: it does not move a plot)."""
+    terms = np.zeros(len(TERM_NAMES))
+    terms[:4] = bias
+    if eccentricity is not None:
+        terms[5:] = eccentricity
+    return terms
 
 
 @dataclass
@@ -184,10 +194,13 @@ class _Geometry:
 
 
 def _plot_geometry(
-    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float = 0.0,
-    refraction: RayExcess | None = None, covariance: bool = True,
+    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays,
+    elevation: FloatArray | None = None, refraction: RayExcess | None = None,
+    covariance: bool = True,
 ) -> _Geometry:
     """ECEF position, d ecef / d polar and converted noise of plots at ``(r, az)``.
+
+    ``elevation``: a 3-D radar's (corrected) elevations [rad]; by default as measured.
 
     With refraction (``site.atmosphere``), ``r`` is the electrical length and the
     elevation the apparent one: the plot is placed along the refracted ray
@@ -201,13 +214,13 @@ def _plot_geometry(
     need it, and it is a third of the work.
     """
     if site.atmosphere is not None and refraction is None:
-        return _refracted_plot_geometry(site, r, az, plots, elevation_bias, covariance)
+        return _refracted_plot_geometry(site, r, az, plots, elevation, covariance)
     n = len(r)
     cov_polar = np.zeros((n, 3, 3))
     cov_polar[:, 0, 0] = site.sigma_range_m**2
     cov_polar[:, 1, 1] = site.sigma_azimuth_rad**2
     if site.is_3d:
-        el = plots.elevation_rad - elevation_bias
+        el = plots.elevation_rad if elevation is None else elevation
         usable = np.isfinite(el)
         cov_polar[:, 2, 2] = site.sigma_elevation_rad**2
         d_el_d_r = np.zeros(n)
@@ -359,11 +372,12 @@ RAY_EXCESS_ELEVATION_TOLERANCE_RAD = 1e-4
 def _corrected_plots(site: Site, plots: PlotArrays, bias: FloatArray,
                      height_model: tuple[float, float] | None) -> PlotArrays:
     """``plots`` with the bias corrections that move a refracted ray: range, elevation
-    (3-D) and, with pressure altitudes, a 2-D radar's height."""
-    offset, gain, _, el_bias = (float(v) for v in bias)
-    r = (plots.range_m - offset) / (1.0 + gain)
+    (3-D; :func:`graphcal.model.measurement.corrected_polar`) and, with pressure
+    altitudes, a 2-D radar's height."""
+    true, _ = corrected_polar(_measured_polar(plots), _terms(bias))
+    r = true[:, 0]
     if site.is_3d:
-        return replace(plots, range_m=r, elevation_rad=plots.elevation_rad - el_bias)
+        return replace(plots, range_m=r, elevation_rad=true[:, 2])
     if height_model is not None:
         height_offset, scale = (float(v) for v in height_model)
         return replace(plots, range_m=r,
@@ -551,8 +565,8 @@ def _add_ray_excess(refraction: RayExcess, r: FloatArray, az: FloatArray, el: Fl
 
 
 def _refracted_plot_geometry(
-    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays, elevation_bias: float,
-    covariance: bool = True,
+    site: Site, r: FloatArray, az: FloatArray, plots: PlotArrays,
+    elevation: FloatArray | None = None, covariance: bool = True,
 ) -> _Geometry:
     """:func:`_plot_geometry` along refracted rays (contract v2)."""
     atmosphere = site.atmosphere
@@ -561,7 +575,7 @@ def _refracted_plot_geometry(
     cov_polar[:, 0, 0] = site.sigma_range_m**2
     cov_polar[:, 1, 1] = site.sigma_azimuth_rad**2
     if site.is_3d:
-        el = plots.elevation_rad - elevation_bias
+        el = plots.elevation_rad if elevation is None else elevation
         usable = np.isfinite(el) & np.isfinite(r)
         cov_polar[:, 2, 2] = site.sigma_elevation_rad**2
         d_el_d_r = np.zeros(n)

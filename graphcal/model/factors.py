@@ -40,7 +40,7 @@ from graphcal.model.cross_radar import (
     corrected_ecef,
 )
 from graphcal.model.height import placeable_over_prior
-from graphcal.model.measurement import RadarMeasurementModel
+from graphcal.model.measurement import ADDITIVE_TERMS, TERM_ROWS, biased_polar
 from graphcal.model.parameters import TERM_NAMES, RadarTerms
 from graphcal.model.robust import RobustKernel
 
@@ -72,9 +72,11 @@ class AdsbFactor:
 
     Residual in the radar's measurement space, azimuth wrapped to ``[-pi, pi)``::
 
-        e_i = z_i - h(p_i, beta),   h = ((1 + g) r_i + offset, az_i + b_az, el_i + b_el)
+        e_i = z_i - h((r_i, az_i, el_i), beta)
 
-    with ``(r_i, az_i, el_i)`` the ADS-B position in the radar's polar frame
+    with ``h`` the bias model (:func:`~graphcal.model.measurement.biased_polar`:
+    ``(1 + g) r + offset``, ``az + b_az + s sin az + c cos az``, ``el + b_el``),
+    ``(r_i, az_i, el_i)`` the ADS-B position in the radar's polar frame
     and ``z_i`` the measured plot (2-D radars: range and azimuth only).  The
     noise is the radar's plus the ADS-B position noise mapped through the
     polar Jacobian (paper 002's first-order conversion, eq. 17-19), fixed at
@@ -84,7 +86,8 @@ class AdsbFactor:
     ``t - tau``; the ADS-B reference, interpolated at ``t - tau0``, moves to
     ``reference + rate (tau0 - tau)`` (first order in ``tau - tau0``, which the
     graph keeps small by re-aligning ADS-B at its latest ``tau``), so
-    ``d e / d tau = ((1 + g) dr/dt, daz/dt, del/dt)``.
+    ``d e / d tau = slope * rate = ((1 + g) dr/dt, (1 + s cos az - c sin az) daz/dt,
+    del/dt)`` with ``slope`` the diagonal Jacobian of ``h`` in the polar coordinates.
 
     Attributes
     ----------
@@ -123,24 +126,29 @@ class AdsbFactor:
     def dimension(self) -> int:
         return len(self.measured) * self.rows
 
-    def _residual_at(self, offset: float, gain: float, az_bias: float, el_bias: float,
-                     tau: float, s: float, c: float) -> tuple[FloatArray, FloatArray]:
-        """Unwhitened residual ``(n, m)`` at these terms, and the reference polar
-        coordinates it was formed from (moved to ``tau`` when there is a rate)."""
-        m = self.rows
+    def _residual_at(self, terms: FloatArray, free: tuple[str, ...]
+                     ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Unwhitened residual ``(n, m)`` at ``terms`` (the full vector of
+        :data:`TERM_NAMES`), and :func:`~graphcal.model.measurement.biased_polar`'s
+        ``slope`` ``(n, 3)`` and ``d_terms`` ``(n, 3, len(free))`` at the reference (moved
+        to the time offset ``terms[4]`` when there is a rate)."""
         reference = self.reference
         if self.rate is not None:
-            reference = reference + self.rate * (self.tau0 - tau)
-        r_true, az_true = reference[:, 0], reference[:, 1]
-        res = np.empty((len(r_true), m))
-        res[:, 0] = self.measured[:, 0] - ((1.0 + gain) * r_true + offset)
-        az_pred = az_true + az_bias
-        if s != 0.0 or c != 0.0:
-            az_pred = az_pred + s * np.sin(az_true) + c * np.cos(az_true)
-        res[:, 1] = frames.wrap_to_pi(self.measured[:, 1] - az_pred)
-        if m == 3:
-            res[:, 2] = self.measured[:, 2] - (reference[:, 2] + el_bias)
-        return res, reference
+            reference = reference + self.rate * (self.tau0 - terms[4])
+        predicted, slope, d_terms = biased_polar(reference, terms, free)
+        measured = self.measured
+        res = np.empty((len(predicted), self.rows))
+        np.subtract(measured[:, 0], predicted[:, 0], out=res[:, 0])
+        res[:, 1] = frames.wrap_to_pi(measured[:, 1] - predicted[:, 1])
+        if self.rows == 3:
+            np.subtract(measured[:, 2], predicted[:, 2], out=res[:, 2])
+        return res, slope, d_terms
+
+    def _time_column(self, slope: FloatArray) -> FloatArray:
+        """``d e / d tau`` ``(n, m)``: the reference moves by ``-rate`` per unit of ``tau``,
+        so the prediction by ``-slope * rate``."""
+        assert self.rate is not None
+        return (slope * self.rate)[:, :self.rows]
 
     def residual(
         self, bias: FloatArray, time_offset_s: float = 0.0,
@@ -148,20 +156,16 @@ class AdsbFactor:
     ) -> tuple[FloatArray, FloatArray]:
         """Unwhitened residual ``(n, m)`` and its Jacobian ``(n, m, 7)`` (:data:`TERM_NAMES`).
 
-        With an azimuth eccentricity ``(s, c)`` the predicted azimuth gains
-        ``s sin(az) + c cos(az)`` at the reference azimuth ``az``.
+        ``-d_terms`` of :func:`~graphcal.model.measurement.biased_polar` at the reference,
+        with the time offset's column from the rate.  With an azimuth eccentricity
+        ``(s, c)`` the predicted azimuth gains ``s sin(az) + c cos(az)`` at the reference
+        azimuth ``az``.
         """
-        gain = bias[1]
-        m = self.rows
-        res, reference = self._residual_at(*bias, time_offset_s, *eccentricity)
-        r_true, az_true = reference[:, 0], reference[:, 1]
-        jac = np.zeros((len(r_true), m, len(TERM_NAMES)))
-        jac[:, :, :4] = -RadarMeasurementModel.bias_jacobian(r_true)[:, :m, :]
-        jac[:, 1, 5] = -np.sin(az_true)
-        jac[:, 1, 6] = -np.cos(az_true)
+        terms = np.array([*bias, time_offset_s, *eccentricity], dtype=float)
+        res, slope, d_terms = self._residual_at(terms, TERM_NAMES)
+        jac = np.ascontiguousarray(-d_terms[:, :self.rows])
         if self.rate is not None:
-            jac[:, :, 4] = self.rate[:, :m]
-            jac[:, 0, 4] *= 1.0 + gain
+            jac[:, :, TERM_NAMES.index("time_offset")] = self._time_column(slope)
         return res, jac
 
     def whitened(
@@ -170,39 +174,34 @@ class AdsbFactor:
         """Whitened residual ``(n, m)`` and, with ``jacobians``, ``[(n, m, k)]`` over the free
         terms: ``W e`` and ``W J`` of :meth:`residual`.
 
-        Only the free terms' columns are formed.  Those of the biases and of the
-        eccentricity are unit vectors (or multiples) in :meth:`residual`'s Jacobian, so
-        their whitened columns are columns of ``W``, exactly as the product gives them.
+        ``W J = -W d_terms`` (:func:`~graphcal.model.measurement.biased_polar`), plus the
+        time offset's column ``W (slope * rate)``.  Only the free terms' columns are
+        formed, each from the one row of ``d_terms`` where it is not zero
+        (:data:`~graphcal.model.measurement.TERM_ROWS`): the column of ``W`` times that
+        row's entry, the product's other terms being zeros; an additive term's entry is
+        1 (:data:`~graphcal.model.measurement.ADDITIVE_TERMS`), its column ``-W``'s.
         """
-        x = values[0]
-        terms = self.terms.full_terms(x)
-        gain = terms[1]
-        m = self.rows
-        res, reference = self._residual_at(*terms)
-        r_true, az_true = reference[:, 0], reference[:, 1]
+        free = self.terms.free
+        scaled = tuple(name for name in free if name not in ADDITIVE_TERMS
+                       and TERM_ROWS[name] is not None) if jacobians else ()
+        res, slope, d_terms = self._residual_at(self.terms.full_terms(values[0]), scaled)
         w = self.whitening
         e = np.einsum("nij,nj->ni", w, res)
         if not jacobians:
             return e, None
-        jac = np.empty((len(r_true), m, len(self.terms.free)))
-        for k, name in enumerate(self.terms.free):
-            if name == "range_offset":
-                np.negative(w[:, :, 0], out=jac[:, :, k])
-            elif name == "range_gain":
-                np.multiply(w[:, :, 0], -r_true[:, None], out=jac[:, :, k])
-            elif name == "azimuth_bias":
-                np.negative(w[:, :, 1], out=jac[:, :, k])
-            elif name == "elevation_bias":
-                np.negative(w[:, :, 2], out=jac[:, :, k])
-            elif name == "azimuth_sin":
-                np.multiply(w[:, :, 1], -np.sin(az_true)[:, None], out=jac[:, :, k])
-            elif name == "azimuth_cos":
-                np.multiply(w[:, :, 1], -np.cos(az_true)[:, None], out=jac[:, :, k])
+        m = self.rows
+        jac = np.empty((len(res), m, len(free)))
+        for k, name in enumerate(free):
+            row = TERM_ROWS[name]
+            if row is not None and row < m:
+                if name in ADDITIVE_TERMS:
+                    np.negative(w[:, :, row], out=jac[:, :, k])
+                else:
+                    entry = d_terms[:, row, scaled.index(name)]
+                    np.multiply(w[:, :, row], -entry[:, None], out=jac[:, :, k])
             elif name == "time_offset" and self.rate is not None:
-                rate = self.rate[:, :m].copy()
-                rate[:, 0] *= 1.0 + gain
-                jac[:, :, k] = np.einsum("nij,nj->ni", w, rate)
-            else:  # the time offset without a rate: the residual does not depend on it
+                jac[:, :, k] = np.einsum("nij,nj->ni", w, self._time_column(slope))
+            else:  # a term the residual does not depend on (the time offset without a rate)
                 jac[:, :, k] = 0.0
         return e, [jac]
 
@@ -232,13 +231,16 @@ def adsb_factor(
     interpolated at time offset ``tau0``.
     """
     m = 3 if site.is_3d else 2
-    measured = np.stack([plots.range_m, plots.azimuth_rad, plots.elevation_rad], axis=-1)
+    # Polar arrays held coordinate by coordinate (each column contiguous), as the
+    # residual reads them.
+    measured = np.stack([plots.range_m, plots.azimuth_rad, plots.elevation_rad]).T
+    rate = None if reference_rate is None else np.asfortranarray(reference_rate)
     cov = reference_polar_cov[:, :m, :m].copy()
     sigmas = site.measurement_sigmas()[:m]
     cov[:, np.arange(m), np.arange(m)] += sigmas**2
     return AdsbFactor(
-        terms, key, measured, reference_polar, whitening_matrices(cov), kernel,
-        plots.index.copy(), reference_rate, float(tau0),
+        terms, key, measured, np.asfortranarray(reference_polar), whitening_matrices(cov),
+        kernel, plots.index.copy(), rate, float(tau0),
     )
 
 

@@ -5,7 +5,17 @@ radar, elevation), with the biases of the contract's model on top::
 
     range_measured     = (1 + range_gain) * range_true + range_offset_m
     azimuth_measured   = azimuth_true + azimuth_bias         (wrapped to [0, 2 pi))
+                         + s sin(azimuth_true) + c cos(azimuth_true)  (eccentricity)
     elevation_measured = elevation_true + elevation_bias     (3-D radars only)
+
+:func:`biased_polar` is that model, with its Jacobians in the true coordinates
+and in the terms of :data:`~graphcal.model.parameters.TERM_NAMES`, and
+:func:`corrected_polar` its inverse (a plot corrected for the biases), whose
+Jacobian in the terms follows from the model's by the implicit function
+theorem.  The trajectory formulation (:meth:`RadarMeasurementModel.measure`),
+the ADS-B factor and the cross-radar correction of plots
+(:func:`graphcal.model.cross_radar.corrected_ecef`) evaluate the model through
+these two functions.
 
 :class:`RadarMeasurementModel` owns, as Stone Soup's measurement models do,
 the ``function`` (target position -> measured polar), its Jacobians (in the
@@ -27,11 +37,183 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.refraction import refracted_polar, refracted_polar_jacobian
 from graphcal.data.align import AdsbAlignment
-from graphcal.data.bias import RadarBias, apply_bias, correct_bias, measurement_bias_jacobian
+from graphcal.data.bias import (
+    RadarBias,
+    apply_bias,
+    correct_bias,
+    measurement_bias_jacobian,
+    true_azimuth,
+)
 from graphcal.data.calibration import ResidualStats
 from graphcal.data.dataset import Site
+from graphcal.model.parameters import TERM_NAMES
 
 FloatArray = NDArray[np.float64]
+
+#: The measured coordinate (0 range, 1 azimuth, 2 elevation) that each term of
+#: :data:`~graphcal.model.parameters.TERM_NAMES` moves: the one non-zero row of its
+#: column in :func:`biased_polar`'s ``d_terms``.  ``None`` for the time offset, which
+#: moves the target along its path rather than the measurement.
+TERM_ROWS: dict[str, int | None] = {
+    "range_offset": 0,
+    "range_gain": 0,
+    "azimuth_bias": 1,
+    "elevation_bias": 2,
+    "time_offset": None,
+    "azimuth_sin": 1,
+    "azimuth_cos": 1,
+}
+assert tuple(TERM_ROWS) == TERM_NAMES
+
+#: The additive terms: each adds itself to its coordinate, so its column of
+#: :func:`biased_polar`'s ``d_terms`` is the unit vector of :data:`TERM_ROWS`.
+ADDITIVE_TERMS: frozenset[str] = frozenset({"range_offset", "azimuth_bias", "elevation_bias"})
+
+
+def biased_polar(true_polar: FloatArray, terms: FloatArray, free: tuple[str, ...] = ()
+                 ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The bias model: the measurement of true polar coordinates, and its Jacobians.
+
+    With ``(r, az, el)`` the true polar coordinates and ``(o, g, b, e, tau, s, c)``
+    the terms of :data:`~graphcal.model.parameters.TERM_NAMES`::
+
+        h(r, az, el) = ((1 + g) r + o,  az + b + s sin az + c cos az,  el + e)
+
+    Its Jacobian in the true coordinates is diagonal::
+
+        d h / d (r, az, el) = diag(1 + g,  1 + s cos az - c sin az,  1)
+
+    and each column of its Jacobian in the terms has one non-zero row
+    (:data:`TERM_ROWS`)::
+
+        d h / d (o, g, b, e, tau, s, c) = (1, 0, 0), (r, 0, 0), (0, 1, 0), (0, 0, 1),
+                                          (0, 0, 0), (0, sin az, 0), (0, cos az, 0)
+
+    The time offset ``tau`` changes when the target is seen, not ``h``: its column
+    here is 0, and the caller, who knows the target's motion, forms it (``slope``
+    times the rate of the true coordinates, with the sign of the time shift).
+
+    Parameters
+    ----------
+    true_polar : ndarray (n, 3)
+        True ``(range_m, azimuth_rad, elevation_rad)`` (for a radar with refraction,
+        the electrical range and the apparent elevation).
+    terms : ndarray (7,)
+        Every term of :data:`~graphcal.model.parameters.TERM_NAMES`: range offset [m],
+        range gain [fraction], azimuth bias [rad], elevation bias [rad], time offset [s]
+        (not used here), azimuth eccentricity ``s`` and ``c`` [rad].
+    free : tuple of str
+        The terms whose columns ``d_terms`` holds, in this order.
+
+    Returns
+    -------
+    predicted : ndarray (n, 3)
+        Measured ``(range_m, azimuth_rad, elevation_rad)``, azimuth not wrapped.
+    slope : ndarray (n, 3)
+        The diagonal of ``d predicted / d true_polar`` [m/m, rad/rad, rad/rad];
+        read-only (one row repeated) when the eccentricity is zero.
+    d_terms : ndarray (n, 3, len(free))
+        ``d predicted / d term`` in ``free``'s order [m/m, m, rad/rad, rad/rad, -,
+        rad/rad, rad/rad for the terms of ``TERM_NAMES``].
+
+    The arrays are views of arrays laid out coordinate by coordinate, so that each
+    coordinate's column (and each term's non-zero row) is contiguous.
+    """
+    offset, gain, az_bias, el_bias, _, s_ecc, c_ecc = np.asarray(terms, dtype=float).tolist()
+    r_t, az_t, el_t = true_polar[:, 0], true_polar[:, 1], true_polar[:, 2]
+    n = len(true_polar)
+    eccentric = s_ecc != 0.0 or c_ecc != 0.0
+    if eccentric or "azimuth_sin" in free or "azimuth_cos" in free:
+        sin_az, cos_az = np.sin(az_t), np.cos(az_t)
+    else:  # not used: no eccentricity, and neither of its terms is free
+        sin_az = cos_az = az_t
+    predicted = np.empty((3, n))
+    np.multiply(r_t, 1.0 + gain, out=predicted[0])
+    predicted[0] += offset
+    np.add(az_t, az_bias, out=predicted[1])
+    if eccentric:
+        predicted[1] += s_ecc * sin_az
+        predicted[1] += c_ecc * cos_az
+    np.add(el_t, el_bias, out=predicted[2])
+    if eccentric:
+        slope = np.ones((3, n))
+        slope[0] = 1.0 + gain
+        slope[1] = 1.0 + s_ecc * cos_az - c_ecc * sin_az
+        slope = slope.T
+    else:  # every row the same: one row, repeated without copies (read-only)
+        slope = np.ndarray((n, 3), buffer=np.array([1.0 + gain, 1.0, 1.0]), strides=(0, 8))
+        slope.flags.writeable = False
+    d_terms = np.zeros((3, len(free), n))
+    for k, name in enumerate(free):
+        row = TERM_ROWS[name]
+        if row is None:
+            continue
+        if name in ADDITIVE_TERMS:
+            d_terms[row, k] = 1.0
+        elif name == "range_gain":
+            d_terms[row, k] = r_t
+        elif name == "azimuth_sin":
+            d_terms[row, k] = sin_az
+        else:  # azimuth_cos
+            d_terms[row, k] = cos_az
+    return predicted.T, slope, d_terms.transpose(2, 0, 1)
+
+
+def corrected_polar(measured_polar: FloatArray, terms: FloatArray, free: tuple[str, ...] = ()
+                    ) -> tuple[FloatArray, FloatArray]:
+    """The inverse of :func:`biased_polar`: measured polar coordinates corrected for the
+    biases, and the correction's Jacobian in the terms.
+
+    With ``(r_m, az_m, el_m)`` the measured coordinates::
+
+        r  = (r_m - o) / (1 + g)
+        az : az + b + s sin az + c cos az = az_m     (wrapped to [0, 2 pi))
+        el = el_m - e
+
+    the azimuth by :func:`graphcal.data.bias.true_azimuth` (``az_m - b`` without
+    eccentricity, Newton's method with it).  Differentiating ``h(true(z, beta), beta)
+    = z`` in the terms ``beta`` (implicit function theorem), with ``slope``, the
+    diagonal Jacobian of ``h`` in the true coordinates, and ``d_terms`` of
+    :func:`biased_polar` at the corrected point::
+
+        d true / d beta = -slope^-1 d_terms
+
+    e.g. ``d r / d (o, g) = -(1, r) / (1 + g)`` and ``d az / d (b, s, c) =
+    -(1, sin az, cos az) / (1 + s cos az - c sin az)``.
+
+    Parameters
+    ----------
+    measured_polar : ndarray (n, 3)
+        Measured ``(range_m, azimuth_rad, elevation_rad)``.
+    terms : ndarray (7,)
+        Every term of :data:`~graphcal.model.parameters.TERM_NAMES` (SI units).
+    free : tuple of str
+        The terms whose columns ``d_true`` holds, in this order.
+
+    Returns
+    -------
+    true_polar : ndarray (n, 3)
+        Corrected ``(range_m, azimuth_rad, elevation_rad)``, azimuth in ``[0, 2 pi)``.
+    d_true : ndarray (n, 3, len(free))
+        ``d true_polar / d term`` in ``free``'s order [m or rad per unit of the term].
+    """
+    offset, gain, az_bias, el_bias, _, s_ecc, c_ecc = np.asarray(terms, dtype=float).tolist()
+    true = np.empty((3, len(measured_polar)))  # coordinate by coordinate; an (n, 3) view
+    np.subtract(measured_polar[:, 0], offset, out=true[0])
+    true[0] /= 1.0 + gain
+    true[1] = true_azimuth(measured_polar[:, 1], RadarBias(
+        azimuth_bias_rad=az_bias, azimuth_sin_rad=s_ecc, azimuth_cos_rad=c_ecc))
+    np.subtract(measured_polar[:, 2], el_bias, out=true[2])
+    d_true = np.zeros((len(measured_polar), 3, len(free)))
+    if free:
+        _, slope, d_terms = biased_polar(true.T, terms, free)
+        # slope is diagonal and each column of d_terms has one non-zero row (TERM_ROWS):
+        # the product's other entries are zeros.
+        for k, name in enumerate(free):
+            row = TERM_ROWS[name]
+            if row is not None:
+                d_true[:, row, k] = -d_terms[:, row, k] / slope[:, row]
+    return true.T, d_true
 
 
 @dataclass(frozen=True)
@@ -111,15 +293,15 @@ class RadarMeasurementModel:
 
         ``terms``: the full vector of :data:`~graphcal.model.parameters.TERM_NAMES`
         (offset, gain, azimuth bias, elevation bias, time offset, eccentricity ``s, c``).
-        With ``(r, az, el)`` the true (refracted) polar coordinates::
+        With ``(r, az, el)`` the true (refracted) polar coordinates and ``h`` the bias
+        model of :func:`biased_polar`, whose Jacobian in ``(r, az, el)`` is the diagonal
+        ``slope``::
 
-            h = ((1 + g) r + o,  az + b + s sin az + c cos az,  el + e)
-            d h / d enu = diag(1 + g, 1 + s cos az - c sin az, 1) d (r, az, el) / d enu
-            d h / d (o, g, b, e, s, c) = (1, 0, 0), (r, 0, 0), (0, 1, 0), (0, 0, 1),
-                                         (0, sin az, 0), (0, cos az, 0)
+            d h / d enu = diag(slope) d (r, az, el) / d enu
 
-        The time offset's column is ``-(d h / d position) v``, the point's velocity times
-        the position Jacobian, which the caller forms (it knows the velocity): here it is 0.
+        and ``d h / d terms`` is :func:`biased_polar`'s.  The time offset's column is
+        ``-(d h / d position) v``, the point's velocity times the position Jacobian,
+        which the caller forms (it knows the velocity): here it is 0.
 
         Returns
         -------
@@ -129,30 +311,9 @@ class RadarMeasurementModel:
         d_terms : ndarray (n, 3, len(free))
             The free terms' columns, in ``free``'s order.
         """
-        offset, gain, az_bias, el_bias, _, s_ecc, c_ecc = (float(v) for v in terms)
         polar, jac_enu = self.enu_jacobian(enu_m)
-        r_t, az_t, el_t = polar[:, 0], polar[:, 1], polar[:, 2]
-        sin_az, cos_az = np.sin(az_t), np.cos(az_t)
-        predicted = np.stack([(1.0 + gain) * r_t + offset,
-                              az_t + az_bias + s_ecc * sin_az + c_ecc * cos_az,
-                              el_t + el_bias], axis=-1)
-        slope = np.stack([np.full_like(r_t, 1.0 + gain),
-                          1.0 + s_ecc * cos_az - c_ecc * sin_az, np.ones_like(r_t)], axis=-1)
+        predicted, slope, d_terms = biased_polar(polar, terms, free)
         d_enu = slope[:, :, None] * jac_enu
-        d_terms = np.zeros((len(r_t), 3, len(free)))
-        for k, name in enumerate(free):
-            if name == "range_offset":
-                d_terms[:, 0, k] = 1.0
-            elif name == "range_gain":
-                d_terms[:, 0, k] = r_t
-            elif name == "azimuth_bias":
-                d_terms[:, 1, k] = 1.0
-            elif name == "elevation_bias":
-                d_terms[:, 2, k] = 1.0
-            elif name == "azimuth_sin":
-                d_terms[:, 1, k] = sin_az
-            elif name == "azimuth_cos":
-                d_terms[:, 1, k] = cos_az
         return predicted, d_enu, d_terms
 
     # ------------------------------------------------------------------ noise

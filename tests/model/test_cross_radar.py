@@ -16,8 +16,11 @@ from graphcal.model.cross_radar import (
     ray_excess,
     ray_excess_near,
 )
+from graphcal.model.measurement import biased_polar, corrected_polar
+from graphcal.model.parameters import TERM_NAMES
 from graphcal.simulation.scenario import load_scenario
 from graphcal.simulation.simulate import simulate
+from tests.jacobians import numerical_jacobian
 from tests.paths import SCENARIOS
 
 
@@ -127,3 +130,63 @@ def test_the_middle_of_column_blocks_equals_the_dense_middle() -> None:
                                      np.concatenate(dense_c), table)
     actual = gradient_noise_middle_of_blocks(blocks, table, p)
     np.testing.assert_allclose(actual, expected, rtol=1e-12, atol=1e-9 * np.abs(expected).max())
+
+
+# --------------------------------------------------------------------------- the inverse bias model
+#: Terms of TERM_NAMES with a non-zero eccentricity (the time offset moves no plot).
+ECCENTRIC_TERMS = np.array([40.0, 1.5e-3, 2e-3, -1e-3, 0.0, 1.2e-3, -0.8e-3])
+TERM_STEPS = np.array([1.0, 1e-6, 1e-6, 1e-6, 1e-3, 1e-6, 1e-6])
+
+
+def _wrapped_rows(plus: np.ndarray, minus: np.ndarray) -> np.ndarray:
+    """plus - minus of (3, n) polar coordinates, the azimuth row wrapped to [-pi, pi)."""
+    delta = plus - minus
+    delta[1] = np.mod(delta[1] + np.pi, 2 * np.pi) - np.pi
+    return delta
+
+
+@pytest.mark.parametrize("terms", [ECCENTRIC_TERMS, ECCENTRIC_TERMS * [1, 1, 1, 1, 1, 0, 0]])
+def test_corrected_polar_is_the_inverse_with_the_implicit_jacobian(terms: np.ndarray) -> None:
+    """corrected_polar inverts biased_polar, and its Jacobian in the terms equals both
+    central differences of the inverse and -slope^-1 d_terms of the forward model at the
+    corrected point (the implicit function theorem)."""
+    rng = np.random.default_rng(21)
+    n = 40
+    measured = np.column_stack([rng.uniform(5e3, 250e3, n), rng.uniform(0.0, 2 * np.pi, n),
+                                rng.uniform(-0.01, 0.3, n)])
+    measured[:3, 1] = [0.0, 1e-4, 2 * np.pi - 1e-4]  # at the 0 / 2 pi seam
+    true, d_true = corrected_polar(measured, terms, TERM_NAMES)
+    again, slope, d_terms = biased_polar(true, terms, TERM_NAMES)
+    np.testing.assert_allclose(again[:, [0, 2]], measured[:, [0, 2]], rtol=1e-14, atol=1e-9)
+    assert np.abs(np.mod(again[:, 1] - measured[:, 1] + np.pi, 2 * np.pi) - np.pi).max() < 1e-14
+    numeric = numerical_jacobian(lambda t: corrected_polar(measured, t)[0].T, terms, TERM_STEPS,
+                                 difference=_wrapped_rows)
+    np.testing.assert_allclose(d_true, np.moveaxis(numeric, 1, 0), rtol=1e-7, atol=1e-9)
+    implicit = -np.linalg.solve(np.einsum("ni,ij->nij", slope, np.eye(3)), d_terms)
+    np.testing.assert_allclose(d_true, implicit, rtol=1e-14, atol=1e-15)
+
+
+@pytest.mark.parametrize("radar", ["OUEST3D", "APP"])
+@pytest.mark.parametrize("refracted", [False, True])
+def test_corrected_ecef_jacobian_matches_numerical(dataset, radar: str, refracted: bool) -> None:
+    """d ecef / d (biases, s, c) of the corrected plots against central differences:
+    straight rays, and refracted ones through the linearised ray excess; a 2-D radar's
+    plots placed at their reported heights (its elevation-bias column is 0)."""
+    site, plots = dataset.sites[radar], plot_arrays(dataset, radar)
+    plots = plots.subset(np.arange(0, len(plots.range_m), 25))
+    if not refracted:
+        site = replace(site, refraction="none")
+    bias = np.array([30.0, 2e-4, 1.5e-3, 1e-3 if site.is_3d else 0.0])
+    eccentricity = (1.2e-3, -0.8e-3)
+    rays = ray_excess(site, plots) if refracted else None
+    _, jac, ok = corrected_ecef(site, plots, bias, eccentricity, refraction=rays)
+    assert ok.sum() > 50
+
+    def ecef(v: np.ndarray) -> np.ndarray:
+        return corrected_ecef(site, plots, v[:4], (v[4], v[5]), refraction=rays)[0]
+
+    numeric = numerical_jacobian(ecef, np.r_[bias, eccentricity], TERM_STEPS[[0, 1, 2, 3, 5, 6]])
+    scale = np.abs(numeric[ok]).max(axis=(0, 1))
+    assert np.all(np.abs(jac[ok] - numeric[ok]).max(axis=(0, 1)) <= 1e-6 * np.maximum(scale, 1.0))
+    if not site.is_3d:
+        assert not np.any(jac[:, :, 3])

@@ -418,3 +418,106 @@ def test_shared_corrections_give_the_same_residuals_with_one_conversion_per_rada
         for a, b in zip(j1, j0, strict=True):
             np.testing.assert_array_equal(a, b)
     assert sorted(calls) == ["A", "B", "C"]  # each radar converted once for three pairs
+
+
+# --------------------------------------------------------------------------- the one bias model
+def _polar_points(rng: np.random.Generator, n: int = 40) -> np.ndarray:
+    return np.column_stack([rng.uniform(5e3, 250e3, n), rng.uniform(0.0, 2 * np.pi, n),
+                            rng.uniform(-0.01, 0.3, n)])
+
+
+#: Terms of TERM_NAMES with a non-zero eccentricity (time offset unused by the model).
+ECCENTRIC_TERMS = np.array([40.0, 1.5e-3, 2e-3, -1e-3, 0.7, 1.2e-3, -0.8e-3])
+TERM_STEPS = np.array([1.0, 1e-6, 1e-6, 1e-6, 1e-3, 1e-6, 1e-6])
+
+
+@pytest.mark.parametrize("terms", [ECCENTRIC_TERMS, ECCENTRIC_TERMS * [1, 1, 1, 1, 1, 0, 0]])
+def test_biased_polar_jacobians_match_numerical(terms: np.ndarray) -> None:
+    """slope: the diagonal of d h / d true polar; d_terms: d h / d every term; both against
+    central differences of h, and d_terms's structure as TERM_ROWS and ADDITIVE_TERMS say."""
+    from graphcal.model.measurement import ADDITIVE_TERMS, TERM_ROWS, biased_polar
+    from graphcal.model.parameters import TERM_NAMES
+
+    polar = _polar_points(np.random.default_rng(12))
+    predicted, slope, d_terms = biased_polar(polar, terms, TERM_NAMES)
+    r, az, el = polar.T
+    s, c = terms[5:]
+    np.testing.assert_allclose(predicted, np.column_stack([
+        (1 + terms[1]) * r + terms[0], az + terms[2] + s * np.sin(az) + c * np.cos(az),
+        el + terms[3]]), rtol=1e-15, atol=1e-9)
+    numeric = numerical_jacobian(lambda p: biased_polar(p, terms)[0], polar,
+                                 np.array([1.0, 1e-6, 1e-6]))
+    np.testing.assert_allclose(numeric, np.einsum("ni,ij->nij", slope, np.eye(3)),
+                               rtol=1e-7, atol=1e-9)
+    numeric = numerical_jacobian(lambda t: biased_polar(polar, t)[0].T, terms, TERM_STEPS)
+    np.testing.assert_allclose(d_terms, np.moveaxis(numeric, 1, 0), rtol=1e-7, atol=1e-9)
+    for k, name in enumerate(TERM_NAMES):
+        row = TERM_ROWS[name]
+        others = [i for i in range(3) if i != row]
+        assert not np.any(d_terms[:, others, k]), name
+        if name in ADDITIVE_TERMS:
+            assert np.all(d_terms[:, row, k] == 1.0), name
+
+
+def test_measure_is_the_polar_jacobian_and_biased_polar(dataset) -> None:
+    """RadarMeasurementModel.measure = the polar coordinates of ENU points, their
+    Jacobian, and biased_polar on top."""
+    from graphcal.model.measurement import biased_polar, measurement_model
+    from graphcal.model.parameters import TERM_NAMES
+
+    model = measurement_model(dataset.sites["B"])
+    rng = np.random.default_rng(13)
+    enu = rng.uniform([-1e5, -1e5, 2e3], [1e5, 1e5, 1.2e4], size=(30, 3))
+    free = ("range_gain", "azimuth_cos", "range_offset", "elevation_bias", "time_offset")
+    predicted, d_enu, d_terms = model.measure(enu, ECCENTRIC_TERMS, free)
+    polar, jac = model.enu_jacobian(enu)
+    expected, slope, expected_terms = biased_polar(polar, ECCENTRIC_TERMS, free)
+    np.testing.assert_array_equal(predicted, expected)
+    np.testing.assert_array_equal(d_enu, slope[:, :, None] * jac)
+    np.testing.assert_array_equal(d_terms, expected_terms)
+    assert not np.any(d_terms[:, :, free.index("time_offset")])
+    # The order of the columns is free's.
+    _, _, every = biased_polar(polar, ECCENTRIC_TERMS, TERM_NAMES)
+    np.testing.assert_array_equal(d_terms, every[:, :, [TERM_NAMES.index(n) for n in free]])
+
+
+@pytest.mark.parametrize("radar", ["A", "B"])
+def test_adsb_factor_jacobian_is_minus_w_d_terms(dataset, radar: str) -> None:
+    """The ADS-B factor's whitened Jacobian is -W d_terms of biased_polar at the reference
+    moved to the time offset, its time column W (slope * rate), and both equal central
+    differences of the whitened residual: every term free, eccentricity and time offset
+    non-zero."""
+    from graphcal.model.measurement import biased_polar
+    from graphcal.model.parameters import TERM_NAMES
+
+    site = dataset.sites[radar]
+    al = align_adsb(dataset, radar)
+    rng = np.random.default_rng(14)
+    n = len(al)
+    rate = np.column_stack([rng.normal(0, 200.0, n), rng.normal(0, 2e-3, n),
+                            rng.normal(0, 1e-3, n)])
+    free = tuple(name for name in TERM_NAMES if site.is_3d or name != "elevation_bias")
+    f = adsb_factor(site, RadarTerms(radar, free), 0, al.plots, al.reference_polar,
+                    reference_polar_covariance(al), RobustKernel("none"), rate, 0.3)
+    terms = ECCENTRIC_TERMS if site.is_3d else ECCENTRIC_TERMS * [1, 1, 1, 0, 1, 1, 1]
+    x = terms[[TERM_NAMES.index(name) for name in free]]
+    e, (jac,) = f.whitened([x])
+    m = f.rows
+    reference = al.reference_polar + rate * (0.3 - terms[4])
+    predicted, slope, d_terms = biased_polar(reference, terms, free)
+    w = f.whitening
+    measured = np.column_stack([al.plots.range_m, al.plots.azimuth_rad, al.plots.elevation_rad])
+    residual = measured[:, :m] - predicted[:, :m]
+    residual[:, 1] = np.mod(residual[:, 1] + np.pi, 2 * np.pi) - np.pi
+    np.testing.assert_allclose(e, np.einsum("nij,nj->ni", w, residual), rtol=1e-12, atol=1e-9)
+    expected = -w @ d_terms[:, :m, :]
+    expected[:, :, free.index("time_offset")] = np.einsum("nij,nj->ni", w, (slope * rate)[:, :m])
+    np.testing.assert_allclose(jac, expected, rtol=1e-12, atol=1e-12)
+    numeric = numerical_jacobian(lambda v: f.whitened([v])[0], x,
+                                 TERM_STEPS[[TERM_NAMES.index(name) for name in free]])
+    np.testing.assert_allclose(jac, numeric, rtol=1e-6, atol=1e-7)
+    # residual(): the same columns, unwhitened, over every term.
+    res, jac_all = f.residual(terms[:4], terms[4], (terms[5], terms[6]))
+    np.testing.assert_allclose(np.einsum("nij,nj->ni", w, res), e, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(w @ jac_all[:, :, [TERM_NAMES.index(n) for n in free]], jac,
+                               rtol=1e-12, atol=1e-12)
