@@ -60,7 +60,7 @@ import pandas as pd
 
 import graphcal
 from graphcal.data.dataset import Dataset
-from graphcal.pipeline.associate import _gate_covariances
+from graphcal.pipeline.associate import gate_covariances
 from graphcal.simulation.simulate import CLUTTER, SimulationResult
 from graphcal.tracking.association import AMBIGUOUS, ASSOCIATED, associate
 
@@ -141,7 +141,7 @@ def score(sim: SimulationResult, cal, use_adsb: bool) -> dict[str, dict[str, int
     """Re-associate at the calibration's biases and count per radar against the truth."""
     dataset = sim.dataset
     biases = {rid: cal.bias(rid) for rid in cal.radar_ids}
-    association = associate(dataset, biases, _gate_covariances(cal), use_adsb=use_adsb)
+    association = associate(dataset, biases, gate_covariances(cal), use_adsb=use_adsb)
     truth = sim.plot_truth["truth_target_id"].astype(str)
     truth.index = dataset.plots.index  # row-aligned with the plots
     radar = dataset.plots["radar_id"].astype(str)

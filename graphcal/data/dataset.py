@@ -31,13 +31,16 @@ if TYPE_CHECKING:
 PLOT_COLUMNS: tuple[str, ...] = (
     "radar_id", "time_s", "range_m", "azimuth_deg", "elevation_deg", "target_id",
 )
-#: Optional plot columns.
-PLOT_OPTIONAL_COLUMNS: tuple[str, ...] = ("altitude_m",)
+#: Optional plot columns (``mode_3a``, ``track_number``: contract v3).
+PLOT_OPTIONAL_COLUMNS: tuple[str, ...] = ("altitude_m", "mode_3a", "track_number")
 #: Required ADS-B columns.  A row's ``alt_m`` may be empty (a source without a geometric
 #: height): it is read, and left out of a calibration by the cleaning, with a warning.
 ADSB_COLUMNS: tuple[str, ...] = ("time_s", "target_id", "lat_deg", "lon_deg", "alt_m")
-#: Optional ADS-B columns (``baro_alt_m``: the reported pressure altitude [m], contract v2).
-ADSB_OPTIONAL_COLUMNS: tuple[str, ...] = ("sigma_m", "nacp", "baro_alt_m")
+#: Optional ADS-B columns (``baro_alt_m``: the reported pressure altitude [m], contract v2;
+#: ``mode_3a``: the Mode 3/A code broadcast, contract v3).
+ADSB_OPTIONAL_COLUMNS: tuple[str, ...] = ("sigma_m", "nacp", "baro_alt_m", "mode_3a")
+#: Pattern of a Mode 3/A code (contract v3 ``mode_3a``): 4 octal digits, "7000", "0413".
+MODE_3A_PATTERN = r"[0-7]{4}"
 
 #: 1-sigma horizontal error [m] of an ADS-B report that gives neither ``sigma_m``
 #: nor ``nacp``.  A cautious figure, between NACp 8 (EPU < 92.6 m, sigma < 37.8 m) and
@@ -201,8 +204,11 @@ class Dataset:
     """Sites, plots and (optionally) ADS-B reports, validated.
 
     ``plots`` has the contract columns (``elevation_deg`` NaN for 2-D radars,
-    ``target_id`` an empty string when unknown, ``altitude_m`` NaN when absent);
-    ``adsb`` has the contract columns with ``sigma_m`` always filled in.
+    ``target_id`` an empty string when unknown, ``altitude_m`` NaN when absent)
+    and, when its files carry them (contract v3), ``mode_3a`` (4 octal digits, an
+    empty string when none) and ``track_number`` (nullable ``Int64``);
+    ``adsb`` has the contract columns with ``sigma_m`` always filled in, and
+    ``mode_3a`` when its files carry it.
     ``cleaning`` is the report of :func:`graphcal.data.cleaning.clean_dataset` when
     the tables were cleaned (by :func:`load_dataset`), else ``None``.
     ``plot_altitude`` says what the plots' ``altitude_m`` is (``sites.toml``

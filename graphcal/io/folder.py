@@ -35,6 +35,14 @@ Normalisation of the tables read (:mod:`graphcal.io.table_checks`):
   nullable integer (``Int64``) and must be within 0..11.
 * ADS-B ``baro_alt_m`` (contract v2, optional): the reported pressure altitude
   [m], NaN where a report has none.
+* ``mode_3a`` (contract v3, optional, plots and ADS-B): the Mode 3/A code as 4
+  octal digits ("7000", "0413"), read as text so that leading zeros stay; ``""``
+  where a row has none.  Any other value is an error (a numeric column too: its
+  leading zeros are lost).
+* Plots ``track_number`` (contract v3, optional): the radar's own track number, a
+  nullable integer (``Int64``) that must be a non-negative integer.
+* The v3 columns are not added when a file lacks them: a table without them
+  reads as in versions 1 and 2.
 * ``sites.toml`` may hold a top-level ``[dataset]`` table (contract v2) whose
   ``plot_altitude`` (``"geometric"``, the default, or ``"pressure"``) says what the
   plots' ``altitude_m`` is; it becomes :attr:`Dataset.plot_altitude`

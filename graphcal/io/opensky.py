@@ -4,8 +4,8 @@ Input columns (CSV or Parquet): ``timestamp`` (unix seconds, or a datetime;
 naive datetimes are UTC), ``icao24``, ``latitude``, ``longitude`` [deg], and
 a height: ``geoaltitude`` [m, GNSS height] when the column exists, else
 ``altitude`` [ft, barometric], else ``baroaltitude`` [m, barometric].
-Optional: ``lastposupdate`` [unix s, time of the last position update] and
-``onground`` (bool).
+Optional: ``lastposupdate`` [unix s, time of the last position update],
+``onground`` (bool) and ``squawk`` (the Mode 3/A code).
 
 Cleaning, in this order (each step's drops are counted):
 
@@ -40,6 +40,11 @@ calibration estimates the height model (:mod:`graphcal.data.height`);
 ``frame.attrs["baro_source"]`` names it (``None`` without one).  A table whose
 only height is barometric gives no ``baro_alt_m``: its ``alt_m`` already is that
 altitude, and the two would say nothing about the height model.
+
+Mode 3/A codes (contract v3): a ``squawk`` column becomes ``mode_3a``, 4 octal
+digits.  OpenSky gives the code as text ("0413") or, once a reader has parsed it,
+as a number (413, 413.0): the digits are kept and zero-padded to four.  A missing
+code, or one that is not 1 to 4 octal digits, becomes ``""``; the row is kept.
 """
 
 from __future__ import annotations
@@ -81,7 +86,7 @@ def _read(path: Path) -> pd.DataFrame:
     try:
         if path.suffix.lower() in (".parquet", ".pq"):
             return pd.read_parquet(path)
-        return pd.read_csv(path, dtype={"icao24": str})
+        return pd.read_csv(path, dtype={"icao24": str, "squawk": str})
     except Exception as exc:  # noqa: BLE001 - any reader failure is a bad input file
         raise DatasetError(f"cannot read table: {exc}", path=path) from None
 
@@ -106,6 +111,37 @@ def _numbers(frame: pd.DataFrame, column: str) -> np.ndarray:
     return pd.to_numeric(frame[column], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
 
 
+def squawk_codes(values: pd.Series) -> np.ndarray:
+    """OpenSky ``squawk`` values as Mode 3/A codes: 4 octal digits, ``""`` where none.
+
+    Parameters
+    ----------
+    values : pandas.Series
+        Text ("0413", "7000") or numbers (413, 413.0) whose decimal digits are the
+        code's octal digits.
+
+    Returns
+    -------
+    numpy.ndarray
+        One string per value: the code zero-padded to 4 digits (413 -> "0413"), or
+        ``""`` when missing or not 1 to 4 octal digits.
+    """
+    if pd.api.types.is_bool_dtype(values):
+        return np.full(len(values), "", dtype=object)
+    if pd.api.types.is_numeric_dtype(values):
+        number = values.to_numpy(dtype=float, na_value=np.nan)
+        with np.errstate(invalid="ignore"):
+            whole = (np.isfinite(number) & (number == np.round(number)) & (number >= 0)
+                     & (number <= 7777))
+        text = pd.Series(np.where(whole, number, -1.0)).astype(np.int64).astype("string")
+        text = text.mask(~whole)
+    else:
+        text = values.astype("string").str.strip().str.replace(r"\.0*$", "", regex=True)
+    valid = text.str.fullmatch(r"[0-7]{1,4}").fillna(False).to_numpy(dtype=bool)
+    padded = text.str.zfill(4).fillna("").to_numpy(dtype=object)
+    return np.where(valid, padded, "").astype(object)
+
+
 def read_opensky_adsb(path: str | Path, *, epoch_unix_s: float | None = None) -> pd.DataFrame:
     """Read an OpenSky-style table as a contract ADS-B table.
 
@@ -122,9 +158,10 @@ def read_opensky_adsb(path: str | Path, *, epoch_unix_s: float | None = None) ->
     -------
     pandas.DataFrame
         Columns ``time_s`` [s since the epoch], ``target_id`` (lower-case hex),
-        ``lat_deg``, ``lon_deg`` [deg], ``alt_m`` [m], and ``baro_alt_m`` [m]
-        when a barometric altitude accompanies ``geoaltitude``; sorted by time
-        then target.  ``attrs``: ``epoch_unix_s`` (float), ``height_source``
+        ``lat_deg``, ``lon_deg`` [deg], ``alt_m`` [m], ``baro_alt_m`` [m]
+        when a barometric altitude accompanies ``geoaltitude``, and ``mode_3a``
+        (4 octal digits, ``""`` where none) when the table has ``squawk``;
+        sorted by time then target.  ``attrs``: ``epoch_unix_s`` (float), ``height_source``
         (``"geoaltitude"``, ``"altitude (barometric)"`` or ``"baroaltitude
         (barometric)"``), ``baro_source`` (column name or ``None``),
         ``rows_read`` (int) and ``dropped`` (dict of reason to row count, in
@@ -162,6 +199,8 @@ def read_opensky_adsb(path: str | Path, *, epoch_unix_s: float | None = None) ->
         "baro": baro,
         "onground": (table["onground"].fillna(False).astype(bool).to_numpy()
                      if "onground" in table.columns else np.zeros(len(table), dtype=bool)),
+        "squawk": (squawk_codes(table["squawk"]) if "squawk" in table.columns
+                   else np.full(len(table), "", dtype=object)),
     })
     dropped: dict[str, int] = {}
 
@@ -204,6 +243,8 @@ def read_opensky_adsb(path: str | Path, *, epoch_unix_s: float | None = None) ->
         baro = df["baro"].to_numpy()
         plausible = (baro >= HEIGHT_RANGE_M[0]) & (baro <= HEIGHT_RANGE_M[1])
         out["baro_alt_m"] = np.where(plausible, baro, np.nan)
+    if "squawk" in table.columns:
+        out["mode_3a"] = df["squawk"].to_numpy(dtype=object)
     out = out.sort_values(["time_s", "target_id"], kind="stable").reset_index(drop=True)
     out.attrs.update({
         "epoch_unix_s": float(epoch_unix_s),

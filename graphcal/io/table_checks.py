@@ -25,7 +25,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.data.cleaning import MAX_PLOT_RANGE_M
-from graphcal.data.dataset import ADSB_DEFAULT_SIGMA_M, Site
+from graphcal.data.dataset import ADSB_DEFAULT_SIGMA_M, MODE_3A_PATTERN, Site
 from graphcal.data.sensor_models import adsb_sigma_from_nacp
 from graphcal.io.table_files import MISSING_TEXT, RawRows
 
@@ -109,6 +109,56 @@ def _flag_outside(
                   lambda pos: f"{values[pos]} is outside {interval}")
 
 
+#: Largest track number accepted: the largest integer a float holds exactly.
+MAX_TRACK_NUMBER = 2**53
+
+
+def _mode_3a(table: RawRows, problems: FirstProblem) -> pd.Series | None:
+    """The ``mode_3a`` column (contract v3) as 4 octal digits, ``""`` where missing;
+    ``None`` when the table has no such column.
+
+    A cell is missing when empty (or one of :data:`MISSING_TEXT`); any other value
+    must be 4 octal digits, as text: a numeric column (a Parquet integer column)
+    has lost the leading zeros of its codes, so its values are flagged.
+    """
+    if "mode_3a" not in table.frame.columns:
+        return None
+    values = table.frame["mode_3a"]
+    if pd.api.types.is_bool_dtype(values) or pd.api.types.is_numeric_dtype(values):
+        given = values.notna().to_numpy(dtype=bool)
+        problems.flag(given, "mode_3a",
+                      lambda pos: f"{values.iloc[pos]!r} is a number: write the Mode 3/A "
+                      "code as text, 4 octal digits (\"0413\"), so that its leading zeros "
+                      "stay")
+        return pd.Series([""] * len(values), dtype=object)
+    text = values.astype("string").str.strip()
+    missing = (text.isna() | text.isin(MISSING_TEXT)).to_numpy(dtype=bool)
+    text = text.mask(missing, "")
+    valid = text.str.fullmatch(MODE_3A_PATTERN).fillna(False).to_numpy(dtype=bool)
+    problems.flag(~missing & ~valid, "mode_3a",
+                  lambda pos: f"{text.iloc[pos]!r} is not a Mode 3/A code: 4 octal digits "
+                  "(0-7), such as \"7000\" or \"0413\"")
+    return text.astype(str)
+
+
+def _track_number(table: RawRows, problems: FirstProblem) -> pd.arrays.IntegerArray | None:
+    """The ``track_number`` column (contract v3) as ``Int64`` (missing where empty);
+    ``None`` when the table has no such column.  A value must be a non-negative integer."""
+    if "track_number" not in table.frame.columns:
+        return None
+    number = _numeric(table, problems, "track_number")
+    given = ~np.isnan(number)
+    with np.errstate(invalid="ignore"):
+        invalid = given & ((number != np.round(number)) | (number < 0))
+    problems.flag(invalid, "track_number",
+                  lambda pos: f"{number[pos]:g} is not a non-negative integer")
+    problems.flag(given & ~invalid & (number > MAX_TRACK_NUMBER), "track_number",
+                  lambda pos: f"{number[pos]:g} is too large for a track number "
+                  f"(at most {MAX_TRACK_NUMBER})")
+    bad = ~given | invalid | (number > MAX_TRACK_NUMBER)
+    return pd.arrays.IntegerArray(np.where(bad, 0, number).astype(np.int64), ~given | bad)
+
+
 def _assemble(table: RawRows, columns: dict[str, Any]) -> pd.DataFrame:
     """The normalised columns, followed by the table's extra columns unchanged."""
     out = pd.DataFrame(columns, index=pd.RangeIndex(len(table.frame)))
@@ -139,7 +189,9 @@ def validate_plots(table: RawRows, sites: Mapping[str, Site], *,
     -------
     pandas.DataFrame
         The contract columns normalised (``altitude_m`` added as NaN when
-        absent), then the extra columns unchanged; a fresh ``RangeIndex``.
+        absent; contract v3, when present: ``mode_3a`` as 4 octal digits, ``""``
+        where empty, and ``track_number`` as ``Int64``), then the extra columns
+        unchanged; a fresh ``RangeIndex``.
 
     Raises
     ------
@@ -175,10 +227,12 @@ def validate_plots(table: RawRows, sites: Mapping[str, Site], *,
     else:
         altitude_m = np.full(len(table.frame), np.nan)
     target_id = _text(table, "target_id", lower=True)
+    mode_3a = _mode_3a(table, problems)
+    track_number = _track_number(table, problems)
     if extra is not None:
         extra(problems, time_s)
     problems.raise_first()
-    return _assemble(table, {
+    columns: dict[str, Any] = {
         "radar_id": radar_id,
         "time_s": time_s,
         "range_m": range_m,
@@ -186,7 +240,12 @@ def validate_plots(table: RawRows, sites: Mapping[str, Site], *,
         "elevation_deg": elevation_deg,
         "target_id": target_id,
         "altitude_m": altitude_m,
-    })
+    }
+    if mode_3a is not None:
+        columns["mode_3a"] = mode_3a
+    if track_number is not None:
+        columns["track_number"] = track_number
+    return _assemble(table, columns)
 
 
 # --------------------------------------------------------------------------- ADS-B
@@ -235,7 +294,8 @@ def validate_adsb(table: RawRows, *, extra: ExtraCheck | None = None) -> pd.Data
     -------
     pandas.DataFrame
         The contract columns normalised (``sigma_m`` filled in, ``nacp`` as
-        ``Int64`` when present, ``baro_alt_m`` when present, ``alt_m`` NaN where
+        ``Int64`` when present, ``baro_alt_m`` when present, ``mode_3a`` as 4
+        octal digits (``""`` where empty) when present, ``alt_m`` NaN where
         empty: a report without a geometric height), then the extra columns
         unchanged; a fresh ``RangeIndex``.
 
@@ -267,6 +327,7 @@ def validate_adsb(table: RawRows, *, extra: ExtraCheck | None = None) -> pd.Data
     if "baro_alt_m" in table.frame.columns:
         baro_alt_m = _numeric(table, problems, "baro_alt_m")
         _flag_not_finite(problems, baro_alt_m, "baro_alt_m", required=False)
+    mode_3a = _mode_3a(table, problems)
     if extra is not None:
         extra(problems, time_s)
     problems.raise_first()
@@ -284,6 +345,8 @@ def validate_adsb(table: RawRows, *, extra: ExtraCheck | None = None) -> pd.Data
             np.where(missing, 0, nacp).astype(np.int64), missing)
     if baro_alt_m is not None:
         columns["baro_alt_m"] = baro_alt_m
+    if mode_3a is not None:
+        columns["mode_3a"] = mode_3a
     return _assemble(table, columns)
 
 

@@ -55,8 +55,9 @@ from graphcal.data.dataset import (
 #: Text read as "no value" in a numeric column (compared after removing blanks).
 MISSING_TEXT: tuple[str, ...] = ("", "nan", "NaN", "NAN", "NA", "N/A", "n/a", "null", "NULL",
                                  "None", "none")
-#: Columns read as text; every other contract column is numeric.
-TEXT_COLUMNS: tuple[str, ...] = ("radar_id", "target_id")
+#: Columns read as text; every other contract column is numeric.  ``mode_3a`` (contract
+#: v3) is text so that a code keeps its leading zeros ("0413").
+TEXT_COLUMNS: tuple[str, ...] = ("radar_id", "target_id", "mode_3a")
 #: Rows per chunk when a table is read in chunks.
 DEFAULT_CHUNK_ROWS = 100_000
 #: Read buffer of a Parquet file read in chunks [bytes].

@@ -91,7 +91,7 @@ def calibrate_associated(dataset: Dataset, method: str, options: SolveOptions, *
         first = None
     if first is not None:
         biases.update({rid: first.bias(rid) for rid in first.radar_ids})
-        covariances.update(_gate_covariances(first))
+        covariances.update(gate_covariances(first))
         association = associate(dataset, biases, covariances, use_adsb=options.use_adsb,
                                 radars=radars)
     cal = problem = None
@@ -100,7 +100,7 @@ def calibrate_associated(dataset: Dataset, method: str, options: SolveOptions, *
         problem = build_problem(association.applied(dataset), options)
         cal = solve(problem, method, **run)
         biases = {rid: cal.bias(rid) for rid in cal.radar_ids}
-        covariances = _gate_covariances(cal)
+        covariances = gate_covariances(cal)
         again = associate(dataset, biases, covariances, use_adsb=options.use_adsb,
                           radars=radars)
         if progress is not None:
@@ -121,7 +121,7 @@ def calibrate_associated(dataset: Dataset, method: str, options: SolveOptions, *
     return cal, problem, association
 
 
-def _gate_covariances(cal: Calibration) -> dict[str, np.ndarray]:
+def gate_covariances(cal: Calibration) -> dict[str, np.ndarray]:
     """Each radar's covariance over :data:`GATED_TERMS` (SI; zero where not estimated)."""
     out = {}
     labels = list(cal.labels)
@@ -145,4 +145,4 @@ def _changed(a: Association, b: Association) -> float:
     return float(np.mean(ta.to_numpy() != tb.to_numpy())) if len(ta) else 0.0
 
 
-__all__ = ["MAX_ROUNDS", "calibrate_associated", "needs_association"]
+__all__ = ["MAX_ROUNDS", "calibrate_associated", "gate_covariances", "needs_association"]

@@ -109,8 +109,8 @@ def test_real_samples_decode_identically(samples: Path) -> None:  # noqa: F811
 
 
 def test_full_mode_s_records_and_cat021_edition_0_26() -> None:
-    """Items the decoder only skips (I020, I070, I161, I200, I170, I250 ...) and the older
-    CAT021 edition."""
+    """Items the decoder only skips (I020, I200, I170, I250 ...), the Mode-3/A code and
+    track number (I070, I161) and the older CAT021 edition."""
     import asterix.generated as gen
 
     record = CAT048.cv_record.create({
@@ -135,6 +135,7 @@ def test_full_mode_s_records_and_cat021_edition_0_26() -> None:
     (plot,) = decoded.cat048
     assert plot.flight_level is None  # garbled (G=1)
     assert plot.height_ft == 12000.0 and plot.callsign == "DLH65A"
+    assert plot.mode_3a == 0o1000 and plot.track_number == 3563
     (report,) = decoded.cat021
     assert report.flight_level == 300.25 and report.time_position_s == 2000.0
 

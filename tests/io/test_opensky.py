@@ -17,6 +17,7 @@ from graphcal.io.opensky import (
     DROP_STALE,
     FOOT_M,
     read_opensky_adsb,
+    squawk_codes,
 )
 from tests.paths import SHARED_DATA
 
@@ -83,6 +84,48 @@ def test_bad_tables(tmp_path: Path) -> None:
         read_opensky_adsb(path)
 
 
+def _squawk_table() -> pd.DataFrame:
+    t0 = MIDNIGHT + 3600.0
+    return pd.DataFrame({
+        "timestamp": t0 + np.arange(6.0),
+        "icao24": [f"4ca1b{k}" for k in range(6)],
+        "latitude": 48.0, "longitude": 2.0, "geoaltitude": 9000.0,
+    })
+
+
+def test_squawk_becomes_mode_3a_zero_padded(tmp_path: Path) -> None:
+    # In a CSV file: text, kept as text even when it looks like a number.
+    path = tmp_path / "states.csv"
+    table = _squawk_table()
+    table["squawk"] = ["413", "0413", "7000", "", "8000", "12345"]
+    table.to_csv(path, index=False)
+    adsb = read_opensky_adsb(path)
+    assert adsb["mode_3a"].tolist() == ["0413", "0413", "7000", "", "", ""]
+    assert list(adsb.columns)[-1] == "mode_3a"
+    # In a Parquet file: numbers (the digits are the code's octal digits) or text.
+    for values in ([413.0, 7000.0, np.nan, 0.0, 7777.0, 413.5],
+                   pd.array([413, 7000, None, 0, 7777, 99], dtype="Int64"),
+                   ["413", "7000", None, "0", "7777", "0x1a"]):
+        table["squawk"] = values
+        table.to_parquet(tmp_path / "states.parquet")
+        adsb = read_opensky_adsb(tmp_path / "states.parquet")
+        assert adsb["mode_3a"].tolist() == ["0413", "7000", "", "0000", "7777", ""]
+
+
+def test_without_squawk_no_mode_3a_column(tmp_path: Path) -> None:
+    path = tmp_path / "states.csv"
+    _squawk_table().to_csv(path, index=False)
+    assert "mode_3a" not in read_opensky_adsb(path).columns
+
+
+def test_squawk_codes_of_every_kind() -> None:
+    assert squawk_codes(pd.Series([413, 7000, 8, 77])).tolist() == ["0413", "7000", "", "0077"]
+    assert squawk_codes(pd.Series(["413.0", " 7700 ", "-413", "7 00"])).tolist() == \
+        ["0413", "7700", "", ""]
+    assert squawk_codes(pd.Series([True, False])).tolist() == ["", ""]
+    assert squawk_codes(pd.Series([], dtype=float)).tolist() == []
+
+
 @pytest.mark.skipif(not PARIS.exists(), reason="shared OpenSky table not available")
 def test_shared_paris_table() -> None:
     adsb = read_opensky_adsb(PARIS)
@@ -96,3 +139,7 @@ def test_shared_paris_table() -> None:
     assert adsb["alt_m"].median() == pytest.approx(2900.0, rel=0.1)  # ft converted to m
     assert adsb["target_id"].str.fullmatch("[0-9a-f]{6}").all()
     assert not adsb.duplicated(["target_id", "time_s"]).any()
+    # Its squawks are text, some of 2 or 3 digits (leading zeros lost upstream): padded.
+    codes = adsb["mode_3a"]
+    assert (codes.str.fullmatch("[0-7]{4}") | codes.eq("")).all()
+    assert codes.str.startswith("0").any() and codes.eq("").mean() < 0.01

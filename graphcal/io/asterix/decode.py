@@ -240,6 +240,13 @@ class Cat048Report:
     height_ft : float or None
         Height measured by a 3-D radar (I048/110) [ft], resolution 25 ft; ``None``
         when absent (a 2-D radar sends none).
+    mode_3a : int or None
+        Mode-3/A code (I048/070), its 12 bits A4 A2 A1 B4 ... D1 as an integer
+        (``0o7000`` for code 7000); ``None`` when absent, not validated (V=1) or
+        garbled (G=1).  A code not extracted during the last scan (L=1, the
+        code kept from earlier scans) is kept.
+    track_number : int or None
+        The radar's track number (I048/161, 12 bits), when present.
     """
 
     sac: int
@@ -252,6 +259,8 @@ class Cat048Report:
     callsign: str | None
     capture_s: float | None
     height_ft: float | None = None
+    mode_3a: int | None = None
+    track_number: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -275,8 +284,6 @@ class Cat021Report:
         WGS-84 position [deg]: I021/131 (high resolution) when present, else I021/130.
     geo_height_ft : float or None
         Geometric height above the WGS-84 ellipsoid (I021/140) [ft].
-    flight_level : float or None
-        Barometric (pressure) altitude (I021/145) [FL, 100 ft], resolution 1/4 FL.
     nacp : int or None
         Navigation Accuracy Category for position (I021/090 second extension, v2).
     nucp : int or None
@@ -286,6 +293,13 @@ class Cat021Report:
         NUCp), 1 DO-260A, 2 DO-260B (it is a NIC).
     capture_s : float or None
         Capture time of the packet [unix s].
+    flight_level : float or None
+        Barometric (pressure) altitude (I021/145) [FL, 100 ft], resolution 1/4 FL.
+    mode_3a : int or None
+        Mode 3/A code (I021/070), its 12 bits as an integer (``0o413`` for code
+        0413); ``None`` when absent (editions 0.23 to 0.25 have no I070) or, in
+        edition 0.26, whose I070 has validity bits, not validated (V=1) or garbled
+        (G=1).
     """
 
     sac: int
@@ -302,6 +316,7 @@ class Cat021Report:
     mops_version: int | None
     capture_s: float | None
     flight_level: float | None = None
+    mode_3a: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -399,11 +414,11 @@ _FLOAT, _INT, _STR = "float", "int", "str"
 COLUMNS: dict[int, dict[str, str]] = {
     48: {"sac": _INT, "sic": _INT, "time_of_day_s": _FLOAT, "rho_nm": _FLOAT,
          "theta_deg": _FLOAT, "address": _INT, "flight_level": _FLOAT, "callsign": _STR,
-         "capture_s": _FLOAT, "height_ft": _FLOAT},
+         "capture_s": _FLOAT, "height_ft": _FLOAT, "mode_3a": _INT, "track_number": _INT},
     21: {"sac": _INT, "sic": _INT, "time_position_s": _FLOAT, "time_reception_s": _FLOAT,
          "time_report_s": _FLOAT, "address": _INT, "lat_deg": _FLOAT, "lon_deg": _FLOAT,
          "geo_height_ft": _FLOAT, "nacp": _INT, "nucp": _INT, "mops_version": _INT,
-         "capture_s": _FLOAT, "flight_level": _FLOAT},
+         "capture_s": _FLOAT, "flight_level": _FLOAT, "mode_3a": _INT},
     34: {"sac": _INT, "sic": _INT, "message_type": _INT, "time_of_day_s": _FLOAT,
          "lat_deg": _FLOAT, "lon_deg": _FLOAT, "height_m": _FLOAT, "capture_s": _FLOAT},
 }
@@ -708,7 +723,8 @@ _FIELDS_048 = {
     "sac": ("010", "SAC"), "sic": ("010", "SIC"), "tod": ("140", None),
     "rho": ("040", "RHO"), "theta": ("040", "THETA"), "v": ("090", "V"), "g": ("090", "G"),
     "fl": ("090", "FL"), "address": ("220", None), "callsign": ("240", None),
-    "height": ("110", "3DH"),
+    "height": ("110", "3DH"), "v070": ("070", "V"), "g070": ("070", "G"),
+    "mode3a": ("070", "MODE3A"), "track": ("161", "TRN"),
 }
 _FIELDS_021_V2 = {
     "sac": ("010", "SAC"), "sic": ("010", "SIC"), "t071": ("071", None),
@@ -716,12 +732,15 @@ _FIELDS_021_V2 = {
     "lat131": ("131", "LAT"), "lon131": ("131", "LON"), "lat130": ("130", "LAT"),
     "lon130": ("130", "LON"), "geo": ("140", None), "fl": ("145", None),
     "nucp": ("090", "NUCPNIC"), "nacp": ("090", "NACP"), "vn": ("210", "VN"),
+    "mode3a": ("070", "MODE3A"),
 }
 _FIELDS_021_V0 = {
     "sac": ("010", "SAC"), "sic": ("010", "SIC"), "t030": ("030", None),
     "address": ("080", None), "lat130": ("130", "LAT"), "lon130": ("130", "LON"),
     "geo": ("140", None), "fl": ("145", None),
 }
+#: I021/070 of edition 0.26 (0.23 to 0.25 have none): V, G, L bits then the code.
+_FIELDS_021_V0_070 = {"v070": ("070", "V"), "g070": ("070", "G"), "mode3a": ("070", "MODE3A")}
 _FIELDS_034 = {
     "sac": ("010", "SAC"), "sic": ("010", "SIC"), "type": ("000", None),
     "tod": ("030", None), "hgt": ("120", "HGT"), "lat": ("120", "LAT"), "lon": ("120", "LON"),
@@ -739,7 +758,11 @@ def _fields_of(spec: Any) -> dict[str, tuple[str, str | None]]:
     """Columns read of an edition: column -> (item, subfield)."""
     category = int(spec.cv_category)
     if category == 21:
-        return _FIELDS_021_V2 if spec.cv_edition[0] >= 2 else _FIELDS_021_V0
+        if spec.cv_edition[0] >= 2:
+            return _FIELDS_021_V2
+        if "070" in spec.cv_record.cv_items_dict:
+            return {**_FIELDS_021_V0, **_FIELDS_021_V0_070}
+        return _FIELDS_021_V0
     return _FIELDS_BY_CATEGORY[category]
 
 
@@ -1105,6 +1128,16 @@ class _Fields:
         return out
 
 
+def _mode_3a(f: _Fields) -> np.ndarray:
+    """The Mode 3/A code (I070) as its 12-bit integer; -1 where absent, or, when the
+    item has validity bits, not validated (V=1) or garbled (G=1)."""
+    code = f.uint("mode3a")
+    if "v070" not in f.compiled.fields:
+        return code
+    valid = (f.raw("v070") == 0) & (f.raw("g070") == 0)
+    return np.where(valid, code, -1)
+
+
 def _columns_048(f: _Fields, capture: np.ndarray) -> dict[str, np.ndarray]:
     valid_level = f.present("fl") & (f.raw("v") == 0) & (f.raw("g") == 0)
     return {
@@ -1113,7 +1146,8 @@ def _columns_048(f: _Fields, capture: np.ndarray) -> dict[str, np.ndarray]:
         "address": f.uint("address"),
         "flight_level": np.where(valid_level, f.quantity("fl"), np.nan),
         "callsign": f.icao_text("callsign"), "capture_s": capture,
-        "height_ft": f.quantity("height"),
+        "height_ft": f.quantity("height"), "mode_3a": _mode_3a(f),
+        "track_number": f.uint("track"),
     }
 
 
@@ -1136,6 +1170,7 @@ def _columns_021(f: _Fields, capture: np.ndarray) -> dict[str, np.ndarray]:
         "address": f.uint("address"), "lat_deg": lat, "lon_deg": lon,
         "geo_height_ft": f.quantity("geo"), "nacp": quality[0], "nucp": quality[1],
         "mops_version": quality[2], "capture_s": capture, "flight_level": f.quantity("fl"),
+        "mode_3a": _mode_3a(f) if "mode3a" in f.compiled.fields else none_i.copy(),
     }
 
 

@@ -20,11 +20,14 @@ plot altitude       I048/090 Flight Level      1/4 FL (FL = altitude_m / 0.3048 
 plot height (3-D)   I048/110 3-D Height        25 ft (3-D radars, from the elevation)
 aircraft address    I048/220, I021/080         exact (24 bits)
 callsign            I048/240                   exact (up to 8 characters A-Z 0-9 space)
+plot mode_3a        I048/070 Mode-3/A Code     exact (4 octal digits; V, G, L sent as 0)
+plot track_number   I048/161 Track Number      exact (0 .. 4095)
 ADS-B time          I021/071 Time of Appl.     1/128 s
 ADS-B lat, lon      I021/131 High-Res Pos.     180/2^30 deg
 ADS-B height        I021/140 Geometric Height  6.25 ft (1 ft = 0.3048 m)
 ADS-B baro_alt_m    I021/145 Flight Level      1/4 FL (when the column has a value)
 ADS-B NACp          I021/090 NACP              exact (0 .. 11)
+ADS-B mode_3a       I021/070 Mode 3/A Code     exact (4 octal digits)
 radar lat, lon      I034/120 LAT, LON          180/2^23 deg
 radar height        I034/120 HGT               1 m
 North-marker time   I034/030 Time of Day       1/128 s
@@ -111,6 +114,9 @@ TYP_PSR, TYP_SSR, TYP_MODE_S_ROLL_CALL = 1, 2, 5
 _RADAR_ID = re.compile(r"^SAC(\d{1,3})_SIC(\d{1,3})$", re.IGNORECASE)
 _ICAO_ADDRESS = re.compile(r"^[0-9a-fA-F]{6}$")
 _CALLSIGN = re.compile(r"^[A-Z0-9 ]{1,8}$")
+_MODE_3A = re.compile(r"^[0-7]{4}$")
+#: Largest track number of I048/161 (12 bits).
+MAX_TRACK_NUMBER = (1 << 12) - 1
 
 RangeErrorPolicy = Literal["raise", "skip"]
 
@@ -291,6 +297,46 @@ def _callsign(value: Any) -> str | None:
     return text
 
 
+def _is_missing(value: Any) -> bool:
+    """``None``, NaN or ``pd.NA``: a cell without a value."""
+    return value is None or value is pd.NA or (isinstance(value, float) and math.isnan(value))
+
+
+def _mode_3a_code(value: Any) -> int | None:
+    """A ``mode_3a`` cell (4 octal digits, ``"0413"``) as the 12 bits of I048/070 and
+    I021/070 (A4 A2 A1 B4 B2 B1 C4 C2 C1 D4 D2 D1: ``0o413``); ``None`` when empty.
+
+    Raises
+    ------
+    _OutOfRange
+        For anything else than 4 octal digits (a number too: its leading zeros
+        may be lost).
+    """
+    if _is_missing(value):
+        return None
+    if not isinstance(value, str):
+        raise _OutOfRange(f"mode_3a {value!r} is not text of 4 octal digits")
+    text = value.strip()
+    if not text:
+        return None
+    if not _MODE_3A.match(text):
+        raise _OutOfRange(f"mode_3a {value!r} is not 4 octal digits")
+    return int(text, 8)
+
+
+def _track_number(value: Any) -> int | None:
+    """A ``track_number`` cell as I048/161's 12-bit number; ``None`` when empty."""
+    if _is_missing(value):
+        return None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise _OutOfRange(f"track_number {value!r} is not a number") from None
+    if not math.isfinite(number) or number != round(number) or not 0 <= number <= MAX_TRACK_NUMBER:
+        raise _OutOfRange(f"track_number {value!r} is not an integer in 0..{MAX_TRACK_NUMBER}")
+    return int(number)
+
+
 def _size(record: Record) -> int:
     return len(record.unparse().to_bytes())
 
@@ -368,6 +414,8 @@ def _plot_records(
     altitude = (plots["altitude_m"].to_numpy(dtype=float) if "altitude_m" in plots
                 else np.full(len(plots), np.nan))
     callsigns = plots["callsign"].to_numpy(dtype=object) if "callsign" in plots else None
+    codes_3a = plots["mode_3a"].to_numpy(dtype=object) if "mode_3a" in plots else None
+    tracks = plots["track_number"].to_numpy(dtype=object) if "track_number" in plots else None
     for pos in range(len(plots)):
         rid = radar[pos]
         try:
@@ -384,13 +432,17 @@ def _plot_records(
             }
             address = None if target is None else _address(target[pos])
             has_alt = bool(np.isfinite(altitude[pos]))
+            code_3a = None if codes_3a is None else _mode_3a_code(codes_3a[pos])
             if address is not None:
                 typ = TYP_MODE_S_ROLL_CALL
-            elif has_alt or rid not in three_d:
+            elif has_alt or code_3a is not None or rid not in three_d:
                 typ = TYP_SSR
             else:
                 typ = TYP_PSR
             items["020"] = ((("TYP", typ), 0, 0, 0, 0, None),)
+            if code_3a is not None:
+                # V 0: code validated; G 0: not garbled; L 0: from this scan's reply.
+                items["070"] = (("V", 0), ("G", 0), ("L", 0), 0, ("MODE3A", code_3a))
             if has_alt:
                 fl = altitude[pos] / METRES_PER_FT / 100.0
                 items["090"] = (("V", 0), ("G", 0),
@@ -404,6 +456,9 @@ def _plot_records(
                 callsign = _callsign(callsigns[pos])
                 if callsign is not None:
                     items["240"] = callsign
+            track = None if tracks is None else _track_number(tracks[pos])
+            if track is not None:
+                items["161"] = (0, ("TRN", track))
         except _OutOfRange as exc:
             rows.problem("plots", pos, str(exc))
             continue
@@ -425,6 +480,7 @@ def _adsb_records(
     nacp = None
     if "nacp" in adsb:
         nacp = pd.to_numeric(adsb["nacp"], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+    codes_3a = adsb["mode_3a"].to_numpy(dtype=object) if "mode_3a" in adsb else None
     track_numbers: dict[int, int] = {}
     for pos in range(len(adsb)):
         try:
@@ -451,6 +507,9 @@ def _adsb_records(
                 value = _count(nacp[pos], 1.0, 4, False, "nacp")
                 items["090"] = ((("NUCRNACV", 0), ("NUCPNIC", 0), None),
                                 (("NICBARO", 0), ("SIL", 0), ("NACP", value), None))
+            code_3a = None if codes_3a is None else _mode_3a_code(codes_3a[pos])
+            if code_3a is not None:
+                items["070"] = (0, ("MODE3A", code_3a))
         except _OutOfRange as exc:
             rows.problem("adsb", pos, str(exc))
             continue
@@ -616,12 +675,14 @@ def encode_dataset(
 ) -> bytes:
     """Encode a dataset as concatenated ASTERIX data blocks.
 
-    Plots become CAT048 records (I010, I140, I020, I040, I090 when the altitude
-    is known, I110 for a 3-D radar's plot, I220 when ``target_id`` is an ICAO address, I240 when a
-    ``callsign`` column has a value), ADS-B reports CAT021 records (I010, I040,
-    I161, I071, I131, I080, I140, I145 when ``baro_alt_m`` has a value, I090
-    with NACp when known) and each radar one CAT034 North marker (I010, I000,
-    I030, I120).  Resolutions are listed in the module docstring.
+    Plots become CAT048 records (I010, I140, I020, I040, I070 when ``mode_3a``
+    has a value, I090 when the altitude is known, I110 for a 3-D radar's plot,
+    I220 when ``target_id`` is an ICAO address, I240 when a ``callsign`` column
+    has a value, I161 when ``track_number`` has a value), ADS-B reports CAT021
+    records (I010, I040, I161, I071, I131, I080, I140, I145 when ``baro_alt_m``
+    has a value, I090 with NACp when known, I070 when ``mode_3a`` has a value)
+    and each radar one CAT034 North marker (I010, I000, I030, I120).
+    Resolutions are listed in the module docstring.
 
     Parameters
     ----------

@@ -87,6 +87,25 @@ def _height(record: Any) -> float | None:
     return None if item is None else float(_sub(item, "3DH").as_quantity("ft"))
 
 
+def _mode_3a(record: Any) -> int | None:
+    """The Mode 3/A code of I070 as its 12-bit integer, or ``None`` when absent or, when
+    the item has validity bits, not validated (V=1) or garbled (G=1)."""
+    item = record.get_item("070")
+    if item is None:
+        return None
+    names = {entry.cv_non_spare.cv_name for entry, _ in item.variation.cv_items_list
+             if hasattr(entry, "cv_non_spare")}
+    if any(int(_sub(item, bit).as_uint()) for bit in ("V", "G") if bit in names):
+        return None
+    return int(_sub(item, "MODE3A").as_uint())
+
+
+def _track_number(record: Any) -> int | None:
+    """I048/161 track number, or ``None`` when absent."""
+    item = record.get_item("161")
+    return None if item is None else int(_sub(item, "TRN").as_uint())
+
+
 def _cat048(record: Any, capture_s: float | None) -> Cat048Report | None:
     source = _source(record)
     if source is None:
@@ -109,6 +128,8 @@ def _cat048(record: Any, capture_s: float | None) -> Cat048Report | None:
         callsign=_text(record, "240"),
         capture_s=capture_s,
         height_ft=_height(record),
+        mode_3a=_mode_3a(record),
+        track_number=_track_number(record),
     )
 
 
@@ -157,6 +178,7 @@ def _cat021(record: Any, edition: tuple[int, int], capture_s: float | None
         nacp=nacp, nucp=nucp, mops_version=version,
         capture_s=capture_s,
         flight_level=_quantity(record, "145", "FL"),
+        mode_3a=_mode_3a(record),
     )
 
 

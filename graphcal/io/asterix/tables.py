@@ -43,9 +43,12 @@ Plots (CAT048)
     ``altitude_m`` = I048/090 flight level * 100 ft * 0.3048 m/ft (barometric
     pressure altitude, not a height above the ellipsoid; NaN when absent, not
     validated or garbled: declare it with ``[dataset] plot_altitude = "pressure"``
-    in the user ``sites.toml``, which the dataset then carries); extra column
-    ``callsign`` from I048/240 ("" when absent).  Reports without I048/040 or
-    I048/140 are skipped and counted.
+    in the user ``sites.toml``, which the dataset then carries); ``mode_3a`` =
+    I048/070 as 4 octal digits ("" when absent, not validated (V=1) or garbled
+    (G=1); a code not extracted during the last scan, L=1, is kept: it is the
+    code the radar holds for that target); ``track_number`` = I048/161 (empty
+    when absent; contract v3); extra column ``callsign`` from I048/240 ("" when
+    absent).  Reports without I048/040 or I048/140 are skipped and counted.
 
 ADS-B (CAT021)
     ``time_s`` from I021/071 (time of applicability for position), else
@@ -59,7 +62,10 @@ ADS-B (CAT021)
     and is not read), else the NUCp of a DO-260 (version 0) transponder mapped to
     the NACp whose 95 % bound is not tighter (:data:`NUCP_TO_NACP`), else empty;
     ``baro_alt_m`` = I021/145 flight level * 100 ft * 0.3048 (the reported
-    pressure altitude, contract v2; NaN when absent).  Reports without a
+    pressure altitude, contract v2; NaN when absent); ``mode_3a`` = I021/070 as 4
+    octal digits (contract v3; "" when absent, as in editions 0.23 to 0.25, which
+    have no I070, or, in edition 0.26, whose I070 has validity bits, not validated
+    or garbled).  Reports without a
     position or address are skipped and counted.  A report without I021/140
     (old ground stations, edition 0.23, often send only I021/145) is kept with
     ``alt_m`` NaN and its ``baro_alt_m``: its position can be inspected, but a
@@ -100,11 +106,11 @@ DAY_S = 86400.0
 #: Plot table columns written (the contract columns, then ``callsign``).
 PLOT_COLUMNS: tuple[str, ...] = (
     "radar_id", "time_s", "range_m", "azimuth_deg", "elevation_deg", "target_id",
-    "altitude_m", "callsign",
+    "altitude_m", "mode_3a", "track_number", "callsign",
 )
 #: ADS-B table columns written.
 ADSB_COLUMNS: tuple[str, ...] = ("time_s", "target_id", "lat_deg", "lon_deg", "alt_m", "nacp",
-                                 "baro_alt_m")
+                                 "baro_alt_m", "mode_3a")
 #: NUCp (DO-260, 95 % horizontal error bound) -> NACp with a bound at least as large.
 #: NUCp 0 means "unknown" and maps to no NACp.
 NUCP_TO_NACP: dict[int, int] = {9: 11, 8: 10, 7: 8, 6: 7, 5: 6, 4: 5, 3: 4, 2: 1, 1: 1}
@@ -371,6 +377,31 @@ def _radar_ids(sources: Iterable[tuple[int, int]], user: UserSites | None
     return out
 
 
+def mode_3a_text(code: np.ndarray) -> np.ndarray:
+    """Mode 3/A codes as 4 octal digits (``0o413`` -> ``"0413"``); ``""`` where absent (-1).
+
+    Parameters
+    ----------
+    code : numpy.ndarray
+        The 12-bit codes (bits A4 A2 A1 B4 B2 B1 C4 C2 C1 D4 D2 D1), -1 for none.
+
+    Returns
+    -------
+    numpy.ndarray
+        Strings, one per code.
+    """
+    code = np.asarray(code, dtype=np.int64)
+    digits = np.stack([(code >> shift) & 7 for shift in (9, 6, 3, 0)], axis=1)
+    text = np.ascontiguousarray((digits + ord("0")).astype(np.uint8)).view("S4").ravel()
+    return np.where(code >= 0, text.astype(str), "")
+
+
+def _nullable_int(values: np.ndarray) -> pd.arrays.IntegerArray:
+    """Integers as ``Int64``, missing where negative (-1: absent)."""
+    values = np.asarray(values, dtype=np.int64)
+    return pd.arrays.IntegerArray(np.where(values >= 0, values, 0), values < 0)
+
+
 def _hex_addresses(address: np.ndarray) -> list[str]:
     """Six lower-case hex digits per address; "" where absent (-1)."""
     return ["" if a < 0 else f"{a:06x}" for a in address.tolist()]
@@ -475,6 +506,8 @@ def plots_frame(columns: Mapping[str, np.ndarray], times: np.ndarray,
         "elevation_deg": np.where(is_3d[keep], elevation[keep], np.nan),
         "target_id": _hex_addresses(columns["address"][keep]),
         "altitude_m": level * 100.0 * FOOT_M,
+        "mode_3a": mode_3a_text(columns["mode_3a"][keep]),
+        "track_number": _nullable_int(columns["track_number"][keep]),
         "callsign": ["" if c is None else c for c in callsign.tolist()],
     }, columns=list(PLOT_COLUMNS))
     return frame
@@ -505,6 +538,7 @@ def adsb_frame(columns: Mapping[str, np.ndarray], times: np.ndarray,
         "alt_m": columns["geo_height_ft"][keep] * FOOT_M,
         "nacp": pd.array(np.where(nacp >= 0, nacp, 0), dtype="Int64"),
         "baro_alt_m": columns["flight_level"][keep] * 100.0 * FOOT_M,
+        "mode_3a": mode_3a_text(columns["mode_3a"][keep]),
     }, columns=list(ADSB_COLUMNS))
     frame.loc[nacp < 0, "nacp"] = pd.NA
     return frame
