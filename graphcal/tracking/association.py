@@ -42,8 +42,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2 as chi2_distribution
+from scipy.special import chdtri
 
 from graphcal.core import frames
 from graphcal.data.align import AdsbTrackTable, adsb_track_table, plot_arrays
@@ -234,7 +233,7 @@ def _gated_pairs(site: Site, refs: References, plots: Any, bias: RadarBias,
     cov = cov[:, :m, :m]
     e = residual[:, :m]
     chi2 = np.einsum("ni,ni->n", e, np.linalg.solve(cov, e[..., None])[..., 0])
-    gate = chi2_distribution.ppf(GATE_PROBABILITY, m)
+    gate = chdtri(m, 1.0 - GATE_PROBABILITY)  # the chi-square quantile
     keep = chi2 <= gate
     # Evidence: Mode C altitude and Mode 3/A code.
     if not site.is_3d and np.isfinite(plots.altitude_m).any():
@@ -447,6 +446,8 @@ def _scan_period(site: Site) -> float:
 def _assign(site: Site, plots: Any, pairs: _Pairs, n_aircraft: int
             ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """One plot per aircraft per scan, ambiguous plots left out."""
+    from scipy.optimize import linear_sum_assignment  # only when plots lack an address
+
     n = len(plots)
     assigned = np.full(n, -1, dtype=np.int64)
     status = np.full(n, LEFT_OUT, dtype=np.int64)
