@@ -93,13 +93,16 @@ class References:
 
 
 def _codes_of(table: pd.DataFrame) -> dict[str, set[str]]:
+    """Each aircraft's Mode 3/A codes in ``table`` (``target_id``, ``mode_3a``)."""
     if "mode_3a" not in table:
         return {}
-    have = table["mode_3a"].astype("string").fillna("").str.strip()
-    rows = have != ""
+    pairs = table[["target_id", "mode_3a"]].drop_duplicates()  # few rows from here on
     out: dict[str, set[str]] = {}
-    for target, code in zip(table["target_id"][rows].astype(str), have[rows], strict=True):
-        out.setdefault(target, set()).add(code)
+    for target, code in zip(pairs["target_id"].astype(str).tolist(),
+                            pairs["mode_3a"].astype("string").fillna("").tolist(), strict=True):
+        code = code.strip()
+        if code and target:
+            out.setdefault(target, set()).add(code)
     return out
 
 
@@ -120,7 +123,7 @@ def reference_tracks(dataset: Dataset, biases: Mapping[str, RadarBias], *,
         table["sigma_m"] = adsb["sigma_m"] if "sigma_m" in adsb else 30.0
         table = table[np.isfinite(table["alt_m"].to_numpy(float))]
         parts.append(table)
-        with_adsb = set(table["target_id"].astype(str))
+        with_adsb = {str(t) for t in pd.unique(table["target_id"])}
         sources.update(dict.fromkeys(with_adsb, "adsb"))
         codes.update(_codes_of(adsb))
     for rid, site in dataset.sites.items():
