@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -26,6 +27,7 @@ from graphcal.data.align import plot_arrays
 from graphcal.data.bias import RadarBias
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
+from graphcal.data.windows import Window
 from graphcal.model.problem import Problem, build_problem
 from graphcal.solvers.registry import solve
 from graphcal.tracking.association import (
@@ -66,34 +68,9 @@ def calibrate_associated(dataset: Dataset, method: str, options: SolveOptions, *
     start = time.perf_counter()
     progress: Callable[..., None] | None = run.get("progress")
     radars = unaddressed_radars(dataset)
-    refs = reference_tracks(dataset, {}, use_adsb=options.use_adsb)
-    biases: dict[str, RadarBias] = {}
-    covariances: dict[str, np.ndarray] = {}
-    coarse_notes = []
-    for rid in radars:
-        plots = plot_arrays(dataset, rid)
-        plots = plots.subset(np.isin(plots.target_id.astype(str), ["", "nan"]))
-        found = coarse_bias(dataset.sites[rid], refs, plots)
-        if found is None:
-            coarse_notes.append(f"{rid}: no plot near any known aircraft; not associated")
-            continue
-        biases[rid] = found
-        covariances[rid] = np.diag(np.square(COARSE_SIGMA))
     if progress is not None:
         progress("association", 0, MAX_ROUNDS)
-    association = associate(dataset, biases, covariances, use_adsb=options.use_adsb,
-                            radars=radars)
-    # A quick estimate on the first association narrows the gates before the full one.
-    quick = "ls" if options.use_adsb and dataset.adsb is not None and len(dataset.adsb) else "wls"
-    try:
-        first = solve(build_problem(association.applied(dataset), options), quick)
-    except (EstimationError, ValueError, np.linalg.LinAlgError):
-        first = None
-    if first is not None:
-        biases.update({rid: first.bias(rid) for rid in first.radar_ids})
-        covariances.update(gate_covariances(first))
-        association = associate(dataset, biases, covariances, use_adsb=options.use_adsb,
-                                radars=radars)
+    association, coarse_notes = first_association(dataset, options, radars)
     cal = problem = None
     rounds = 0
     for rounds in range(1, MAX_ROUNDS + 1):  # noqa: B007 - the count is reported
@@ -121,6 +98,49 @@ def calibrate_associated(dataset: Dataset, method: str, options: SolveOptions, *
     return cal, problem, association
 
 
+def first_association(dataset: Dataset, options: SolveOptions,
+                      radars: list[str] | None = None) -> tuple[Association, list[str]]:
+    """The association before any full calibration: a coarse search for each radar's
+    range offset and azimuth bias, an association, a quick closed-form estimate on it
+    (``ls`` with ADS-B, ``wls`` without) and an association with that estimate.  Returns
+    the association and a note per radar the coarse search found nothing for."""
+    radars = unaddressed_radars(dataset) if radars is None else radars
+    refs = reference_tracks(dataset, {}, use_adsb=options.use_adsb)
+    biases: dict[str, RadarBias] = {}
+    covariances: dict[str, np.ndarray] = {}
+    notes = []
+    for rid in radars:
+        plots = plot_arrays(dataset, rid)
+        plots = plots.subset(np.isin(plots.target_id.astype(str), ["", "nan"]))
+        found = coarse_bias(dataset.sites[rid], refs, plots)
+        if found is None:
+            notes.append(f"{rid}: no plot near any known aircraft; not associated")
+            continue
+        biases[rid] = found
+        covariances[rid] = np.diag(np.square(COARSE_SIGMA))
+    association = associate(dataset, biases, covariances, use_adsb=options.use_adsb,
+                            radars=radars)
+    # A quick estimate on the first association narrows the gates before the full one.
+    quick = "ls" if options.use_adsb and dataset.adsb is not None and len(dataset.adsb) else "wls"
+    try:
+        first = solve(build_problem(association.applied(dataset), options), quick)
+    except (EstimationError, ValueError, np.linalg.LinAlgError):
+        return association, notes
+    biases.update({rid: first.bias(rid) for rid in first.radar_ids})
+    covariances.update(gate_covariances(first))
+    return associate(dataset, biases, covariances, use_adsb=options.use_adsb,
+                     radars=radars), notes
+
+
+def associated_window(window: Window, options: SolveOptions) -> Window:
+    """A time window with its plots without an address associated (:func:`first_association`;
+    the window's own calibration then refines its biases), as it is when none lacks one."""
+    if not needs_association(window.dataset):
+        return window
+    association, _ = first_association(window.dataset, options)
+    return replace(window, dataset=association.applied(window.dataset))
+
+
 def gate_covariances(cal: Calibration) -> dict[str, np.ndarray]:
     """Each radar's covariance over :data:`GATED_TERMS` (SI; zero where not estimated)."""
     out = {}
@@ -145,4 +165,5 @@ def _changed(a: Association, b: Association) -> float:
     return float(np.mean(ta.to_numpy() != tb.to_numpy())) if len(ta) else 0.0
 
 
-__all__ = ["MAX_ROUNDS", "calibrate_associated", "gate_covariances", "needs_association"]
+__all__ = ["MAX_ROUNDS", "associated_window", "calibrate_associated", "first_association",
+           "gate_covariances", "needs_association"]

@@ -32,6 +32,7 @@ from graphcal.data.windows import Window, split_window, split_windows, window_in
 from graphcal.model.information import observability
 from graphcal.model.parameters import RadarTerms, prior_sigmas
 from graphcal.noise import filled_with_notes
+from graphcal.pipeline.associate import associated_window
 from graphcal.pipeline.schedulers import check_scheduler, map_windows
 from graphcal.pipeline.window_feed import (
     FolderReadAgain,
@@ -216,7 +217,7 @@ def calibrate_windows(
                 located_steps.setdefault(rid, []).append((when, statistic))
         parts = [part for index in sorted(cuts)
                  for part in split_window(windows[index], [t for t, _, _ in cuts[index]])]
-        part_summaries = [s for s in map_windows(summarise_window, parts, scheduler=scheduler,
+        part_summaries = [s for s in map_windows(summarise_associated, parts, scheduler=scheduler,
                                                  args=(options,), progress=progress,
                                                  total=len(parts),
                                                  stage="windows holding a step, in parts")
@@ -231,6 +232,13 @@ def calibrate_windows(
     result.timing_s["total_s"] = time.perf_counter() - start
     cal = to_calibration(result, source.sites, source.cleaning_warnings)
     return _concluded(cal, summaries, source, scheduler, dataset, widened, check_fit)
+
+
+def summarise_associated(window: Window, options: WindowOptions) -> WindowSummary | None:
+    """:func:`~graphcal.solvers.windows.summarise_window` of the window with its plots
+    without an address associated first (:func:`graphcal.pipeline.associate.associated_window`:
+    radars without Mode S calibrated window by window)."""
+    return summarise_window(associated_window(window, options), options)
 
 
 def _concluded(cal: Calibration, summaries: Sequence[WindowSummary], source: _Source,
@@ -272,7 +280,7 @@ def _first_pass(dataset: Dataset | str | os.PathLike[str], window_s: float, clea
             assert progress is not None and source is not None
             progress(stage, done, source.total)
 
-        summaries = [s for s in map_windows(summarise_window, source.windows(),
+        summaries = [s for s in map_windows(summarise_associated, source.windows(),
                                             scheduler=scheduler, args=(options,),
                                             progress=None if progress is None else report,
                                             total=source.total,

@@ -104,3 +104,17 @@ def test_calibrating_without_addresses_matches_the_addressed_run(network, use_ad
         for key in ("range_offset_m", "range_gain", "azimuth_bias_mrad", "elevation_bias_mrad"):
             assert abs(cal.value(rid, key) - ref.value(rid, key)) < 0.3 * ref.sigma(rid, key)
             assert cal.sigma(rid, key) == pytest.approx(ref.sigma(rid, key), rel=0.01)
+
+
+def test_with_windows_the_radars_without_addresses_are_calibrated(network) -> None:
+    """Window by window (--window): each window associated before its calibration; every
+    radar calibrated, the 3-D radars' smoothed biases within 3 sigma of the truth."""
+    sim, _, blank, _, _ = network
+    cal = graphcal.calibrate(blank, window="15min", check_fit=False)
+    assert set(PRIMARY) <= set(cal.radar_ids)
+    for rid in PRIMARY:
+        true = sim.truth[rid]
+        for key, value in (("range_offset_m", true.range_offset_m),
+                           ("azimuth_bias_mrad", true.azimuth_bias_rad * 1e3),
+                           ("elevation_bias_mrad", true.elevation_bias_rad * 1e3)):
+            assert abs(cal.value(rid, key) - value) < 3.0 * cal.sigma(rid, key), (rid, key)
