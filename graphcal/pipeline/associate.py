@@ -91,6 +91,10 @@ def calibrate_associated(dataset: Dataset, method: str, options: SolveOptions, *
     cal.info["association"] = {"radars": info, "rounds": rounds,
                                "seconds": time.perf_counter() - start}
     cal.warnings.extend(coarse_notes)
+    for figures in association.radars.values():
+        warning = figures.warning()
+        if warning is not None:
+            cal.warnings.append(warning)
     for rid, figures in info.items():
         if figures["associated"] == 0 and rid in biases:
             cal.warnings.append(f"{rid}: no plot without an address associated with a known "

@@ -67,6 +67,11 @@ COARSE_RANGE_BIN_M = 100.0
 COARSE_AZIMUTH_BIN_RAD = 1e-3
 #: Longest gap in a reference trajectory that is interpolated [s].
 REFERENCE_MAX_GAP_S = 20.0
+#: The associated plots' fit: the chi-square point whose tail is counted, the multiple of
+#: its expected share that is warned about, and the fewest associated plots judged.
+TAIL_PROBABILITY = 0.999
+TAIL_WARNING_FACTOR = 10.0
+MIN_TAIL_PLOTS = 200
 #: Fastest aircraft considered [m/s] (the candidates' window covers its motion in a scan).
 MAX_SPEED_M_S = 350.0
 #: Scan period assumed for a radar that declares none [s].
@@ -349,13 +354,29 @@ class RadarAssociation:
     detection_probability: float | None
     false_plots_per_scan: float | None
     mode_3a_consistency: float | None
+    #: Associated plots that fit their aircraft worse than the chi-square's
+    #: :data:`TAIL_PROBABILITY` point, as a fraction (``1 - TAIL_PROBABILITY`` expected).
+    tail_fraction: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {"plots": self.n_plots, "associated": self.n_associated,
                 "ambiguous": self.n_ambiguous, "left_out": self.n_left_out,
                 "scans": self.n_scans, "detection_probability": self.detection_probability,
                 "false_plots_per_scan": self.false_plots_per_scan,
-                "mode_3a_consistency": self.mode_3a_consistency}
+                "mode_3a_consistency": self.mode_3a_consistency,
+                "tail_fraction": self.tail_fraction}
+
+    def warning(self) -> str | None:
+        """A warning when the associated plots' fit shows association errors: more than
+        :data:`TAIL_WARNING_FACTOR` times the expected share beyond the tail point."""
+        expected = 1.0 - TAIL_PROBABILITY
+        if (self.tail_fraction is None or self.n_associated < MIN_TAIL_PLOTS
+                or self.tail_fraction <= TAIL_WARNING_FACTOR * expected):
+            return None
+        return (f"{self.radar_id}: {100 * self.tail_fraction:.1f} % of its associated plots fit "
+                f"their aircraft worse than the {100 * TAIL_PROBABILITY:g} % point "
+                f"({100 * expected:g} % expected): association errors, or a bias the model "
+                "lacks?")
 
 
 @dataclass
@@ -437,6 +458,7 @@ def associate(dataset: Dataset, biases: Mapping[str, RadarBias],
         target_parts.append(pd.Series(ids, index=plots.index, dtype=object))
         status_parts.append(pd.Series(status, index=plots.index))
         figures[rid] = _figures(rid, site, plots, assigned, status, names, refs)
+        figures[rid].tail_fraction = _tail_fraction(site, pairs, assigned, len(names))
     target_id = (pd.concat(target_parts) if target_parts else pd.Series(dtype=object))
     status = pd.concat(status_parts) if status_parts else pd.Series(dtype=np.int64)
     return Association(target_id, status, figures)
@@ -520,6 +542,19 @@ def _by_track(track_number: NDArray, pairs: _Pairs, assigned: NDArray[np.int64],
             elif assigned[row] >= 0:
                 assigned[row] = -1
                 status[row] = LEFT_OUT
+
+
+def _tail_fraction(site: Site, pairs: _Pairs, assigned: NDArray[np.int64], n_aircraft: int
+                   ) -> float | None:
+    """The share of associated plots beyond the chi-square's :data:`TAIL_PROBABILITY` point."""
+    rows = np.flatnonzero(assigned >= 0)
+    if len(rows) == 0:
+        return None
+    keys = pd.Index(pairs.plot * max(n_aircraft, 1) + pairs.aircraft)
+    at = keys.get_indexer(rows * max(n_aircraft, 1) + assigned[rows])
+    chi2 = pairs.chi2[at[at >= 0]]
+    m = 3 if site.is_3d else 2
+    return float(np.mean(chi2 > chdtri(m, 1.0 - TAIL_PROBABILITY))) if len(chi2) else None
 
 
 def _figures(rid: str, site: Site, plots: Any, assigned: NDArray[np.int64],
