@@ -205,9 +205,10 @@ def _predicted(site: Site, refs: References, plots: Any, bias: RadarBias,
 
 
 def _gated_pairs(site: Site, refs: References, plots: Any, bias: RadarBias,
-                 bias_covariance: FloatArray | None, window: tuple[float, float] | None
-                 ) -> _Pairs:
-    """Every (plot, aircraft) pair in the gate (or, with ``window``, within it)."""
+                 bias_covariance: FloatArray | None, window: tuple[float, float] | None,
+                 codes: NDArray[np.object_] | None = None) -> _Pairs:
+    """Every (plot, aircraft) pair in the gate (or, with ``window``, within it);
+    ``codes``: the plots' Mode 3/A codes ("" where none), evidence when given."""
     tracks = refs.tracks
     n_aircraft = len(tracks.targets)
     empty = _Pairs(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)))
@@ -248,7 +249,6 @@ def _gated_pairs(site: Site, refs: References, plots: Any, bias: RadarBias,
         _, _, h = frames.ecef_to_geodetic(ecef)
         alt = plots.altitude_m[plot_rows]
         keep &= ~(np.isfinite(alt) & (np.abs(alt - h) > ALTITUDE_GATE_M))
-    codes = getattr(plots, "mode_3a", None)
     if codes is not None and refs.codes:
         names = np.asarray(tracks.targets, dtype=object)[aircraft]
         plot_code = np.asarray(codes, dtype=object)[plot_rows]
@@ -446,18 +446,18 @@ def associate(dataset: Dataset, biases: Mapping[str, RadarBias],
         rows = np.flatnonzero((target == "") | (target == "nan"))
         plots = all_plots.subset(rows)
         frame = dataset.plots.loc[plots.index]
-        if "mode_3a" in frame:
-            plots.mode_3a = frame["mode_3a"].astype("string").fillna("").to_numpy(object)
+        codes = (frame["mode_3a"].astype("string").fillna("").to_numpy(object)
+                 if "mode_3a" in frame else None)
         bias = biases.get(rid, RadarBias())
         cov = None if covariances is None else covariances.get(rid)
-        pairs = _gated_pairs(site, refs, plots, bias, cov, None)
+        pairs = _gated_pairs(site, refs, plots, bias, cov, None, codes)
         assigned, status = _assign(site, plots, pairs, len(names))
         if "track_number" in frame:
             _by_track(frame["track_number"].to_numpy(), pairs, assigned, status)
         ids = np.where(assigned >= 0, names[np.maximum(assigned, 0)], "")
         target_parts.append(pd.Series(ids, index=plots.index, dtype=object))
         status_parts.append(pd.Series(status, index=plots.index))
-        figures[rid] = _figures(rid, site, plots, assigned, status, names, refs)
+        figures[rid] = _figures(rid, site, plots, assigned, status, names, refs, codes)
         figures[rid].tail_fraction = _tail_fraction(site, pairs, assigned, len(names))
     target_id = (pd.concat(target_parts) if target_parts else pd.Series(dtype=object))
     status = pd.concat(status_parts) if status_parts else pd.Series(dtype=np.int64)
@@ -558,7 +558,8 @@ def _tail_fraction(site: Site, pairs: _Pairs, assigned: NDArray[np.int64], n_air
 
 
 def _figures(rid: str, site: Site, plots: Any, assigned: NDArray[np.int64],
-             status: NDArray[np.int64], names: NDArray, refs: References) -> RadarAssociation:
+             status: NDArray[np.int64], names: NDArray, refs: References,
+             codes: NDArray[np.object_] | None = None) -> RadarAssociation:
     """Detection probability, false plots per scan and code consistency of one radar."""
     period = _scan_period(site)
     n_scans = 0
@@ -574,7 +575,6 @@ def _figures(rid: str, site: Site, plots: Any, assigned: NDArray[np.int64],
     left = int(np.sum(status == LEFT_OUT))
     false_rate = left / n_scans if n_scans else None
     consistency = None
-    codes = getattr(plots, "mode_3a", None)
     if codes is not None and seen.any():
         have = np.array([bool(c) for c in np.asarray(codes, dtype=object)]) & seen
         known = [(c, names[a]) for c, a in zip(np.asarray(codes, dtype=object)[have],
