@@ -136,13 +136,43 @@ def first_association(dataset: Dataset, options: SolveOptions,
                      radars=radars), notes
 
 
-def associated_window(window: Window, options: SolveOptions) -> Window:
+def associated_window(window: Window, options: SolveOptions
+                      ) -> tuple[Window, Association | None]:
     """A time window with its plots without an address associated (:func:`first_association`;
-    the window's own calibration then refines its biases), as it is when none lacks one."""
+    the window's own calibration then refines its biases) and the association; the window
+    as it is and ``None`` when no radar lacks addresses."""
     if not needs_association(window.dataset):
-        return window
+        return window, None
     association, _ = first_association(window.dataset, options)
-    return replace(window, dataset=association.applied(window.dataset))
+    return replace(window, dataset=association.applied(window.dataset)), association
+
+
+def merged_figures(per_window: list[dict[str, dict[str, Any]]]) -> dict[str, dict[str, Any]]:
+    """The windows' association figures (:meth:`RadarAssociation.to_dict`) as one set per
+    radar: counts summed, rates weighted by the plots they count."""
+    out: dict[str, dict[str, Any]] = {}
+    for figures in per_window:
+        for rid, f in figures.items():
+            total = out.setdefault(rid, {"plots": 0, "associated": 0, "ambiguous": 0,
+                                         "left_out": 0, "scans": 0, "_detected": 0.0,
+                                         "_coded": 0.0, "_tail": 0.0, "_coded_n": 0})
+            for key in ("plots", "associated", "ambiguous", "left_out", "scans"):
+                total[key] += int(f[key])
+            n = int(f["associated"])
+            total["_detected"] += (f["detection_probability"] or 0.0) * n
+            total["_tail"] += (f["tail_fraction"] or 0.0) * n
+            if f["mode_3a_consistency"] is not None:
+                total["_coded"] += f["mode_3a_consistency"] * n
+                total["_coded_n"] += n
+    for total in out.values():
+        n = total["associated"]
+        total["detection_probability"] = total.pop("_detected") / n if n else None
+        total["tail_fraction"] = total.pop("_tail") / n if n else None
+        coded, coded_n = total.pop("_coded"), total.pop("_coded_n")
+        total["mode_3a_consistency"] = coded / coded_n if coded_n else None
+        total["false_plots_per_scan"] = (total["left_out"] / total["scans"]
+                                         if total["scans"] else None)
+    return out
 
 
 def gate_covariances(cal: Calibration) -> dict[str, np.ndarray]:
@@ -170,4 +200,4 @@ def _changed(a: Association, b: Association) -> float:
 
 
 __all__ = ["MAX_ROUNDS", "associated_window", "calibrate_associated", "first_association",
-           "gate_covariances", "needs_association"]
+           "gate_covariances", "merged_figures", "needs_association"]

@@ -32,7 +32,7 @@ from graphcal.data.windows import Window, split_window, split_windows, window_in
 from graphcal.model.information import observability
 from graphcal.model.parameters import RadarTerms, prior_sigmas
 from graphcal.noise import filled_with_notes
-from graphcal.pipeline.associate import associated_window
+from graphcal.pipeline.associate import associated_window, merged_figures
 from graphcal.pipeline.schedulers import check_scheduler, map_windows
 from graphcal.pipeline.window_feed import (
     FolderReadAgain,
@@ -238,7 +238,11 @@ def summarise_associated(window: Window, options: WindowOptions) -> WindowSummar
     """:func:`~graphcal.solvers.windows.summarise_window` of the window with its plots
     without an address associated first (:func:`graphcal.pipeline.associate.associated_window`:
     radars without Mode S calibrated window by window)."""
-    return summarise_window(associated_window(window, options), options)
+    window, association = associated_window(window, options)
+    summary = summarise_window(window, options)
+    if summary is not None and association is not None:
+        summary.association = association.to_dict()
+    return summary
 
 
 def _concluded(cal: Calibration, summaries: Sequence[WindowSummary], source: _Source,
@@ -248,6 +252,10 @@ def _concluded(cal: Calibration, summaries: Sequence[WindowSummary], source: _So
     the windows (raised with ``check_fit`` when it fails)."""
     _finish(cal, source, scheduler, dataset)
     _record_inflation(cal, widened)
+    associated = [s.association for s in summaries if s.association is not None]
+    if associated:
+        cal.info["association"] = {"radars": merged_figures(associated),
+                                   "windows": len(associated)}
     verdict = _judge(summaries)
     if verdict is not None:
         if not verdict.passed and check_fit:

@@ -145,6 +145,9 @@ class WindowSummary:
     elapsed_s: float = 0.0
     cost: float = 0.0
     fit: WindowFit | None = None
+    #: Plots without an address associated before the window's calibration: radar id ->
+    #: :meth:`graphcal.tracking.association.RadarAssociation.to_dict` (None: none lacked one).
+    association: dict[str, dict[str, Any]] | None = None
 
     @property
     def middle_s(self) -> float:

@@ -112,6 +112,11 @@ def test_with_windows_the_radars_without_addresses_are_calibrated(network) -> No
     sim, _, blank, _, _ = network
     cal = graphcal.calibrate(blank, window="15min", check_fit=False)
     assert set(PRIMARY) <= set(cal.radar_ids)
+    figures = cal.info["association"]
+    assert figures["windows"] == 2 and set(figures["radars"]) == set(PRIMARY)
+    est = figures["radars"]["EST3D"]
+    assert est["associated"] + est["ambiguous"] + est["left_out"] == est["plots"]
+    assert est["false_plots_per_scan"] == pytest.approx(CLUTTER_PER_SCAN, rel=0.1)
     for rid in PRIMARY:
         true = sim.truth[rid]
         for key, value in (("range_offset_m", true.range_offset_m),
