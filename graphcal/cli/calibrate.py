@@ -354,7 +354,22 @@ def calibrate_command(
         obs = cal.observability
         print_wrapped(f"observability degree {obs.degree:.3g}, rank {obs.rank} of "
                       f"{obs.n_parameters}", console)
+        association = (cal.info or {}).get("association")
+        if association:
+            print_wrapped(association_line(association["radars"]), console)
         _print_warnings(cal, dataset, method)
+
+
+def association_line(radars: dict) -> str:
+    """One line on the plots without an address: per radar, how many were associated and
+    the false plots a scan left out (``info.association``, docs/association.md)."""
+    parts = []
+    for rid, f in radars.items():
+        part = f"{rid} {f['associated']} of {f['plots']}"
+        if f.get("false_plots_per_scan") is not None:
+            part += f" ({f['false_plots_per_scan']:.1f} left out a scan)"
+        parts.append(part)
+    return "plots without an address associated: " + ", ".join(parts)
 
 
 def _check_paths(dataset_dir: Path, truth: Path | None, out: Path | None,

@@ -145,3 +145,13 @@ def test_the_associated_plots_fit_their_aircraft_as_chi_square_says(network) -> 
     assert result.radars["EST3D"].tail_fraction > 0.01
     assert "EST3D: " in result.radars["EST3D"].warning()
     assert result.radars["OUEST3D"].warning() is None
+
+
+def test_the_command_line_says_what_was_associated() -> None:
+    from graphcal.cli.calibrate import association_line
+
+    line = association_line({
+        "EST3D": {"plots": 6691, "associated": 5298, "false_plots_per_scan": 7.74},
+        "SUD": {"plots": 7112, "associated": 7100, "false_plots_per_scan": None}})
+    assert line == ("plots without an address associated: EST3D 5298 of 6691 (7.7 left out a "
+                    "scan), SUD 7100 of 7112")
