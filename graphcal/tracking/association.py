@@ -90,11 +90,6 @@ class References:
 
     tracks: AdsbTrackTable
     codes: dict[str, set[str]]
-    sources: dict[str, str]  # aircraft -> "adsb" | "radars"
-
-    @property
-    def n_aircraft(self) -> int:
-        return len(self.tracks.targets)
 
 
 def _codes_of(table: pd.DataFrame) -> dict[str, set[str]]:
@@ -119,7 +114,7 @@ def reference_tracks(dataset: Dataset, biases: Mapping[str, RadarBias], *,
     A radar-derived position's ``sigma_m`` is its plot's largest converted standard
     deviation (range, or range times the azimuth sigma).
     """
-    parts, sources = [], {}
+    parts = []
     codes: dict[str, set[str]] = {}
     adsb = dataset.adsb if use_adsb else None
     with_adsb: set[str] = set()
@@ -129,7 +124,6 @@ def reference_tracks(dataset: Dataset, biases: Mapping[str, RadarBias], *,
         table = table[np.isfinite(table["alt_m"].to_numpy(float))]
         parts.append(table)
         with_adsb = {str(t) for t in pd.unique(table["target_id"])}
-        sources.update(dict.fromkeys(with_adsb, "adsb"))
         codes.update(_codes_of(adsb))
     for rid, site in dataset.sites.items():
         plots = plot_arrays(dataset, rid)
@@ -151,8 +145,6 @@ def reference_tracks(dataset: Dataset, biases: Mapping[str, RadarBias], *,
             "time_s": sub.time_s - bias.time_offset_s, "target_id": target[keep],
             "lat_deg": np.rad2deg(lat), "lon_deg": np.rad2deg(lon), "alt_m": h,
             "sigma_m": sigma}))
-        for t in np.unique(target[keep]):
-            sources.setdefault(str(t), "radars")
     plot_codes = _codes_of(dataset.plots[dataset.plots["target_id"].astype(str) != ""])
     for target, seen in plot_codes.items():
         codes.setdefault(target, set()).update(seen)
@@ -164,7 +156,7 @@ def reference_tracks(dataset: Dataset, biases: Mapping[str, RadarBias], *,
         table = pd.DataFrame({c: pd.Series(dtype=float) for c in
                               ("time_s", "lat_deg", "lon_deg", "alt_m", "sigma_m")})
         table["target_id"] = pd.Series(dtype=object)
-    return References(adsb_track_table(table), codes, sources)
+    return References(adsb_track_table(table), codes)
 
 
 def _plot_positions(site: Site, plots: Any, bias: RadarBias) -> FloatArray:
@@ -451,7 +443,7 @@ def associate(dataset: Dataset, biases: Mapping[str, RadarBias],
         bias = biases.get(rid, RadarBias())
         cov = None if covariances is None else covariances.get(rid)
         pairs = _gated_pairs(site, refs, plots, bias, cov, None, codes)
-        assigned, status = _assign(site, plots, pairs, len(names))
+        assigned, status = _assign(site, plots, pairs)
         if "track_number" in frame:
             _by_track(frame["track_number"].to_numpy(), pairs, assigned, status)
         ids = np.where(assigned >= 0, names[np.maximum(assigned, 0)], "")
@@ -468,7 +460,7 @@ def _scan_period(site: Site) -> float:
     return float(site.scan_period_s) if site.scan_period_s else DEFAULT_SCAN_S
 
 
-def _assign(site: Site, plots: Any, pairs: _Pairs, n_aircraft: int
+def _assign(site: Site, plots: Any, pairs: _Pairs
             ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """One plot per aircraft per scan, ambiguous plots left out."""
     from scipy.optimize import linear_sum_assignment  # only when plots lack an address
