@@ -122,8 +122,9 @@ def first_association(dataset: Dataset, options: SolveOptions,
             continue
         biases[rid] = found
         covariances[rid] = np.diag(np.square(COARSE_SIGMA))
+    # Paths of their own wait for the quick estimate: the coarse gates are too wide.
     association = associate(dataset, biases, covariances, use_adsb=options.use_adsb,
-                            radars=radars)
+                            radars=radars, own_paths=False)
     # A quick estimate on the first association narrows the gates before the full one.
     quick = "ls" if options.use_adsb and dataset.adsb is not None and len(dataset.adsb) else "wls"
     try:

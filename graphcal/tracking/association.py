@@ -5,18 +5,12 @@ Primary radars report no identity, Mode A/C radars a code that is not unique; th
 measurement of, or leaves it out, so that the calibration can use it as it uses an
 addressed plot, and clutter never enters the fit.
 
-The aircraft are those with a reference trajectory (:func:`reference_tracks`): the ADS-B
-reports, and the plots of the radars that do report addresses (Mode S), corrected with
-their current biases and converted to positions.  For one radar, with its current bias
-estimate ``b`` and covariance ``P_b``:
+The aircraft are those with a reference trajectory (:mod:`graphcal.tracking.gating`:
+ADS-B, and the Mode S radars' plots corrected with their current biases).  For one radar,
+with its current bias estimate and its covariance:
 
-1. **Candidates.**  Every plot is compared with every aircraft whose reference spans the
-   plot's true time ``t - time_offset``: the reference interpolated there is measured
-   through the radar's model with ``b`` (:meth:`RadarMeasurementModel.function`), and the
-   innovation ``e = z - h(x, b)`` is gated by ``e^T S^-1 e <= chi2_m(GATE_PROBABILITY)``
-   with ``S = R + J_b P_b J_b^T + (sigma_ref^2 in polar)``: the radar's noise, the bias's
-   uncertainty and the reference's.  A Mode 3/A code the aircraft never reported, or a
-   Mode C altitude more than :data:`ALTITUDE_GATE_M` from the reference height, vetoes.
+1. **Gates.**  Every (plot, aircraft) pair inside the chi-square gate in the radar's own
+   coordinates, Mode 3/A and Mode C as evidence (:func:`~graphcal.tracking.gating.gated_pairs`).
 2. **One plot per aircraft per antenna turn.**  Within each scan (plots binned by the
    radar's scan period), plots and aircraft are assigned by minimum total chi-square
    (:func:`scipy.optimize.linear_sum_assignment`).
@@ -25,12 +19,11 @@ estimate ``b`` and covariance ``P_b``:
 4. **Track numbers.**  A radar's track number keeps its plots together: the plots of one
    number take the aircraft most of its associated plots have, where that aircraft is in
    their gate; those assigned elsewhere and not in its gate are left out.
+5. **Paths of their own.**  The plots left out that form tracks, seen by two of these
+   radars, become aircraft of their own (:mod:`graphcal.tracking.own_paths`).
 
-Before any bias is known, :func:`coarse_bias` finds a start by voting: the differences
-between every plot and every aircraft within a window wide enough for km offsets and
-10 mrad azimuth biases (:data:`COARSE_RANGE_M`, :data:`COARSE_AZIMUTH_RAD`) are histogrammed,
-and the peak (refined by the median around it) is the range offset and azimuth bias.  The
-pipeline then associates and calibrates in turn until the associations stop changing.
+The pipeline starts from :func:`~graphcal.tracking.gating.coarse_bias` and then associates
+and calibrates in turn until the associations stop changing.
 """
 
 from __future__ import annotations
@@ -44,292 +37,31 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy.special import chdtri
 
-from graphcal.core import frames
-from graphcal.data.align import AdsbTrackTable, adsb_track_table, plot_arrays
+from graphcal.data.align import plot_arrays
 from graphcal.data.bias import RadarBias
 from graphcal.data.dataset import Dataset, Site
-from graphcal.model.measurement import measurement_model
+from graphcal.tracking.gating import (
+    Pairs,
+    References,
+    coarse_bias,
+    gated_pairs,
+    reference_tracks,
+    scan_period,
+)
+from graphcal.tracking.own_paths import Leftover
+from graphcal.tracking.own_paths import own_paths as find_own_paths
 
 FloatArray = NDArray[np.float64]
 
-#: Probability mass inside the association gate.
-GATE_PROBABILITY = 0.9999
 #: A plot whose second-best aircraft's chi-square is within this of its best is ambiguous.
 AMBIGUITY_CHI2_MARGIN = 4.0
-#: A Mode C altitude further than this from the reference height vetoes the pair [m]
-#: (pressure and geometric heights differ by a few hundred metres).
-ALTITUDE_GATE_M = 600.0
-#: The coarse search's window: range [m] and azimuth [rad] differences voted on.
-COARSE_RANGE_M = 6000.0
-COARSE_AZIMUTH_RAD = 0.03
-#: The coarse search's histogram bins.
-COARSE_RANGE_BIN_M = 100.0
-COARSE_AZIMUTH_BIN_RAD = 1e-3
-#: Longest gap in a reference trajectory that is interpolated [s].
-REFERENCE_MAX_GAP_S = 20.0
 #: The associated plots' fit: the chi-square point whose tail is counted, the multiple of
 #: its expected share that is warned about, and the fewest associated plots judged.
 TAIL_PROBABILITY = 0.999
 TAIL_WARNING_FACTOR = 10.0
 MIN_TAIL_PLOTS = 200
-#: Fastest aircraft considered [m/s] (the candidates' window covers its motion in a scan).
-MAX_SPEED_M_S = 350.0
-#: Scan period assumed for a radar that declares none [s].
-DEFAULT_SCAN_S = 5.0
 #: Status of each unaddressed plot.
 ASSOCIATED, AMBIGUOUS, LEFT_OUT = 0, 1, 2
-
-
-@dataclass
-class References:
-    """Reference trajectories of the identified aircraft.
-
-    ``tracks`` holds the positions (ADS-B, then radar-derived for aircraft without ADS-B);
-    ``codes`` each aircraft's Mode 3/A codes seen (empty set when unknown).
-    """
-
-    tracks: AdsbTrackTable
-    codes: dict[str, set[str]]
-
-
-def _codes_of(table: pd.DataFrame) -> dict[str, set[str]]:
-    """Each aircraft's Mode 3/A codes in ``table`` (``target_id``, ``mode_3a``)."""
-    if "mode_3a" not in table:
-        return {}
-    pairs = table[["target_id", "mode_3a"]].drop_duplicates()  # few rows from here on
-    out: dict[str, set[str]] = {}
-    for target, code in zip(pairs["target_id"].astype(str).tolist(),
-                            pairs["mode_3a"].astype("string").fillna("").tolist(), strict=True):
-        code = code.strip()
-        if code and target:
-            out.setdefault(target, set()).add(code)
-    return out
-
-
-def reference_tracks(dataset: Dataset, biases: Mapping[str, RadarBias], *,
-                     use_adsb: bool = True) -> References:
-    """The aircraft's reference trajectories: ADS-B, and the addressed plots of the radars,
-    corrected by ``biases`` and converted to positions, for aircraft without ADS-B.
-
-    A radar-derived position's ``sigma_m`` is its plot's largest converted standard
-    deviation (range, or range times the azimuth sigma).
-    """
-    parts = []
-    codes: dict[str, set[str]] = {}
-    adsb = dataset.adsb if use_adsb else None
-    with_adsb: set[str] = set()
-    if adsb is not None and len(adsb):
-        table = adsb[["time_s", "target_id", "lat_deg", "lon_deg", "alt_m"]].copy()
-        table["sigma_m"] = adsb["sigma_m"] if "sigma_m" in adsb else 30.0
-        table = table[np.isfinite(table["alt_m"].to_numpy(float))]
-        parts.append(table)
-        with_adsb = {str(t) for t in pd.unique(table["target_id"])}
-        codes.update(_codes_of(adsb))
-    for rid, site in dataset.sites.items():
-        plots = plot_arrays(dataset, rid)
-        target = plots.target_id.astype(str)
-        keep = (target != "") & ~np.isin(target, list(with_adsb)) & np.isfinite(plots.range_m)
-        if site.is_3d:
-            keep &= np.isfinite(plots.elevation_rad)
-        else:
-            keep &= np.isfinite(plots.altitude_m)
-        if not np.any(keep):
-            continue
-        bias = biases.get(rid, RadarBias())
-        sub = plots.subset(keep)
-        ecef = _plot_positions(site, sub, bias)
-        lat, lon, h = frames.ecef_to_geodetic(ecef)
-        sigmas = site.measurement_sigmas()
-        sigma = np.maximum(sigmas[0], sub.range_m * sigmas[1])
-        parts.append(pd.DataFrame({
-            "time_s": sub.time_s - bias.time_offset_s, "target_id": target[keep],
-            "lat_deg": np.rad2deg(lat), "lon_deg": np.rad2deg(lon), "alt_m": h,
-            "sigma_m": sigma}))
-    plot_codes = _codes_of(dataset.plots[dataset.plots["target_id"].astype(str) != ""])
-    for target, seen in plot_codes.items():
-        codes.setdefault(target, set()).update(seen)
-    if parts:
-        table = pd.concat(parts, ignore_index=True)
-        table = table.sort_values(["target_id", "time_s"], kind="stable")
-        table = table.drop_duplicates(["target_id", "time_s"])
-    else:
-        table = pd.DataFrame({c: pd.Series(dtype=float) for c in
-                              ("time_s", "lat_deg", "lon_deg", "alt_m", "sigma_m")})
-        table["target_id"] = pd.Series(dtype=object)
-    return References(adsb_track_table(table), codes)
-
-
-def _plot_positions(site: Site, plots: Any, bias: RadarBias) -> FloatArray:
-    """ECEF positions of plots corrected by ``bias`` (2-D plots at their altitude)."""
-    model = measurement_model(site)
-    measured = np.stack([plots.range_m, plots.azimuth_rad,
-                         plots.elevation_rad if site.is_3d else np.zeros(len(plots))], axis=-1)
-    polar = model.inverse_function(measured, bias)
-    if not site.is_3d:
-        # The elevation that puts the plot at its reported altitude.
-        polar[:, 2] = frames.elevation_from_height(polar[:, 0], plots.altitude_m, site.lat_rad,
-                                                   site.alt_m)
-    return site.ecef_from_polar(polar[:, 0], polar[:, 1], polar[:, 2])
-
-
-# --------------------------------------------------------------------------- candidates
-@dataclass
-class _Pairs:
-    """Gated (plot, aircraft) pairs of one radar: plot rows, aircraft codes, chi-squares."""
-
-    plot: NDArray[np.int64]
-    aircraft: NDArray[np.int64]
-    chi2: FloatArray
-    residual: FloatArray  # (n, m): measured - predicted, azimuth wrapped
-
-
-def _predicted(site: Site, refs: References, plots: Any, bias: RadarBias,
-               plot_rows: NDArray[np.int64], aircraft: NDArray[np.int64]
-               ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
-    """Each pair's predicted measurement, reference position and sigma, and validity."""
-    tracks = refs.tracks
-    t_true = plots.time_s[plot_rows] - bias.time_offset_s
-    j, w, ok = tracks.bracket(aircraft, t_true, REFERENCE_MAX_GAP_S)
-    ecef = (1.0 - w)[:, None] * tracks.ecef_m[j] + w[:, None] * tracks.ecef_m[j + 1]
-    sigma = np.sqrt((1.0 - w) ** 2 * tracks.sigma_m[j] ** 2 + w**2 * tracks.sigma_m[j + 1] ** 2)
-    predicted = measurement_model(site).function(ecef, bias)
-    return predicted, ecef, sigma, ok
-
-
-def _gated_pairs(site: Site, refs: References, plots: Any, bias: RadarBias,
-                 bias_covariance: FloatArray | None, window: tuple[float, float] | None,
-                 codes: NDArray[np.object_] | None = None) -> _Pairs:
-    """Every (plot, aircraft) pair in the gate (or, with ``window``, within it);
-    ``codes``: the plots' Mode 3/A codes ("" where none), evidence when given."""
-    tracks = refs.tracks
-    n_aircraft = len(tracks.targets)
-    empty = _Pairs(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)))
-    if n_aircraft == 0 or len(plots) == 0:
-        return empty
-    plot_rows, aircraft = _candidates(site, refs, plots, bias, bias_covariance, window)
-    predicted, ecef, sigma, ok = _predicted(site, refs, plots, bias, plot_rows, aircraft)
-    m = 3 if site.is_3d else 2
-    measured = np.stack([plots.range_m, plots.azimuth_rad, plots.elevation_rad],
-                        axis=-1)[plot_rows]
-    residual = measured - predicted
-    residual[:, 1] = frames.wrap_to_pi(residual[:, 1])
-    keep = ok & np.all(np.isfinite(residual[:, :m]), axis=1)
-    if window is not None:
-        keep &= (np.abs(residual[:, 0]) <= window[0]) & (np.abs(residual[:, 1]) <= window[1])
-        return _Pairs(plot_rows[keep], aircraft[keep], np.zeros(int(keep.sum())),
-                      residual[keep])
-    plot_rows, aircraft, residual = plot_rows[keep], aircraft[keep], residual[keep]
-    predicted, ecef, sigma = predicted[keep], ecef[keep], sigma[keep]
-    # Innovation covariance: radar noise + reference + bias uncertainty (polar).
-    sigmas = site.measurement_sigmas()
-    r = np.maximum(predicted[:, 0], 1.0)
-    cov = np.zeros((len(r), 3, 3))
-    cov[:, 0, 0] = sigmas[0] ** 2 + sigma**2
-    cov[:, 1, 1] = sigmas[1] ** 2 + (sigma / r) ** 2
-    cov[:, 2, 2] = sigmas[2] ** 2 + (sigma / r) ** 2
-    if bias_covariance is not None:
-        jac = np.zeros((len(r), 3, 4))  # d h / d (offset, gain, azimuth, elevation)
-        jac[:, 0, 0], jac[:, 0, 1], jac[:, 1, 2], jac[:, 2, 3] = 1.0, r, 1.0, 1.0
-        cov += jac @ bias_covariance[:4, :4] @ np.swapaxes(jac, 1, 2)
-    cov = cov[:, :m, :m]
-    e = residual[:, :m]
-    chi2 = np.einsum("ni,ni->n", e, np.linalg.solve(cov, e[..., None])[..., 0])
-    gate = chdtri(m, 1.0 - GATE_PROBABILITY)  # the chi-square quantile
-    keep = chi2 <= gate
-    # Evidence: Mode C altitude and Mode 3/A code.
-    if not site.is_3d and np.isfinite(plots.altitude_m).any():
-        _, _, h = frames.ecef_to_geodetic(ecef)
-        alt = plots.altitude_m[plot_rows]
-        keep &= ~(np.isfinite(alt) & (np.abs(alt - h) > ALTITUDE_GATE_M))
-    if codes is not None and refs.codes:
-        names = np.asarray(tracks.targets, dtype=object)[aircraft]
-        plot_code = np.asarray(codes, dtype=object)[plot_rows]
-        veto = np.array([bool(c) and bool(refs.codes.get(n)) and c not in refs.codes[n]
-                         for c, n in zip(plot_code, names, strict=True)], dtype=bool)
-        keep &= ~veto
-    return _Pairs(plot_rows[keep], aircraft[keep], chi2[keep], residual[keep])
-
-
-def _candidates(site: Site, refs: References, plots: Any, bias: RadarBias,
-                bias_covariance: FloatArray | None, window: tuple[float, float] | None
-                ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """(plot, aircraft) pairs worth gating: the aircraft's references, measured at the
-    middle of each scan, within a window of the plot that covers the aircraft's motion
-    in half a scan (:data:`MAX_SPEED_M_S`), the bias's uncertainty and the noise."""
-    tracks = refs.tracks
-    n_aircraft = len(tracks.targets)
-    period = _scan_period(site)
-    first = tracks.time_s[tracks.start[:-1]]
-    last = tracks.time_s[np.maximum(tracks.start[1:] - 1, tracks.start[:-1])]
-    t_true = plots.time_s - bias.time_offset_s
-    scan = np.floor(t_true / period).astype(np.int64)
-    scans, scan_of_plot = np.unique(scan, return_inverse=True)
-    middle = (scans + 0.5) * period
-    # Every aircraft measured at every scan's middle (NaN where it has no reference).
-    grid_scan = np.repeat(np.arange(len(scans)), n_aircraft)
-    grid_aircraft = np.tile(np.arange(n_aircraft), len(scans))
-    alive = (first[grid_aircraft] <= middle[grid_scan] + period) & (
-        middle[grid_scan] - period <= last[grid_aircraft])
-    grid_scan, grid_aircraft = grid_scan[alive], grid_aircraft[alive]
-    t_mid = np.clip(middle[grid_scan], first[grid_aircraft], last[grid_aircraft])
-    j, w, ok = tracks.bracket(grid_aircraft, t_mid, np.inf)
-    ecef = (1.0 - w)[:, None] * tracks.ecef_m[j] + w[:, None] * tracks.ecef_m[j + 1]
-    predicted = measurement_model(site).function(ecef, bias)
-    range_grid = np.full((len(scans), n_aircraft), np.nan)
-    azimuth_grid = np.full((len(scans), n_aircraft), np.nan)
-    range_grid[grid_scan[ok], grid_aircraft[ok]] = predicted[ok, 0]
-    azimuth_grid[grid_scan[ok], grid_aircraft[ok]] = predicted[ok, 1]
-    # The window: the motion in a scan and the time to the scan's middle, the bias's
-    # uncertainty and the noise (6 sigma), or the coarse search's window.
-    sigmas = site.measurement_sigmas()
-    motion = MAX_SPEED_M_S * period
-    if window is not None:
-        range_window, azimuth_window = window[0] + motion, window[1]
-    else:
-        spread = np.zeros(4) if bias_covariance is None else np.sqrt(
-            np.clip(np.diag(bias_covariance)[:4], 0.0, None))
-        range_window = motion + 6.0 * (sigmas[0] + spread[0]) + 6.0 * spread[1] * 5e5
-        azimuth_window = 6.0 * (sigmas[1] + spread[2])
-    rows, crafts = [], []
-    block = max(1, 2_000_000 // max(n_aircraft, 1))
-    for lo in range(0, len(plots), block):
-        k = scan_of_plot[lo:lo + block]
-        r = plots.range_m[lo:lo + block, None]
-        with np.errstate(invalid="ignore"):
-            dr = np.abs(r - range_grid[k])
-            daz = np.abs(frames.wrap_to_pi(plots.azimuth_rad[lo:lo + block, None]
-                                           - azimuth_grid[k]))
-            near = (dr <= range_window) & (daz <= azimuth_window + motion / np.maximum(r, 1.0))
-        i, a = np.nonzero(near)
-        rows.append(i + lo)
-        crafts.append(a)
-    return (np.concatenate(rows).astype(np.int64) if rows else np.zeros(0, np.int64),
-            np.concatenate(crafts).astype(np.int64) if crafts else np.zeros(0, np.int64))
-
-
-# --------------------------------------------------------------------------- coarse search
-def coarse_bias(site: Site, refs: References, plots: Any, time_offset_s: float = 0.0
-                ) -> RadarBias | None:
-    """A starting range offset and azimuth bias by voting (module docstring); ``None`` when
-    no plot is near any aircraft."""
-    start = RadarBias(time_offset_s=time_offset_s)
-    pairs = _gated_pairs(site, refs, plots, start, None, (COARSE_RANGE_M, COARSE_AZIMUTH_RAD))
-    if len(pairs.plot) < 10:
-        return None
-    dr, daz = pairs.residual[:, 0], pairs.residual[:, 1]
-    r_edges = np.arange(-COARSE_RANGE_M, COARSE_RANGE_M + COARSE_RANGE_BIN_M, COARSE_RANGE_BIN_M)
-    a_edges = np.arange(-COARSE_AZIMUTH_RAD, COARSE_AZIMUTH_RAD + COARSE_AZIMUTH_BIN_RAD,
-                        COARSE_AZIMUTH_BIN_RAD)
-    counts, _, _ = np.histogram2d(dr, daz, bins=(r_edges, a_edges))
-    i, k = np.unravel_index(int(np.argmax(counts)), counts.shape)
-    near = ((np.abs(dr - 0.5 * (r_edges[i] + r_edges[i + 1])) <= 2 * COARSE_RANGE_BIN_M)
-            & (np.abs(daz - 0.5 * (a_edges[k] + a_edges[k + 1])) <= 2 * COARSE_AZIMUTH_BIN_RAD))
-    offset, azimuth = float(np.median(dr[near])), float(np.median(daz[near]))
-    elevation = 0.0
-    if site.is_3d:
-        elevation = float(np.median(pairs.residual[near, 2]))
-    return RadarBias(range_offset_m=offset, azimuth_bias_rad=azimuth,
-                     elevation_bias_rad=elevation, time_offset_s=time_offset_s)
 
 
 # --------------------------------------------------------------------------- association
@@ -349,6 +81,8 @@ class RadarAssociation:
     #: Associated plots that fit their aircraft worse than the chi-square's
     #: :data:`TAIL_PROBABILITY` point, as a fraction (``1 - TAIL_PROBABILITY`` expected).
     tail_fraction: float | None = None
+    #: Associated plots on paths of their own (aircraft no reference covers).
+    n_own_paths: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return {"plots": self.n_plots, "associated": self.n_associated,
@@ -356,7 +90,7 @@ class RadarAssociation:
                 "scans": self.n_scans, "detection_probability": self.detection_probability,
                 "false_plots_per_scan": self.false_plots_per_scan,
                 "mode_3a_consistency": self.mode_3a_consistency,
-                "tail_fraction": self.tail_fraction}
+                "tail_fraction": self.tail_fraction, "own_paths": self.n_own_paths}
 
     def warning(self) -> str | None:
         """A warning when the associated plots' fit shows association errors: more than
@@ -411,7 +145,8 @@ def unaddressed_radars(dataset: Dataset) -> list[str]:
 
 def associate(dataset: Dataset, biases: Mapping[str, RadarBias],
               covariances: Mapping[str, FloatArray] | None = None, *,
-              use_adsb: bool = True, radars: list[str] | None = None) -> Association:
+              use_adsb: bool = True, radars: list[str] | None = None,
+              own_paths: bool = True) -> Association:
     """Associate every plot without an address (module docstring).
 
     Parameters
@@ -426,11 +161,15 @@ def associate(dataset: Dataset, biases: Mapping[str, RadarBias],
         Use the ADS-B reports as references.
     radars : list of str, optional
         The radars to associate (default :func:`unaddressed_radars`).
+    own_paths : bool
+        Give the aircraft no reference covers, seen by two of these radars, paths of their
+        own (:func:`graphcal.tracking.own_paths.own_paths`).
     """
     refs = reference_tracks(dataset, biases, use_adsb=use_adsb)
     radars = unaddressed_radars(dataset) if radars is None else radars
-    target_parts, status_parts, figures = [], [], {}
     names = np.asarray(refs.tracks.targets, dtype=object)
+    done: dict[str, tuple[Any, NDArray[np.object_], NDArray[np.int64], Any, float | None]] = {}
+    leftovers: dict[str, Leftover] = {}
     for rid in radars:
         site = dataset.sites[rid]
         all_plots = plot_arrays(dataset, rid)
@@ -440,27 +179,43 @@ def associate(dataset: Dataset, biases: Mapping[str, RadarBias],
         frame = dataset.plots.loc[plots.index]
         codes = (frame["mode_3a"].astype("string").fillna("").to_numpy(object)
                  if "mode_3a" in frame else None)
+        numbers = frame["track_number"].to_numpy() if "track_number" in frame else None
         bias = biases.get(rid, RadarBias())
         cov = None if covariances is None else covariances.get(rid)
-        pairs = _gated_pairs(site, refs, plots, bias, cov, None, codes)
+        pairs = gated_pairs(site, refs, plots, bias, cov, None, codes)
         assigned, status = _assign(site, plots, pairs)
-        if "track_number" in frame:
-            _by_track(frame["track_number"].to_numpy(), pairs, assigned, status)
-        ids = np.where(assigned >= 0, names[np.maximum(assigned, 0)], "")
+        if numbers is not None:
+            _by_track(numbers, pairs, assigned, status)
+        ids = np.where(assigned >= 0, names[np.maximum(assigned, 0)], "").astype(object)
+        tail = _tail_fraction(site, pairs, assigned, len(names))
+        done[rid] = (plots, ids, status, codes, tail)
+        left = np.flatnonzero(status == LEFT_OUT)
+        leftovers[rid] = Leftover(
+            plots.subset(left), left, None if codes is None else codes[left],
+            None if numbers is None else numbers[left], bias, cov)
+    own: dict[str, NDArray[np.object_]] = {}
+    if own_paths and len(leftovers) >= 2:
+        own = find_own_paths(dataset.sites, leftovers)
+    target_parts, status_parts, figures = [], [], {}
+    for rid, (plots, ids, status, codes, tail) in done.items():
+        on_own = np.zeros(len(ids), dtype=bool)
+        if rid in own:
+            found = own[rid] != ""
+            rows = leftovers[rid].rows[found]
+            ids[rows] = own[rid][found]
+            status[rows] = ASSOCIATED
+            on_own[rows] = True
         target_parts.append(pd.Series(ids, index=plots.index, dtype=object))
         status_parts.append(pd.Series(status, index=plots.index))
-        figures[rid] = _figures(rid, site, plots, assigned, status, names, refs, codes)
-        figures[rid].tail_fraction = _tail_fraction(site, pairs, assigned, len(names))
+        figures[rid] = _figures(rid, dataset.sites[rid], plots, ids, status, refs, codes)
+        figures[rid].tail_fraction = tail
+        figures[rid].n_own_paths = int(on_own.sum())
     target_id = (pd.concat(target_parts) if target_parts else pd.Series(dtype=object))
-    status = pd.concat(status_parts) if status_parts else pd.Series(dtype=np.int64)
-    return Association(target_id, status, figures)
+    status_all = pd.concat(status_parts) if status_parts else pd.Series(dtype=np.int64)
+    return Association(target_id, status_all, figures)
 
 
-def _scan_period(site: Site) -> float:
-    return float(site.scan_period_s) if site.scan_period_s else DEFAULT_SCAN_S
-
-
-def _assign(site: Site, plots: Any, pairs: _Pairs
+def _assign(site: Site, plots: Any, pairs: Pairs
             ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """One plot per aircraft per scan, ambiguous plots left out."""
     from scipy.optimize import linear_sum_assignment  # only when plots lack an address
@@ -483,7 +238,7 @@ def _assign(site: Site, plots: Any, pairs: _Pairs
     both = np.isfinite(second)
     ambiguous[both] = second[both] - best[both] < AMBIGUITY_CHI2_MARGIN
     # Scans: the plots' times binned by the scan period.
-    scan = np.floor(plots.time_s / _scan_period(site)).astype(np.int64)
+    scan = np.floor(plots.time_s / scan_period(site)).astype(np.int64)
     keep = ~ambiguous[pairs.plot]
     pp, aa, cc = pairs.plot[keep], pairs.aircraft[keep], pairs.chi2[keep]
     pair_scan = scan[pp]
@@ -508,7 +263,7 @@ def _assign(site: Site, plots: Any, pairs: _Pairs
     return assigned, status
 
 
-def _by_track(track_number: NDArray, pairs: _Pairs, assigned: NDArray[np.int64],
+def _by_track(track_number: NDArray, pairs: Pairs, assigned: NDArray[np.int64],
               status: NDArray[np.int64]) -> None:
     """Track numbers keep their plots together (module docstring), in place."""
     numbers = pd.array(track_number, dtype="Int64")
@@ -536,7 +291,7 @@ def _by_track(track_number: NDArray, pairs: _Pairs, assigned: NDArray[np.int64],
                 status[row] = LEFT_OUT
 
 
-def _tail_fraction(site: Site, pairs: _Pairs, assigned: NDArray[np.int64], n_aircraft: int
+def _tail_fraction(site: Site, pairs: Pairs, assigned: NDArray[np.int64], n_aircraft: int
                    ) -> float | None:
     """The share of associated plots beyond the chi-square's :data:`TAIL_PROBABILITY` point."""
     rows = np.flatnonzero(assigned >= 0)
@@ -549,18 +304,19 @@ def _tail_fraction(site: Site, pairs: _Pairs, assigned: NDArray[np.int64], n_air
     return float(np.mean(chi2 > chdtri(m, 1.0 - TAIL_PROBABILITY))) if len(chi2) else None
 
 
-def _figures(rid: str, site: Site, plots: Any, assigned: NDArray[np.int64],
-             status: NDArray[np.int64], names: NDArray, refs: References,
+def _figures(rid: str, site: Site, plots: Any, ids: NDArray[np.object_],
+             status: NDArray[np.int64], refs: References,
              codes: NDArray[np.object_] | None = None) -> RadarAssociation:
-    """Detection probability, false plots per scan and code consistency of one radar."""
-    period = _scan_period(site)
+    """Detection probability, false plots per scan and code consistency of one radar;
+    ``ids``: each plot's aircraft ("" where none)."""
+    period = scan_period(site)
     n_scans = 0
     if len(plots):
         n_scans = int(np.floor((plots.time_s.max() - plots.time_s.min()) / period)) + 1
     detection = None
-    seen = assigned >= 0
+    seen = status == ASSOCIATED
     if seen.any():
-        frame = pd.DataFrame({"a": assigned[seen], "t": plots.time_s[seen]})
+        frame = pd.DataFrame({"a": ids[seen], "t": plots.time_s[seen]})
         span = frame.groupby("a")["t"].agg(["min", "max", "size"])
         expected = np.floor((span["max"] - span["min"]) / period) + 1
         detection = float(min(1.0, span["size"].sum() / expected.sum()))
@@ -569,15 +325,14 @@ def _figures(rid: str, site: Site, plots: Any, assigned: NDArray[np.int64],
     consistency = None
     if codes is not None and seen.any():
         have = np.array([bool(c) for c in np.asarray(codes, dtype=object)]) & seen
-        known = [(c, names[a]) for c, a in zip(np.asarray(codes, dtype=object)[have],
-                                                assigned[have], strict=True)
-                 if refs.codes.get(names[a])]
+        known = [(c, n) for c, n in zip(np.asarray(codes, dtype=object)[have], ids[have],
+                                        strict=True) if refs.codes.get(n)]
         if known:
             consistency = float(np.mean([c in refs.codes[n] for c, n in known]))
     return RadarAssociation(rid, len(plots), int(seen.sum()), int(np.sum(status == AMBIGUOUS)),
                             left, n_scans, detection, false_rate, consistency)
 
 
-__all__ = ["AMBIGUITY_CHI2_MARGIN", "ASSOCIATED", "AMBIGUOUS", "Association",
-           "GATE_PROBABILITY", "LEFT_OUT", "RadarAssociation", "References", "associate",
-           "coarse_bias", "reference_tracks", "unaddressed_radars"]
+__all__ = ["AMBIGUITY_CHI2_MARGIN", "ASSOCIATED", "AMBIGUOUS", "Association", "LEFT_OUT",
+           "RadarAssociation", "associate", "coarse_bias", "reference_tracks",
+           "unaddressed_radars"]
