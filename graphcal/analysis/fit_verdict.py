@@ -217,6 +217,10 @@ class FitVerdict:
         The limit's probability and floor.
     windows : list of WindowJudgement, optional
         Over windows: every window's own verdict, in time order.
+    associated : dict of str to str
+        The radars whose plots were associated by gating (contract v3), each with a
+        phrase on how well they fit their aircraft: a failed one's message names wrong
+        associations as a cause.
     """
 
     reference: str
@@ -224,6 +228,7 @@ class FitVerdict:
     p: float = P
     floor: float = FLOOR
     windows: list[WindowJudgement] | None = None
+    associated: dict[str, str] = field(default_factory=dict)
 
     @property
     def failed(self) -> list[str]:
@@ -258,6 +263,11 @@ class FitVerdict:
                      "each radar's clock: a time-stamping bias of a second or more moves "
                      "its plots along track, and without ADS-B it is not estimated "
                      "(calibrate with ADS-B to estimate time_offset_s)")
+        for rid in self.failed:
+            if rid in self.associated:
+                text += (f". {rid}'s plots carry no address and were associated by gating "
+                         f"({self.associated[rid]}): wrong associations (another aircraft, "
+                         "false plots) show as such a misfit")
         return text
 
     def _describe(self, radar_id: str) -> str:
@@ -290,6 +300,8 @@ class FitVerdict:
             "max_range_gain": MAX_RANGE_GAIN,
             "radars": {rid: r.to_dict() for rid, r in self.radars.items()},
         }
+        if self.associated:
+            out["associated"] = dict(self.associated)
         if self.windows is not None:
             for rid, entry in out["radars"].items():
                 worst = _worst_window(self.windows, rid)

@@ -32,11 +32,13 @@ from graphcal.model.problem import Problem, build_problem
 from graphcal.solvers.registry import solve
 from graphcal.tracking.association import (
     ASSOCIATED,
+    UNADDRESSED_FRACTION,
     Association,
     associate,
     coarse_bias,
     reference_tracks,
     unaddressed_radars,
+    unaddressed_share,
 )
 
 #: At most this many calibrations, each followed by an association.
@@ -52,7 +54,8 @@ GATED_TERMS = ("range_offset", "range_gain", "azimuth_bias", "elevation_bias")
 
 
 def needs_association(dataset: Dataset) -> bool:
-    """Whether some radar has plots without an address."""
+    """Whether some plot lacks an address (contract v3: ``info.association`` is then
+    recorded)."""
     return bool(unaddressed_radars(dataset))
 
 
@@ -113,7 +116,12 @@ def first_association(dataset: Dataset, options: SolveOptions,
     biases: dict[str, RadarBias] = {}
     covariances: dict[str, np.ndarray] = {}
     notes = []
+    share = unaddressed_share(dataset)
     for rid in radars:
+        if share.get(rid, 0.0) < UNADDRESSED_FRACTION:
+            # Mostly addressed: the quick estimate finds its biases from those plots.
+            covariances[rid] = np.diag(np.square(COARSE_SIGMA))
+            continue
         plots = plot_arrays(dataset, rid)
         plots = plots.subset(np.isin(plots.target_id.astype(str), ["", "nan"]))
         found = coarse_bias(dataset.sites[rid], refs, plots)
@@ -154,11 +162,12 @@ def merged_figures(per_window: list[dict[str, dict[str, Any]]]) -> dict[str, dic
     out: dict[str, dict[str, Any]] = {}
     for figures in per_window:
         for rid, f in figures.items():
-            total = out.setdefault(rid, {"plots": 0, "associated": 0, "ambiguous": 0,
-                                         "left_out": 0, "scans": 0, "_detected": 0.0,
+            total = out.setdefault(rid, {"plots": 0, "associated": 0, "own_paths": 0,
+                                         "ambiguous": 0, "left_out": 0, "scans": 0,
+                                         "_detected": 0.0,
                                          "_coded": 0.0, "_tail": 0.0, "_coded_n": 0})
-            for key in ("plots", "associated", "ambiguous", "left_out", "scans"):
-                total[key] += int(f[key])
+            for key in ("plots", "associated", "own_paths", "ambiguous", "left_out", "scans"):
+                total[key] += int(f.get(key, 0))
             n = int(f["associated"])
             total["_detected"] += (f["detection_probability"] or 0.0) * n
             total["_tail"] += (f["tail_fraction"] or 0.0) * n
@@ -173,6 +182,37 @@ def merged_figures(per_window: list[dict[str, dict[str, Any]]]) -> dict[str, dic
         total["mode_3a_consistency"] = coded / coded_n if coded_n else None
         total["false_plots_per_scan"] = (total["left_out"] / total["scans"]
                                          if total["scans"] else None)
+    return out
+
+
+def association_notes(association: Association) -> dict[str, str]:
+    """Per radar with associated plots, a phrase on them for the model checks' and the fit
+    verdict's warnings: how many, and their share beyond the chi-square's 99.9 % point."""
+    notes = {}
+    for rid, figures in association.radars.items():
+        if figures.n_associated == 0:
+            continue
+        text = f"{figures.n_associated:,} of {figures.n_plots:,} plots"
+        if figures.tail_fraction is not None:
+            text += (f", {100 * figures.tail_fraction:.2f} % of them beyond the chi-square's "
+                     "99.9 % point where 0.1 % is expected")
+        notes[rid] = text
+    return notes
+
+
+def checks_association_warnings(model_checks: dict[str, Any], notes: dict[str, str]
+                                ) -> list[str]:
+    """Warnings for the radars whose model checks fired and whose plots were associated:
+    wrong associations would show in their residuals so (``model_checks``: the checks'
+    :meth:`~graphcal.analysis.model_checks.ModelChecks.to_dict`)."""
+    out = []
+    for rid, note in notes.items():
+        fired = model_checks.get("radars", {}).get(rid, {}).get("fired") or []
+        if fired:
+            out.append(f"{rid}: its plots carry no address and were associated by gating "
+                       f"({note}); the model checks that fired ({', '.join(fired)}) may be "
+                       "wrong associations (another aircraft, false plots) as well as a bias "
+                       "the model lacks")
     return out
 
 
@@ -200,5 +240,6 @@ def _changed(a: Association, b: Association) -> float:
     return float(np.mean(ta.to_numpy() != tb.to_numpy())) if len(ta) else 0.0
 
 
-__all__ = ["MAX_ROUNDS", "associated_window", "calibrate_associated", "first_association",
-           "gate_covariances", "merged_figures", "needs_association"]
+__all__ = ["MAX_ROUNDS", "associated_window", "association_notes", "calibrate_associated",
+           "checks_association_warnings", "first_association", "gate_covariances",
+           "merged_figures", "needs_association"]

@@ -31,7 +31,12 @@ from graphcal.data.dataset import Dataset
 from graphcal.io.folder import SITES_FILE, load_dataset, load_sites
 from graphcal.model.problem import Problem, build_problem
 from graphcal.noise import filled_with_notes
-from graphcal.pipeline.associate import calibrate_associated, needs_association
+from graphcal.pipeline.associate import (
+    association_notes,
+    calibrate_associated,
+    checks_association_warnings,
+    needs_association,
+)
 from graphcal.solvers.registry import METHODS, get_estimator, solve
 
 Progress = Callable[..., None]
@@ -299,9 +304,11 @@ def calibrate(
     dataset, sigma_info, sigma_warnings = filled_with_notes(dataset)
     # One problem for the estimate, its bound, its checks and its verdict: the plots'
     # arrays and their alignments with ADS-B are made once.
+    associated: dict[str, str] = {}
     if needs_association(dataset):  # radars without addresses: associate, then calibrate
-        cal, problem, _ = calibrate_associated(dataset, method, options, **extra)
+        cal, problem, association = calibrate_associated(dataset, method, options, **extra)
         dataset = problem.dataset
+        associated = association_notes(association)
     else:
         problem = build_problem(dataset, options)
         cal = solve(problem, method, **extra)
@@ -335,10 +342,14 @@ def calibrate(
         timing = cal.info.setdefault("timing_s", {})
         timing["model_checks_s"] = cal.info["model_checks"]["seconds"]
         timing["total_s"] = time.perf_counter() - start
+        found = checks_association_warnings(cal.info["model_checks"], associated)
+        cal.info["model_checks"]["warnings"] = [*cal.info["model_checks"].get("warnings", []),
+                                                *found]
+        cal.warnings.extend(found)
     _warn_shared_time_offset(cal, dataset.sites)
     if cal.radar_ids:
         _judge_fit(problem, cal, checks, use_adsb=use_adsb, max_gap_s=options.max_gap_s,
-                   raise_on_failure=check_fit)
+                   raise_on_failure=check_fit, associated=associated)
     return cal
 
 
@@ -361,12 +372,16 @@ def _impossible(cal: Calibration, dataset: Dataset) -> bool:
 
 
 def _judge_fit(problem: Problem, cal: Calibration, checks: Any, *, use_adsb: bool,
-               max_gap_s: float | None, raise_on_failure: bool) -> None:
-    """Record the fit verdict in ``info["fit_verdict"]``; raise when it failed and asked to."""
+               max_gap_s: float | None, raise_on_failure: bool,
+               associated: dict[str, str] | None = None) -> None:
+    """Record the fit verdict in ``info["fit_verdict"]``; raise when it failed and asked to.
+    ``associated``: the radars whose plots were associated, each with its phrase
+    (:func:`~graphcal.pipeline.associate.association_notes`)."""
     from graphcal.analysis.fit_verdict import ModelMisfitError, fit_verdict
 
     verdict = fit_verdict(problem, cal, checks=checks, use_adsb=use_adsb,
                           adsb_max_gap_s=max_gap_s)
+    verdict.associated = dict(associated or {})
     cal.info["fit_verdict"] = verdict.to_dict()
     if not verdict.passed:
         if raise_on_failure:
@@ -409,7 +424,12 @@ def _widen_sigmas(cal: Calibration, verdict: Any) -> None:
             efficiency[label] = efficiency[label] * float(factor)
     cal.info["sigma_inflation"] = {
         rid: w.to_dict(name for r, name in cal.labels if r == rid) for rid, w in widened.items()}
-    cal.warnings.extend(w.message() for w in widened.values())
+    for rid, w in widened.items():
+        text = w.message()
+        if rid in verdict.associated:
+            text += (f"; its plots carry no address and were associated by gating "
+                     f"({verdict.associated[rid]}): wrong associations show so too")
+        cal.warnings.append(text)
 
 
 #: A recording read from a folder that spans more than this [s] is calibrated for

@@ -130,17 +130,24 @@ class Association:
         return replace(dataset, plots=out)
 
 
-#: A radar is associated when at least this fraction of its plots carries no address (a
-#: Mode S radar's few plots that lost theirs are left out, as before).
+#: A radar most of whose plots carry no address (at least this fraction) is a radar without
+#: identity: its biases are first found by the coarse search.  A radar with fewer such plots
+#: (a Mode S radar's plots that lost their address) is started from its addressed plots.
 UNADDRESSED_FRACTION = 0.5
 
 
-def unaddressed_radars(dataset: Dataset) -> list[str]:
-    """Radars whose plots mostly carry no address (:data:`UNADDRESSED_FRACTION`)."""
+def unaddressed_share(dataset: Dataset) -> dict[str, float]:
+    """Per radar with plots, the fraction of its plots without an address."""
     target = dataset.plots["target_id"]
     empty = target.isna() | (target.astype(str).str.strip().isin(["", "nan"]))
     share = empty.groupby(dataset.plots["radar_id"], sort=False).mean()
-    return [str(r) for r, f in share.items() if f >= UNADDRESSED_FRACTION]
+    return {str(r): float(f) for r, f in share.items()}
+
+
+def unaddressed_radars(dataset: Dataset, min_fraction: float = 0.0) -> list[str]:
+    """Radars with plots without an address: more than ``min_fraction`` of them (default:
+    any)."""
+    return [r for r, f in unaddressed_share(dataset).items() if f > min_fraction]
 
 
 def associate(dataset: Dataset, biases: Mapping[str, RadarBias],
@@ -335,4 +342,4 @@ def _figures(rid: str, site: Site, plots: Any, ids: NDArray[np.object_],
 
 __all__ = ["AMBIGUITY_CHI2_MARGIN", "ASSOCIATED", "AMBIGUOUS", "Association", "LEFT_OUT",
            "RadarAssociation", "associate", "coarse_bias", "reference_tracks",
-           "unaddressed_radars"]
+           "UNADDRESSED_FRACTION", "unaddressed_radars", "unaddressed_share"]

@@ -155,3 +155,50 @@ def test_the_command_line_says_what_was_associated() -> None:
         "SUD": {"plots": 7112, "associated": 7100, "false_plots_per_scan": None}})
     assert line == ("plots without an address associated: EST3D 5298 of 6691 (7.7 left out a "
                     "scan), SUD 7100 of 7112")
+
+
+def test_plots_that_lost_their_address_at_a_mode_s_radar_are_associated(network) -> None:
+    """A Mode S radar (NORD) whose recording lost the address of a quarter of its plots
+    (contract v3: ``info.association`` when any plot lacks one): those plots are associated,
+    at least 99 % of them with the aircraft that made them and none with another, and the
+    radar's estimate stays within 0.3 sigma of the run with every address, its sigma within
+    2 % (the same plots used)."""
+    _, ds, _, _, _ = network
+    plots = ds.plots.copy()
+    nord = np.flatnonzero(plots["radar_id"].to_numpy() == "NORD")
+    lost = np.random.default_rng(11).choice(nord, size=len(nord) // 4, replace=False)
+    truth = plots["target_id"].astype(str).iloc[lost]
+    plots.iloc[lost, plots.columns.get_loc("target_id")] = ""
+    options = dict(model_checks=False, check_fit=False, bound=False)
+    cal = graphcal.calibrate(replace(ds, plots=plots), **options)
+    ref = graphcal.calibrate(ds, **options)
+    figures = cal.info["association"]["radars"]
+    assert set(figures) == {"NORD"} and figures["NORD"]["plots"] == len(lost)
+    assert figures["NORD"]["associated"] >= 0.99 * len(lost)
+    association = associate(replace(ds, plots=plots), {r: cal.bias(r) for r in cal.radar_ids})
+    given = association.target_id.loc[truth.index]
+    associated = association.status.loc[truth.index] == ASSOCIATED
+    assert (given[associated] == truth[associated]).all()
+    for key in ("range_offset_m", "range_gain", "azimuth_bias_mrad"):
+        assert abs(cal.value("NORD", key) - ref.value("NORD", key)) < 0.3 * ref.sigma("NORD", key)
+        assert cal.sigma("NORD", key) == pytest.approx(ref.sigma("NORD", key), rel=0.02)
+
+
+@pytest.mark.parametrize("shrink", [2.5, 5.0])
+def test_a_misfit_of_an_associated_radar_names_association(network, shrink) -> None:
+    """EST3D's declared range and azimuth sigmas ``shrink`` times smaller than its noise:
+    its associated plots fit worse than the chi-square says (the tail warning), and the fit
+    verdict's warning (at 2.5: sigmas widened; at 5: chi2/dof beyond the floor of 4, the
+    verdict failed) names the association by gating as a possible cause."""
+    _, _, blank, _, _ = network
+    site = blank.sites["EST3D"]
+    sites = dict(blank.sites)
+    sites["EST3D"] = replace(site, sigma_range_m=site.sigma_range_m / shrink,
+                             sigma_azimuth_rad=site.sigma_azimuth_rad / shrink)
+    cal = graphcal.calibrate(replace(blank, sites=sites), check_fit=False, bound=False)
+    verdict = cal.info["fit_verdict"]
+    assert "EST3D" in verdict["associated"]
+    assert cal.info["association"]["radars"]["EST3D"]["tail_fraction"] > 0.01
+    text = " ".join(w for w in cal.warnings if w.startswith(("radar EST3D", "the residuals")))
+    assert "associated by gating" in text
+    assert ("EST3D" in verdict["failed"]) == (shrink > 3.0)
