@@ -29,6 +29,11 @@ reports) followed by these sections, each an ``<h2>`` with a stable ``id``:
                    ``info["model_checks"]``);
 ``observability``  degree, rank, undetermined parameters, warnings and the
                    robust kernel's down-weighted measurements;
+``association``    only when the result has ``info["association"]`` (radars without
+                   addresses): per radar the plots associated, ambiguous and left out,
+                   detection probability, false plots per scan, Mode 3/A consistency
+                   and the tail fraction (flagged above 1 %), with the rounds or
+                   windows of the association;
 ``data``           plots per radar, ADS-B reports, time spans.
 
 Residuals (:mod:`graphcal.reporting.report_residuals`) are against ADS-B when
@@ -81,6 +86,7 @@ from graphcal.reporting.report_residuals import (
     residual_views,
 )
 from graphcal.reporting.tables import sigma_footnote
+from graphcal.tracking.association import TAIL_PROBABILITY, TAIL_WARNING_FACTOR
 
 #: Section ids, in page order.
 SECTIONS: tuple[tuple[str, str], ...] = (
@@ -95,6 +101,10 @@ SECTIONS: tuple[tuple[str, str], ...] = (
     ("observability", "Observability and warnings"),
     ("data", "Data"),
 )
+#: The association section: only for a result with ``info["association"]``, before ``data``.
+ASSOCIATION_SECTION: tuple[str, str] = ("association", "Association")
+#: Tail fraction above which a radar's association is flagged (10 times the expected 0.1 %).
+TAIL_FLAG = TAIL_WARNING_FACTOR * (1.0 - TAIL_PROBABILITY)
 #: Figure resolution [dots per inch].
 DPI = 96
 #: Seed of the subsampling (the report is reproducible).
@@ -611,6 +621,122 @@ def _observability_section(cal: Calibration) -> str:
     return "".join(parts)
 
 
+def _count_text(value: Any) -> str:
+    """A count with thousands separators; an en dash when missing."""
+    return "–" if value is None else f"{int(value):,}"
+
+
+def _percent_text(fraction: float | None, decimals: int = 1) -> str:
+    """A fraction as a percentage (``0.898`` -> ``"89.8 %"``); an en dash when missing."""
+    return "–" if fraction is None else f"{value_text(100.0 * fraction, decimals)} %"
+
+
+def _association_row(rid: str, figures: Mapping[str, Any]) -> tuple[list[str], bool]:
+    """One radar's row of the association table, and whether its tail fraction is flagged."""
+    tail = figures.get("tail_fraction")
+    flagged = tail is not None and math.isfinite(tail) and tail > TAIL_FLAG
+    tail_text = _percent_text(tail, 2)
+    if flagged:
+        tail_text = (f'<span class="zflag" title="above {100 * TAIL_FLAG:g} %">⚠ '
+                     f"{tail_text}</span>")
+    false_rate = figures.get("false_plots_per_scan")
+    row = [_esc(rid), *(_count_text(figures.get(k)) for k in
+                        ("plots", "associated", "own_paths", "ambiguous", "left_out", "scans")),
+           _percent_text(figures.get("detection_probability")),
+           value_text(None if false_rate is None else float(false_rate), 2),
+           _percent_text(figures.get("mode_3a_consistency")), tail_text]
+    return row, flagged
+
+
+def _association_runs(association: Mapping[str, Any]) -> str:
+    """How the association ran (its rounds or windows, and its time) as a sentence."""
+    rounds, windows = association.get("rounds"), association.get("windows")
+    seconds = association.get("seconds")
+    parts = []
+    if rounds is not None:
+        parts.append(f"associated and calibrated in turn: {int(rounds)} "
+                     f"round{'s' if int(rounds) != 1 else ''}")
+    if windows is not None:
+        parts.append(f"associated window by window: {int(windows)} "
+                     f"window{'s' if int(windows) != 1 else ''} (the figures above are summed "
+                     "over them)")
+    if not parts and seconds is None:
+        return ""
+    text = "; ".join(parts) or "associated"
+    if seconds is not None:
+        text += f", {float(seconds):.1f} s"
+    return f"<p>{_esc(text[0].upper() + text[1:])}.</p>"
+
+
+def _association_section(cal: Calibration) -> str | None:
+    """The association section from ``info["association"]``; ``None`` without it.
+
+    Parameters
+    ----------
+    cal : Calibration
+        The result; its ``info["association"]`` holds, per radar without addresses,
+        the figures of :meth:`graphcal.tracking.association.RadarAssociation.to_dict`
+        (summed over the windows by :func:`graphcal.pipeline.associate.merged_figures`
+        with ``--window``), and ``rounds``, ``windows`` and ``seconds`` when recorded.
+
+    Returns
+    -------
+    str or None
+        The section's HTML, or ``None`` when the result has no association.
+    """
+    association = cal.info.get("association")
+    if not isinstance(association, Mapping):
+        return None
+    radars = association.get("radars")
+    radars = radars if isinstance(radars, Mapping) else {}
+    parts = [
+        "<p>Plots that carry no aircraft address (primary radars, Mode A/C radars) are "
+        "given to a known aircraft, one that ADS-B or a Mode S radar sees, when they fall "
+        "inside its gate; an aircraft no reference sees but two such radars do gets a path "
+        "of its own, from the tracks their plots form. Only associated plots enter the "
+        "calibration. "
+        "<b>Left out</b>: plots not associated with any known aircraft (false plots, and "
+        "plots of aircraft no reference sees); <b>ambiguous</b>: plots that fit two aircraft "
+        "almost equally well, also left out of the fit.</p>"]
+    rows, classes, flagged = [], [], []
+    for rid, figures in radars.items():
+        if not isinstance(figures, Mapping):
+            continue
+        row, flag = _association_row(str(rid), figures)
+        rows.append(row)
+        classes.append("flag" if flag else "")
+        if flag:
+            flagged.append(f"{rid} ({_percent_text(figures['tail_fraction'], 1)})")
+    if not rows:
+        parts.append("<p>No radar was associated.</p>")
+    else:
+        expected = 100 * (1.0 - TAIL_PROBABILITY)
+        if flagged:
+            parts.append(
+                f'<p class="warn"><b>Tail fraction above {100 * TAIL_FLAG:g} %: '
+                f"{_esc(', '.join(flagged))}</b> (rows in red; {expected:g} % expected): "
+                "plots given to the wrong aircraft, or a bias the model lacks.</p>")
+        parts.append(_table(
+            ["radar", "plots", "associated", "of them on<br>own paths", "ambiguous",
+             "left out", "scans",
+             "detection<br>probability", "false plots<br>per scan", "Mode 3/A<br>consistency",
+             "tail<br>fraction"], rows, row_classes=classes))
+        parts.append(
+            '<p class="note">Plots: those without an address. Own paths: plots associated '
+            "with an aircraft no reference sees. Detection probability: plots associated "
+            "over the scans each associated aircraft spans. False plots per scan: "
+            "plots left out per antenna turn (an upper bound: it counts plots of aircraft no "
+            "reference sees). Mode 3/A consistency: of the associated plots with a Mode 3/A "
+            "code, the share whose code matches one the aircraft reported (– when there is "
+            "no code to compare, e.g. a primary radar). Tail fraction: share of the "
+            "associated plots that fit their aircraft "
+            f"worse than the chi-square's {100 * TAIL_PROBABILITY:g} % point; near "
+            f"{expected:g} % when the gates are right, flagged above {100 * TAIL_FLAG:g} "
+            "%.</p>")
+    parts.append(_association_runs(association))
+    return "".join(parts)
+
+
 def _span_text(times, epoch_utc: datetime | None = None) -> str:
     if len(times) == 0:
         return "–"
@@ -650,6 +776,26 @@ def _data_section(cal: Calibration, dataset: Dataset, views: Mapping[str, Residu
 
 
 # -------------------------------------------------------------------- build
+def page_sections(association: bool = False) -> tuple[tuple[str, str], ...]:
+    """The page's sections in order: :data:`SECTIONS`, with :data:`ASSOCIATION_SECTION`
+    before ``data`` when ``association``.
+
+    Parameters
+    ----------
+    association : bool
+        Whether the result has ``info["association"]``.
+
+    Returns
+    -------
+    tuple of (str, str)
+        ``(id, heading)`` per section.
+    """
+    if not association:
+        return SECTIONS
+    at = [sid for sid, _ in SECTIONS].index("data")
+    return (*SECTIONS[:at], ASSOCIATION_SECTION, *SECTIONS[at:])
+
+
 def _as_truth(truth: Any) -> dict[str, RadarBias] | None:
     if truth is None:
         return None
@@ -762,12 +908,16 @@ def build_report(
         "them with each radar's plots before and after correction.</p>")
     body["model-checks"] = _model_checks_section(calibration, emit, dataset.epoch_utc)
     body["observability"] = _observability_section(calibration)
+    association = _association_section(calibration)
+    if association is not None:
+        body[ASSOCIATION_SECTION[0]] = association
     body["data"] = _data_section(calibration, dataset, views)
 
     title = title or f"graphcal calibration report ({calibration.method or 'result'})"
-    nav = "".join(f'<a href="#{sid}">{_esc(name)}</a>' for sid, name in SECTIONS)
+    shown = page_sections(association is not None)
+    nav = "".join(f'<a href="#{sid}">{_esc(name)}</a>' for sid, name in shown)
     sections = "".join(
-        f'<section><h2 id="{sid}">{_esc(name)}</h2>{body[sid]}</section>' for sid, name in SECTIONS
+        f'<section><h2 id="{sid}">{_esc(name)}</h2>{body[sid]}</section>' for sid, name in shown
     )
     return (
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
