@@ -20,11 +20,13 @@ finds such aircraft and gives their plots an address of their own:
    best, unless a second fits within :data:`AMBIGUITY_CHI2_MARGIN`.  A track is linked with
    the track of another radar that has at least :data:`MIN_MATCHED_PLOTS` of its votes and
    :data:`VOTE_DOMINANCE` times the votes of any other track of that radar.
-4. **Aircraft.**  Linked tracks form aircraft (connected components).  An aircraft with two
-   tracks of one radar at the same time is dropped (two aircraft were joined); one seen by
-   two radars or more is kept, named ``~`` and the first of its tracks' names.  A plot is
-   given that name when it fits one of the aircraft's other radars' tracks (its vote), or
-   when its radar's track was linked only by the votes of others.
+4. **Aircraft.**  Linked tracks form aircraft (connected components).  Where two tracks of one
+   radar overlap in time by up to :data:`MAX_SPLIT_OVERLAP_S`, the radar split its track and
+   the shorter is left out; an aircraft with a longer overlap is dropped (two aircraft were
+   joined).  One seen by two radars or more is kept, named ``~`` and the first of its
+   tracks' names.  A plot is given that name when it fits one of the aircraft's other
+   radars' tracks (its vote), or when its radar's track was linked only by the votes of
+   others.
 
 An aircraft seen by one radar alone is left out: without a reference it tells nothing of
 that radar's biases.
@@ -57,6 +59,9 @@ MIN_MATCHED_PLOTS = 4
 VOTE_DOMINANCE = 5.0
 #: The sigma of a position placed at a Mode C (pressure) altitude [m].
 MODE_C_SIGMA_M = 300.0
+#: Two tracks of one radar in one aircraft that overlap by at most this [s] are a split track
+#: (the shorter is left out); longer, two aircraft were joined (the aircraft is dropped).
+MAX_SPLIT_OVERLAP_S = 60.0
 #: An aircraft's name starts with this (no ICAO address does).
 OWN_PATH_PREFIX = "~"
 
@@ -83,8 +88,8 @@ def own_paths(sites: Mapping[str, Site], leftovers: Mapping[str, Leftover]
               ) -> dict[str, NDArray[np.object_]]:
     """Each leftover plot's own-path aircraft name, "" where none (module docstring)."""
     radars = sorted(leftovers)  # the answer does not depend on the radars' order
-    labels = {rid: form_tracks(sites[rid], leftovers[rid].plots, leftovers[rid].track_number)
-              for rid in radars}
+    labels = {rid: form_tracks(sites[rid], leftovers[rid].plots, leftovers[rid].track_number,
+                               leftovers[rid].codes) for rid in radars}
     table, codes = _track_references(sites, leftovers, labels, radars)
     votes = {rid: _votes(sites[rid], leftovers[rid], labels[rid], rid, table, codes)
              for rid in radars}
@@ -240,21 +245,35 @@ def _aircraft(component: dict[str, str], spans: dict[str, tuple[float, float]]
         members.setdefault(head, []).append(node)
     names = {}
     for head, nodes in members.items():
-        by_radar: dict[str, list[tuple[float, float]]] = {}
+        by_radar: dict[str, list[str]] = {}
         for node in nodes:
-            by_radar.setdefault(node.split("#")[0], []).append(spans.get(node, (0.0, 0.0)))
+            by_radar.setdefault(node.split("#")[0], []).append(node)
         if len(by_radar) < 2:
             continue
-        overlapping = False
-        for intervals in by_radar.values():
-            intervals.sort()
-            overlapping |= any(later[0] < earlier[1] for earlier, later
-                               in zip(intervals[:-1], intervals[1:], strict=True))
-        if overlapping:
+        kept = [_without_splits(tracks, spans) for tracks in by_radar.values()]
+        if any(k is None for k in kept):
             continue
-        for node in nodes:
-            names[node] = OWN_PATH_PREFIX + head
+        for tracks in kept:
+            for node in tracks or ():
+                names[node] = OWN_PATH_PREFIX + head
     return names
+
+
+def _without_splits(tracks: list[str], spans: dict[str, tuple[float, float]]
+                    ) -> list[str] | None:
+    """One radar's tracks of one aircraft, the shorter of two that overlap by at most
+    :data:`MAX_SPLIT_OVERLAP_S` left out (the radar split its track); ``None`` when two
+    overlap longer (two aircraft were joined)."""
+    by_length = sorted(tracks, key=lambda n: (-(spans[n][1] - spans[n][0]), n))
+    kept: list[str] = []
+    for node in by_length:
+        lo, hi = spans[node]
+        overlap = max((min(hi, spans[k][1]) - max(lo, spans[k][0]) for k in kept), default=-1.0)
+        if overlap > MAX_SPLIT_OVERLAP_S:
+            return None
+        if overlap < 0.0:
+            kept.append(node)
+    return kept
 
 
 __all__ = ["Leftover", "OWN_PATH_PREFIX", "own_paths"]

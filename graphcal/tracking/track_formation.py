@@ -10,7 +10,8 @@ The plots are placed on the horizontal plane of the radar, ``x = g sin(theta)``,
 ``y = g cos(theta)`` with ``g = rho cos(eps)`` for a 3-D plot and ``g = rho`` for a 2-D
 one: within one radar a bias moves every plot of a track alike, so tracks are formed on the
 measured values.  Scan by scan (plots binned by the radar's scan period), every live track
-is predicted to each plot's time, and plots and tracks are paired by minimum total squared
+is predicted to each plot's time (a plot whose Mode 3/A code differs from the track's last
+one is not in its gate), and plots and tracks are paired by minimum total squared
 distance (:func:`scipy.optimize.linear_sum_assignment`) within a gate of
 
 * ``MAX_SPEED_M_S * dt + GATE_SIGMAS * sqrt(2) * sigma_xy`` for a track of one plot,
@@ -69,8 +70,8 @@ def horizontal_positions(site: Site, plots: Any) -> tuple[FloatArray, FloatArray
     return xy, sigma
 
 
-def form_tracks(site: Site, plots: Any, track_number: NDArray | None = None
-                ) -> NDArray[np.int64]:
+def form_tracks(site: Site, plots: Any, track_number: NDArray | None = None,
+                codes: NDArray[np.object_] | None = None) -> NDArray[np.int64]:
     """Each plot's track (0, 1, ...) or -1 (module docstring).
 
     Parameters
@@ -82,6 +83,9 @@ def form_tracks(site: Site, plots: Any, track_number: NDArray | None = None
     track_number : array, optional
         The radar's own track numbers (``<NA>`` where none): plots that carry one are
         grouped by it; the others are tracked.
+    codes : array of str, optional
+        The plots' Mode 3/A codes ("" where none): a plot does not continue a track whose
+        last code differs from its own (a code change starts a new track).
 
     Returns
     -------
@@ -102,18 +106,20 @@ def form_tracks(site: Site, plots: Any, track_number: NDArray | None = None
         numbers = pd.array(track_number, dtype="Int64")
         numbered = ~np.asarray(pd.isna(numbers), dtype=bool) & free
         if numbered.any():
-            codes, _ = pd.factorize(np.asarray(numbers[numbered], dtype=np.int64))
-            raw[numbered] = codes
-            next_label = int(codes.max()) + 1
+            tracks, _ = pd.factorize(np.asarray(numbers[numbered], dtype=np.int64))
+            raw[numbered] = tracks
+            next_label = int(tracks.max()) + 1
             free &= ~numbered
+    code = (np.full(n, "", dtype=object) if codes is None
+            else np.asarray(pd.Series(codes, dtype=object).fillna("").astype(str), dtype=object))
     rows = np.flatnonzero(free)
-    raw[rows] = _scan_to_scan(site, time_s[rows], xy[rows], sigma[rows]) + next_label
+    raw[rows] = _scan_to_scan(site, time_s[rows], xy[rows], sigma[rows], code[rows]) + next_label
     raw[rows[raw[rows] < next_label]] = -1
     return _kept(raw, time_s, xy, label)
 
 
-def _scan_to_scan(site: Site, time_s: FloatArray, xy: FloatArray, sigma: FloatArray
-                  ) -> NDArray[np.int64]:
+def _scan_to_scan(site: Site, time_s: FloatArray, xy: FloatArray, sigma: FloatArray,
+                  code: NDArray[np.object_]) -> NDArray[np.int64]:
     """Scan-to-scan gating of plots into tracks (module docstring); every plot's track."""
     period = float(site.scan_period_s) if site.scan_period_s else DEFAULT_SCAN_S
     n = len(time_s)
@@ -129,13 +135,14 @@ def _scan_to_scan(site: Site, time_s: FloatArray, xy: FloatArray, sigma: FloatAr
     v_last = np.zeros((0, 2))
     count = np.zeros(0, dtype=np.int64)
     ids = np.zeros(0, dtype=np.int64)
+    c_last = np.zeros(0, dtype=object)
     next_id = 0
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
         rows = order[lo:hi]
         t_now = time_s[rows].mean()
         alive = t_now - t_last <= (MAX_MISSED_SCANS + 1.5) * period
         t_last, p_last, v_last = t_last[alive], p_last[alive], v_last[alive]
-        count, ids = count[alive], ids[alive]
+        count, ids, c_last = count[alive], ids[alive], c_last[alive]
         taken = np.full(len(rows), -1, dtype=np.int64)
         if len(ids):
             dt = time_s[rows][:, None] - t_last[None, :]                      # (plots, tracks)
@@ -146,7 +153,9 @@ def _scan_to_scan(site: Site, time_s: FloatArray, xy: FloatArray, sigma: FloatAr
                             MAX_SPEED_M_S * np.abs(dt) + GATE_SIGMAS * np.sqrt(2.0) * s,
                             GATE_SIGMAS * np.sqrt(3.0) * s
                             + 0.5 * MAX_ACCELERATION_M_S2 * dt**2)
-            inside = (distance <= gate) & (dt > 0)
+            mine = code[rows][:, None]
+            inside = (distance <= gate) & (dt > 0) & (
+                (mine == "") | (c_last[None, :] == "") | (mine == c_last[None, :]))
             if inside.any():
                 cost = np.where(inside, (distance / gate) ** 2, 1e9)
                 r, c = linear_sum_assignment(cost)
@@ -164,6 +173,7 @@ def _scan_to_scan(site: Site, time_s: FloatArray, xy: FloatArray, sigma: FloatAr
                              v_last[k] + BETA * innovation / dt[:, None])
             p_new = np.where(first[:, None], xy[rr], predicted + ALPHA * innovation)
             p_last[k], v_last[k], t_last[k] = p_new, v_new, time_s[rr]
+            c_last[k] = np.where(code[rr] != "", code[rr], c_last[k])
             count[k] += 1
             label[rr] = ids[k]
         # Plots no track took start tracks.
@@ -173,6 +183,7 @@ def _scan_to_scan(site: Site, time_s: FloatArray, xy: FloatArray, sigma: FloatAr
             p_last = np.vstack([p_last, xy[new]])
             v_last = np.vstack([v_last, np.zeros((len(new), 2))])
             count = np.r_[count, np.ones(len(new), dtype=np.int64)]
+            c_last = np.r_[c_last, code[new]]
             ids = np.r_[ids, np.arange(next_id, next_id + len(new))]
             label[new] = ids[-len(new):]
             next_id += len(new)
