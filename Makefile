@@ -1,6 +1,7 @@
 # Two commands set everything up on a machine with only Python 3.11 and pip:
 #   make demo   create .venv, install graphcal, calibrate the bundled demo network
-#               (graph method, with ADS-B and from cross-radar observations alone)
+#               (graph method, with ADS-B and from cross-radar observations alone), then
+#               the same network with primary and Mode A/C radars (demo_identity.toml)
 #   make test   same set-up, then make lint and the whole test suite (one worker a core)
 #   make lint   ruff, and import-linter's layer contracts (pyproject.toml)
 #   make docs   same set-up, then the manual and API reference into site/ (mkdocs --strict)
@@ -33,6 +34,8 @@ demo: $(STAMP)
 	$(BIN)/graphcal simulate scenarios/demo_network.toml --out demo-out --seed 1 --overwrite
 	$(BIN)/graphcal calibrate demo-out
 	$(BIN)/graphcal calibrate demo-out --no-adsb
+	$(BIN)/graphcal simulate scenarios/demo_identity.toml --out demo-identity-out --seed 1 --overwrite
+	$(BIN)/graphcal calibrate demo-identity-out
 
 test: lint
 	$(BIN)/python -m pytest -n auto

@@ -361,13 +361,19 @@ def calibrate_command(
 
 
 def association_line(radars: dict) -> str:
-    """One line on the plots without an address: per radar, how many were associated and
-    the false plots a scan left out (``info.association``, docs/association.md)."""
+    """One line on the plots without an address: per radar, how many were associated (and
+    of them on paths of their own) and the false plots a scan left out
+    (``info.association``, docs/association.md)."""
     parts = []
     for rid, f in radars.items():
         part = f"{rid} {f['associated']} of {f['plots']}"
+        notes = []
+        if f.get("own_paths"):
+            notes.append(f"{f['own_paths']} on paths of their own")
         if f.get("false_plots_per_scan") is not None:
-            part += f" ({f['false_plots_per_scan']:.1f} left out a scan)"
+            notes.append(f"{f['false_plots_per_scan']:.1f} left out a scan")
+        if notes:
+            part += f" ({', '.join(notes)})"
         parts.append(part)
     return "plots without an address associated: " + ", ".join(parts)
 
