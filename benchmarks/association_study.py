@@ -4,7 +4,8 @@ Run from the repository root::
 
     .venv/bin/python -m benchmarks.association_study [--seeds N] [--network NAME] [--json out.json]
 
-``--network`` is ``demo_identity`` (the default), ``uncovered`` or ``both``.
+``--network`` is ``demo_identity`` (the default), ``uncovered``, ``opensky_identity``,
+``both`` (``demo_identity`` and ``uncovered``) or ``all`` (the three).
 
 ``scenarios/demo_identity.toml`` is the demonstration network with two primary 3-D
 radars (EST3D, with 8 false plots per scan and its own track numbers, and OUEST3D), a
@@ -44,6 +45,14 @@ radar and seed for both runs, the largest |z| (with its seed and radar) and the 
 and the median time ratio associated / addressed.  One seed takes about 10-15 s on a
 2-core machine (four calibrations and one association).
 
+**Real traffic** (``--network opensky_identity``) is the same study on
+``scenarios/opensky_identity.toml``: the four-radar network (EST3D primary 3-D with 8 false
+plots per scan, OUEST3D primary 3-D with its own track numbers, SUD Mode A/C, NORD Mode S;
+80 % ADS-B equipage, Mode 3/A codes) on the real trajectories of the shared OpenSky table
+(``../shared/data`` from the repository root, as the scenario says).  The seeds draw
+different noise, ADS-B equipage, codes and clutter, but the trajectories are the same in
+every seed.  One seed takes about 5 s on a 2-core machine.
+
 **The uncovered network** (``--network uncovered``) is the network of
 ``tests/tracking/test_own_paths.py``: for seed ``s`` the same simulation without the two
 Mode S radars (NORD and APP dropped from the sites and the plots) and with the ADS-B
@@ -67,7 +76,7 @@ sigma ratios are against the addressed run, for both associated runs.  One seed 
 
 Prints the table; writes JSON (summaries and every run's counts, estimates, sigmas and
 truths) only to the path given with ``--json`` (with ``--network both`` one object per
-network).
+network; with ``--network all`` likewise).
 """
 
 from __future__ import annotations
@@ -93,8 +102,14 @@ from graphcal.tracking.association import AMBIGUOUS, ASSOCIATED, associate
 from graphcal.tracking.own_paths import OWN_PATH_PREFIX
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENARIO = ROOT / "scenarios" / "demo_identity.toml"
-NETWORKS: tuple[str, ...] = ("demo_identity", "uncovered")
+NETWORKS: tuple[str, ...] = ("demo_identity", "uncovered", "opensky_identity")
+#: The scenario of each network (relative to the repository root).
+SCENARIOS: dict[str, str] = {"demo_identity": "scenarios/demo_identity.toml",
+                             "uncovered": "scenarios/demo_identity.toml",
+                             "opensky_identity": "scenarios/opensky_identity.toml"}
+#: The networks of ``--network both`` and ``--network all``.
+GROUPS: dict[str, tuple[str, ...]] = {"both": ("demo_identity", "uncovered"),
+                                      "all": NETWORKS}
 
 #: Contract keys reported, in table order, and the truth's value of each in its unit.
 KEYS: tuple[str, ...] = ("range_offset_m", "range_gain", "azimuth_bias_mrad",
@@ -444,8 +459,8 @@ def _ratio(s: dict, ident: str, suffix: str = "") -> str:
     return "-" if r is None else f"{r['mean']:.3f}, {r['max']:.3f}"
 
 
-def table(summary: dict[str, dict], seeds: int) -> str:
-    lines = [f"demo_identity, seeds 1-{seeds}", "",
+def table(summary: dict[str, dict], seeds: int, network: str = "demo_identity") -> str:
+    lines = [f"{network}, seeds 1-{seeds}", "",
              "Association at the final biases, summed over seeds and radars "
              "(ambiguous: real plots, included in left out)", "",
              "| ADS-B | correct | wrong | clutter in | left out | ambiguous | "
@@ -545,9 +560,11 @@ def _report(summary: dict[str, dict], runs: list[dict], names: tuple[str, ...],
         print(f"error: {network} seed {seed} {setting} {name}: {error}")
 
 
-def study(network: str, seeds: int, scenario, identities: dict[str, str]) -> dict:
-    """One network over the seeds: prints its progress, table and notes; returns the
-    JSON object."""
+def study(network: str, seeds: int) -> dict:
+    """One network over the seeds, on its scenario (:data:`SCENARIOS`): prints its
+    progress, table and notes; returns the JSON object."""
+    scenario = graphcal.load_scenario(ROOT / SCENARIOS[network])
+    identities = {r.id: r.identity for r in scenario.radars}
     uncovered = network == "uncovered"
     settings = ("adsb",) if uncovered else ("adsb", "no-adsb")
     names = UNCOVERED_RUNS if uncovered else RUNS
@@ -565,10 +582,11 @@ def study(network: str, seeds: int, scenario, identities: dict[str, str]) -> dic
         print(f"{network} seed {seed}: {note}", flush=True)
     summary = {setting: summarise(runs, setting, identities, names) for setting in settings}
     print()
-    print(table_uncovered(summary["adsb"], seeds) if uncovered else table(summary, seeds))
+    print(table_uncovered(summary["adsb"], seeds) if uncovered
+          else table(summary, seeds, network))
     _report(summary, runs, names, network)
     print()
-    out = {"scenario": "scenarios/demo_identity.toml", "seeds": seeds, "summary": summary,
+    out = {"scenario": SCENARIOS[network], "seeds": seeds, "summary": summary,
            "runs": runs}
     if uncovered:
         out = {"network": "uncovered", "dropped_radars": list(DROPPED_RADARS),
@@ -579,17 +597,16 @@ def study(network: str, seeds: int, scenario, identities: dict[str, str]) -> dic
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5, help="seeds 1 .. N (default 5)")
-    parser.add_argument("--network", choices=(*NETWORKS, "both"), default="demo_identity",
+    parser.add_argument("--network", choices=(*NETWORKS, *GROUPS), default="demo_identity",
                         help="demo_identity (default), uncovered (no Mode S radar, ADS-B "
-                             "kept for 40 %% of its aircraft) or both")
+                             "kept for 40 %% of its aircraft), opensky_identity (the "
+                             "four-radar network on real traffic), both (demo_identity and "
+                             "uncovered) or all")
     parser.add_argument("--json", type=Path, help="write the runs and summaries here")
     args = parser.parse_args(argv)
     start = time.perf_counter()
-    scenario = graphcal.load_scenario(SCENARIO)
-    identities = {r.id: r.identity for r in scenario.radars}
-    networks = NETWORKS if args.network == "both" else (args.network,)
-    results = {network: study(network, args.seeds, scenario, identities)
-               for network in networks}
+    networks = GROUPS.get(args.network, (args.network,))
+    results = {network: study(network, args.seeds) for network in networks}
     print(f"total {time.perf_counter() - start:.0f} s")
     if args.json is not None:
         out = results if len(results) > 1 else next(iter(results.values()))
