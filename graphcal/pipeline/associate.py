@@ -125,14 +125,17 @@ def first_association(dataset: Dataset, options: SolveOptions,
         plots = plot_arrays(dataset, rid)
         plots = plots.subset(np.isin(plots.target_id.astype(str), ["", "nan"]))
         found = coarse_bias(dataset.sites[rid], refs, plots)
+        covariances[rid] = np.diag(np.square(COARSE_SIGMA))
         if found is None:
-            notes.append(f"{rid}: no plot near any known aircraft; not associated")
+            if len(refs.tracks.targets):
+                notes.append(f"{rid}: no plot near any known aircraft; associated only "
+                             "with the other radars without addresses")
             continue
         biases[rid] = found
-        covariances[rid] = np.diag(np.square(COARSE_SIGMA))
-    # Paths of their own wait for the quick estimate: the coarse gates are too wide.
+    # Paths of their own wait for the quick estimate, the coarse gates being too wide,
+    # unless there is no reference at all: then they are all there is.
     association = associate(dataset, biases, covariances, use_adsb=options.use_adsb,
-                            radars=radars, own_paths=False)
+                            radars=radars, own_paths=not len(refs.tracks.targets))
     # A quick estimate on the first association narrows the gates before the full one.
     quick = "ls" if options.use_adsb and dataset.adsb is not None and len(dataset.adsb) else "wls"
     try:

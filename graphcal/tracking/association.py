@@ -193,7 +193,8 @@ def associate(dataset: Dataset, biases: Mapping[str, RadarBias],
         assigned, status = _assign(site, plots, pairs)
         if numbers is not None:
             _by_track(numbers, pairs, assigned, status)
-        ids = np.where(assigned >= 0, names[np.maximum(assigned, 0)], "").astype(object)
+        ids = np.full(len(assigned), "", dtype=object)
+        ids[assigned >= 0] = names[assigned[assigned >= 0]]
         tail = _tail_fraction(site, pairs, assigned, len(names))
         done[rid] = (plots, ids, status, codes, tail)
         left = np.flatnonzero(status == LEFT_OUT)

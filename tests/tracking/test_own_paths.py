@@ -128,3 +128,27 @@ def test_calibrated_with_paths_of_their_own_as_with_addresses(uncovered) -> None
             ratios.append(est["sigma"][key] / ref["sigma"][key])
     assert max(ratios) <= 1.15
     assert cal.info["association"]["radars"]["EST3D"]["own_paths"] > 0
+
+
+def test_without_any_reference_the_radars_calibrate_on_paths_of_their_own(uncovered) -> None:
+    """No ADS-B and no Mode S radar (``use_adsb=False``): the coarse search has nothing to
+    vote against, and every aircraft is a path of its own.  Every radar is still calibrated,
+    each estimate within 1 sigma of the same data's with every address known (clutter
+    dropped; the same cross-radar model: with a fraction f of the plots kept the two differ
+    by about sigma sqrt(1/f - 1), 0.3 sigma at f = 0.92, so 1 sigma is 3 of those) and each
+    sigma within 15 % of it."""
+    network, truth, _, _ = uncovered
+    options = dict(use_adsb=False, model_checks=False, check_fit=False, bound=False)
+    cal = graphcal.calibrate(network, **options)
+    plots = network.plots.copy()
+    plots["target_id"] = truth.reindex(plots.index).to_numpy()
+    addressed = graphcal.calibrate(replace(network, plots=plots[plots["target_id"] != CLUTTER]),
+                                   **options)
+    figures = cal.info["association"]["radars"]
+    assert set(cal.radar_ids) == set(NO_IDENTITY)
+    for rid in NO_IDENTITY:
+        assert figures[rid]["own_paths"] == figures[rid]["associated"] > 0
+        est, ref = cal.to_dict()["radars"][rid], addressed.to_dict()["radars"][rid]
+        for key, sigma in ref["sigma"].items():
+            assert abs(est[key] - ref[key]) <= 1.0 * sigma, (rid, key)
+            assert est["sigma"][key] <= 1.15 * sigma, (rid, key)
