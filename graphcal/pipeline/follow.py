@@ -27,6 +27,7 @@ from graphcal.data.dataset import ADSB_COLUMNS, PLOT_COLUMNS, Dataset
 from graphcal.io.folder import SITES_FILE, load_sites
 from graphcal.io.table_checks import validate_adsb, validate_plots
 from graphcal.io.table_files import read_rows
+from graphcal.pipeline.windowed import summarise_associated
 from graphcal.solvers.incremental import Calibrator
 from graphcal.solvers.windows import WindowSummary
 
@@ -86,7 +87,7 @@ def follow_folder(
     """
     folder = Path(folder)
     sites = load_sites(folder / SITES_FILE)
-    calibrator = calibrator or Calibrator(sites, window_s)
+    calibrator = calibrator or Calibrator(sites, window_s, summarise=summarise_associated)
     seen: set[Path] = set()
     idle = 0.0
     while True:

@@ -24,7 +24,7 @@ Differences from the batch, because the future is not known yet:
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -33,7 +33,7 @@ from scipy import special
 
 from graphcal.data.bias import CONTRACT_KEYS
 from graphcal.data.dataset import Dataset, Site
-from graphcal.data.windows import DEFAULT_ADSB_MARGIN_S, split_windows
+from graphcal.data.windows import DEFAULT_ADSB_MARGIN_S, Window, split_windows
 from graphcal.model.parameters import TERM_NAMES, RadarTerms, prior_sigmas, radar_terms
 from graphcal.solvers.gtsam_adapter import IncrementalGraph, symbol
 from graphcal.solvers.windows import (
@@ -88,6 +88,13 @@ class Calibrator:
     adsb_margin_s : float
         ADS-B kept beyond a window's ends; a window is closed once plots later than
         its end plus this margin have arrived.
+    summarise : callable, optional
+        ``(window, options) -> WindowSummary or None``, each window's calibration
+        (default :func:`graphcal.solvers.windows.summarise_window`).  Plots without an
+        address (contract v3) are used only by
+        :func:`graphcal.pipeline.windowed.summarise_associated`, which associates them
+        first; with the default they are left out, and :attr:`unaddressed_plots` counts
+        them.
 
     Examples
     --------
@@ -107,6 +114,7 @@ class Calibrator:
         random_walk_per_sqrt_s: Mapping[str, float] | None = None,
         detect_steps: bool = True,
         adsb_margin_s: float = DEFAULT_ADSB_MARGIN_S,
+        summarise: Callable[[Window, WindowOptions], WindowSummary | None] | None = None,
     ) -> None:
         if not (np.isfinite(window_s) and window_s > 0):
             raise ValueError(f"the window must be a positive duration, not {window_s} s")
@@ -115,6 +123,10 @@ class Calibrator:
         self.options = options or WindowOptions()
         self.detect_steps = detect_steps
         self.adsb_margin_s = float(adsb_margin_s)
+        self._summarise = summarise or summarise_window
+        #: Plots without an address taken while windows are summarised by the default,
+        #: which leaves them out (``summarise``).
+        self.unaddressed_plots = 0
         self._rates = {**DEFAULT_RANDOM_WALK_PER_SQRT_S, **dict(random_walk_per_sqrt_s or {})}
         self._graph = IncrementalGraph()
         self._chains: dict[str, _RadarChain] = {}
@@ -132,6 +144,10 @@ class Calibrator:
         arrive in time order, to within ``adsb_margin_s``.
         """
         plots = data.plots
+        if self._summarise is summarise_window and "target_id" in plots:
+            target = plots["target_id"]
+            self.unaddressed_plots += int((target.isna() | target.astype(str).str.strip()
+                                           .isin(["", "nan"])).sum())
         late = plots["time_s"].to_numpy(float) < self._closed_until_s
         if late.any():
             raise ValueError(
@@ -163,7 +179,7 @@ class Calibrator:
         closing = replace(pending, plots=pending.plots.loc[ready])
         added = []
         for window in split_windows(closing, self.window_s, self.adsb_margin_s):
-            summary = summarise_window(window, self.options)
+            summary = self._summarise(window, self.options)
             if summary is not None:
                 self.add_summary(summary)
                 added.append(summary)

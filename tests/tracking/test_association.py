@@ -202,3 +202,31 @@ def test_a_misfit_of_an_associated_radar_names_association(network, shrink) -> N
     text = " ".join(w for w in cal.warnings if w.startswith(("radar EST3D", "the residuals")))
     assert "associated by gating" in text
     assert ("EST3D" in verdict["failed"]) == (shrink > 3.0)
+
+
+def test_the_calibrator_associates_with_summarise_associated(network) -> None:
+    """Windows as they arrive (``Calibrator``): with ``summarise_associated`` the primary
+    radars are calibrated, within 3 sigma of the truth; with the default summary they are
+    not, and the calibrator counts the plots it could not use."""
+    from graphcal.pipeline.windowed import summarise_associated
+    from graphcal.solvers.incremental import Calibrator
+
+    sim, _, blank, _, _ = network
+    associated = Calibrator(blank.sites, 900.0, summarise=summarise_associated)
+    plain = Calibrator(blank.sites, 900.0)
+    for calibrator in (associated, plain):
+        for start in (0.0, 900.0):
+            block = blank.plots["time_s"].between(start, start + 900.0, inclusive="left")
+            calibrator.add(replace(blank, plots=blank.plots[block]))
+        calibrator.flush()
+    assert associated.unaddressed_plots == 0
+    n_blank = int((blank.plots["target_id"].astype(str) == "").sum())
+    assert plain.unaddressed_plots == n_blank
+    current = associated.current()
+    assert set(PRIMARY) <= set(current) and not set(PRIMARY) & set(plain.current())
+    for rid in PRIMARY:
+        true, est = sim.truth[rid], current[rid]
+        assert abs(est.bias.range_offset_m - true.range_offset_m) < 3.0 * est.sigma[
+            "range_offset_m"], rid
+        assert abs(est.bias.azimuth_bias_rad - true.azimuth_bias_rad) * 1e3 < 3.0 * est.sigma[
+            "azimuth_bias_mrad"], rid
