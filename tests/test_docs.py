@@ -23,8 +23,8 @@ Pages: ``README.md``, every ``docs/**/*.md`` and ``scenarios/README.md``.  In ea
 The blocks of one page run in order in one temporary folder that links to the bundled
 ``scenarios/`` and ``models/``, so later blocks use what earlier ones wrote.  A page that uses
 ``demo-out`` without simulating it gets a copy of the demo network simulated with seed 1, as in
-the README's tour.  Pages run two at a time (the commands are subprocesses; the Python blocks
-take turns, as they change the working directory).  In all comparisons runs of spaces and line
+the README's tour.  Each page is one test, so the test processes (``make test`` runs one per
+core) share the pages out and each page runs once.  In all comparisons runs of spaces and line
 breaks count as one space.
 
 Checks that need no run: every ``graphcal`` command line of every block, run or not
@@ -44,8 +44,6 @@ import shlex
 import shutil
 import subprocess
 import sys
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -208,9 +206,6 @@ EXECUTED = {
     for page in PAGES
     if any(runnable(block) for block in read_blocks(page))
 }
-#: Pages run side by side; the commands are subprocesses, the Python blocks take turns.
-WORKERS = min(2, os.cpu_count() or 1)
-_PYTHON_TURN = threading.Lock()  # exec changes the working directory and sys.stdout
 
 
 def simulate_demo(folder: Path) -> Path:
@@ -242,8 +237,7 @@ def run_page(page: Path, folder: Path, demo_out: Path | None) -> None:
         if not runnable(block):
             continue
         if block.lang == "python":
-            with _PYTHON_TURN:
-                output = run_python(block, namespace, folder)
+            output = run_python(block, namespace, folder)
         else:
             output = "".join(run_command(block, c, folder) for c in block.commands())
         check_expectations(block, output)
@@ -256,28 +250,21 @@ def uses_tour_demo(blocks: list[Block]) -> bool:
 
 
 @pytest.fixture(scope="session")
-def page_failures(tmp_path_factory: pytest.TempPathFactory) -> dict[str, BaseException | None]:
-    """Run every page with examples (longest first), WORKERS at a time."""
-    root = tmp_path_factory.mktemp("docs")
-    pages = {name: [b for b in read_blocks(page) if runnable(b)] for name, page in EXECUTED.items()}
-    demo_out = None
-    if any(uses_tour_demo(blocks) for blocks in pages.values()):
-        (root / "tour").mkdir()
-        demo_out = simulate_demo(root / "tour")
-    order = sorted(pages, key=lambda name: -sum(len(b.commands()) + 1 for b in pages[name]))
-    with ThreadPoolExecutor(max_workers=WORKERS) as pool:
-        futures = {
-            name: pool.submit(run_page, EXECUTED[name], root / f"page{i}", demo_out)
-            for i, name in enumerate(order)
-        }
-    return {name: future.exception() for name, future in futures.items()}
+def tour_demo(tmp_path_factory: pytest.TempPathFactory) -> Path | None:
+    """The README tour's ``demo-out``, simulated once per test process when some page uses
+    it without simulating it itself."""
+    pages = [[b for b in read_blocks(page) if runnable(b)] for page in EXECUTED.values()]
+    if not any(uses_tour_demo(blocks) for blocks in pages):
+        return None
+    root = tmp_path_factory.mktemp("tour")
+    return simulate_demo(root)
 
 
+# One test per page, so that the test processes share the pages (``make test`` runs one per
+# core) and each page runs once.
 @pytest.mark.parametrize("name", sorted(EXECUTED))
-def test_page_examples_run(name: str, page_failures: dict[str, BaseException | None]) -> None:
-    failure = page_failures[name]
-    if failure is not None:
-        raise failure
+def test_page_examples_run(name: str, tour_demo: Path | None, tmp_path: Path) -> None:
+    run_page(EXECUTED[name], tmp_path / "page", tour_demo)
 
 
 def _cli_options() -> dict[str, set[str]]:
