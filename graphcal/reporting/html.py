@@ -696,7 +696,8 @@ def _association_section(cal: Calibration) -> str | None:
         "of its own, from the tracks their plots form. Only associated plots enter the "
         "calibration. "
         "<b>Left out</b>: plots not associated with any known aircraft (false plots, and "
-        "plots of aircraft no reference sees); <b>ambiguous</b>: plots that fit two aircraft "
+        "plots of aircraft that neither a reference nor a second such radar sees); "
+        "<b>ambiguous</b>: plots that fit two aircraft "
         "almost equally well, also left out of the fit.</p>"]
     rows, classes, flagged = [], [], []
     for rid, figures in radars.items():
