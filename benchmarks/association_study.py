@@ -86,7 +86,6 @@ import contextlib
 import dataclasses
 import json
 import time
-import traceback
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -95,6 +94,7 @@ import pandas as pd
 
 import graphcal
 import graphcal.tracking.association as association_module
+from benchmarks.study_runs import timed_run
 from graphcal.data.dataset import Dataset
 from graphcal.pipeline.associate import gate_covariances
 from graphcal.simulation.simulate import CLUTTER, SimulationResult
@@ -190,16 +190,8 @@ def no_own_paths() -> Iterator[None]:
 def calibrate(dataset: Dataset, use_adsb: bool) -> tuple[object | None, dict]:
     """``graphcal.calibrate`` on the dataset, timed: the Calibration (None if it raised)
     and the run record."""
-    t0 = time.perf_counter()
-    try:
-        cal = graphcal.calibrate(dataset, use_adsb=use_adsb, model_checks=False,
-                                 check_fit=False, bound=False)
-    except Exception as exc:  # noqa: BLE001 - a study reports errors, it does not stop
-        return None, {"seconds": time.perf_counter() - t0,
-                      "error": f"{type(exc).__name__}: {exc}",
-                      "traceback": traceback.format_exc()}
-    return cal, {"seconds": time.perf_counter() - t0, "error": None,
-                 "warnings": list(cal.warnings)}
+    return timed_run(lambda: graphcal.calibrate(dataset, use_adsb=use_adsb, model_checks=False,
+                                                check_fit=False, bound=False))
 
 
 def calibrated(cal, radar_ids: list[str]) -> dict[str, bool]:

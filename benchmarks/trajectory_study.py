@@ -53,11 +53,11 @@ import argparse
 import dataclasses
 import json
 import time
-import traceback
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.study_runs import timed_run
 from graphcal.data.cleaning import clean_dataset
 from graphcal.data.dataset import Dataset
 from graphcal.simulation.scenario import Scenario, load_scenario
@@ -111,15 +111,7 @@ def simulated(scenario: Scenario, seed: int) -> tuple[SimulationResult, Dataset]
 
 def calibrate(dataset: Dataset, cross: str, use_adsb: bool) -> tuple[object | None, dict]:
     """``graph`` on the dataset: the Calibration (None if it raised) and the run record."""
-    t0 = time.perf_counter()
-    try:
-        cal = graph(dataset, cross=cross, use_adsb=use_adsb, bound=True)
-    except Exception as exc:  # noqa: BLE001 - a study reports errors, it does not stop
-        return None, {"seconds": time.perf_counter() - t0,
-                      "error": f"{type(exc).__name__}: {exc}",
-                      "traceback": traceback.format_exc()}
-    return cal, {"seconds": time.perf_counter() - t0, "error": None,
-                 "warnings": list(cal.warnings)}
+    return timed_run(lambda: graph(dataset, cross=cross, use_adsb=use_adsb, bound=True))
 
 
 def run(case: str, seed: int) -> dict:
