@@ -38,7 +38,8 @@ FOOT = 0.3048
 NM = 1852.0
 
 
-def _same(data: bytes) -> None:
+def assert_same_as_reference(data: bytes) -> None:
+    """The column decoder gives the reports and counts of libasterix's item-by-item one."""
     fast = decode_payload(data)
     reports, stats = reference.decode_payload(data)
     assert fast.sequence == reports
@@ -88,24 +89,24 @@ def _mutate(rng: np.random.Generator, data: bytes) -> bytes:
 def test_same_reports_and_counts_as_libasterix_on_valid_mutated_and_random_bytes() -> None:
     rng = np.random.default_rng(17)
     pool = _valid_blocks(rng)
-    _same(b"".join(pool))
+    assert_same_as_reference(b"".join(pool))
     for _ in range(400):
         picked = [pool[i] for i in rng.integers(len(pool), size=int(rng.integers(1, 5)))]
-        _same(_mutate(rng, b"".join(picked)))
+        assert_same_as_reference(_mutate(rng, b"".join(picked)))
     for _ in range(100):
-        _same(rng.bytes(int(rng.integers(1, 300))))
+        assert_same_as_reference(rng.bytes(int(rng.integers(1, 300))))
     # Bit flips inside the FSPEC and items of each category, one at a time.
     for data in pool:
         for pos in range(3, len(data)):
             for bit in (0, 7):
                 flipped = bytearray(data)
                 flipped[pos] ^= 1 << bit
-                _same(bytes(flipped))
+                assert_same_as_reference(bytes(flipped))
 
 
 def test_real_samples_decode_identically(samples: Path) -> None:  # noqa: F811
     for name in ("cat048.raw", "cat034.raw"):
-        _same((samples / name).read_bytes())
+        assert_same_as_reference((samples / name).read_bytes())
 
 
 def test_full_mode_s_records_and_cat021_edition_0_26() -> None:
@@ -130,7 +131,7 @@ def test_full_mode_s_records_and_cat021_edition_0_26() -> None:
         "145": (300.25, "FL"),
     })
     data = block(CAT048, [record]) + old.create([adsb]).unparse().to_bytes()
-    _same(data)
+    assert_same_as_reference(data)
     decoded = decode_payload(data)
     (plot,) = decoded.cat048
     assert plot.flight_level is None  # garbled (G=1)

@@ -30,11 +30,11 @@ from typer.testing import CliRunner
 
 from graphcal.cli.app import app
 from graphcal.data.dataset import Dataset, Site
-from graphcal.io.asterix import reference
 from graphcal.io.asterix.decode import decode_file, decode_payload
 from graphcal.io.asterix.encode import AsterixEncodeError, encode_dataset, write_asterix
 from graphcal.io.asterix.tables import build_tables, mode_3a_text
 from graphcal.io.folder import load_dataset, write_dataset
+from tests.io.test_asterix_fast import assert_same_as_reference
 from tests.io.test_asterix_read import CAT034, CAT048, block, site_record
 
 RADAR = "SAC001_SIC002"
@@ -62,15 +62,6 @@ def _dataset(codes: list[str], tracks: list[int | None], adsb_codes: list[str] |
             "lat_deg": 47.8, "lon_deg": 8.6, "alt_m": 10_000.0, "mode_3a": adsb_codes,
         })
     return Dataset(sites={RADAR: _site()}, plots=plots, adsb=adsb)
-
-
-def _same(data: bytes) -> None:
-    """The column decoder gives the reports and counts of libasterix's item-by-item one."""
-    fast = decode_payload(data)
-    reports, stats = reference.decode_payload(data)
-    assert fast.sequence == reports
-    assert fast.stats.rejected == stats.rejected
-    assert fast.stats.records == stats.records
 
 
 def _blocks(data: bytes, category: int) -> list[bytes]:
@@ -170,7 +161,7 @@ def test_decoded_codes_follow_the_validity_bits() -> None:
         _plot_070_161(0, 1, 0, 0o1234, 1),     # G: garbled: left out
     ]
     data = _header(48, b"".join(records)) + block(CAT034, [site_record()])
-    _same(data)  # the column decoder and libasterix agree
+    assert_same_as_reference(data)  # the column decoder and libasterix agree
     reports = decode_payload(data).cat048
     assert [r.mode_3a for r in reports] == [0o7000, 0o413, None, None]
     assert [r.track_number for r in reports] == [17, 4095, 0, 1]
@@ -211,7 +202,7 @@ def test_cat021_070_by_hand_and_in_edition_0_26() -> None:
     data = (_header(48, _plot_070_161(0, 0, 0, 0o7000, 1)) + _header(21, record)
             + old.create([not_validated, validated]).unparse().to_bytes()
             + block(CAT034, [site_record()]))
-    _same(data)
+    assert_same_as_reference(data)
     decoded = decode_payload(data)
     assert [r.mode_3a for r in decoded.cat021] == [0o413, None, 0o7000]
     adsb = build_tables(decoded).dataset.adsb
@@ -234,13 +225,13 @@ def test_column_decoder_agrees_with_libasterix_on_random_and_flipped_records() -
             items["161"] = (0, ("TRN", int(rng.integers(0, 4096))))
         records.append(CAT048.cv_record.create(items))
     data = block(CAT048, records)
-    _same(data)
+    assert_same_as_reference(data)
     reports = decode_payload(data).cat048
     assert any(r.mode_3a is None for r in reports) and any(r.mode_3a for r in reports)
     for pos in range(3, 60):
         flipped = bytearray(data)
         flipped[pos] ^= 0x80
-        _same(bytes(flipped))
+        assert_same_as_reference(bytes(flipped))
 
 
 def test_mode_3a_text() -> None:
