@@ -25,6 +25,7 @@ from tests.io.test_dataset import (
     assert_error,
     csv_text,
     make_dataset,
+    replace_cell,
 )
 
 V3_PLOT_HEADER = PLOT_HEADER + ",mode_3a,track_number"
@@ -47,15 +48,6 @@ def make_v3(folder: Path, plots: list[str] | None = None,
     (folder / "adsb.csv").write_text(
         csv_text(V3_ADSB_HEADER, V3_ADSB_ROWS if adsb is None else adsb))
     return folder
-
-
-def with_cell(rows: list[str], row: int, column: int, value: str) -> list[str]:
-    """``rows`` with data row ``row`` (1-based), cell ``column`` replaced."""
-    out = list(rows)
-    cells = out[row - 1].split(",")
-    cells[column] = value
-    out[row - 1] = ",".join(cells)
-    return out
 
 
 def assert_v3_values(dataset: Dataset) -> None:
@@ -137,7 +129,7 @@ def test_v2_folder_without_the_columns_reads_as_before(tmp_path: Path) -> None:
 
 
 def test_empty_cells_and_missing_text_are_no_code(tmp_path: Path) -> None:
-    rows = with_cell(with_cell(V3_PLOT_ROWS, 1, 7, " "), 2, 7, "NA")
+    rows = replace_cell(replace_cell(V3_PLOT_ROWS, 1, 7, " "), 2, 7, "NA")
     dataset = load_dataset(make_v3(tmp_path / "ds", plots=rows))
     assert dataset.plots["mode_3a"].tolist() == ["", "", ""]
 
@@ -173,14 +165,14 @@ PLOT_CASES = [
 @pytest.mark.parametrize(("row", "column", "value", "field", "text"), PLOT_CASES)
 def test_bad_v3_plot_cell(tmp_path: Path, row: int, column: int, value: str, field: str,
                           text: str) -> None:
-    rows = with_cell(V3_PLOT_ROWS, row, column, value)
+    rows = replace_cell(V3_PLOT_ROWS, row, column, value)
     message = assert_error(make_v3(tmp_path / "ds", plots=rows), "plots.csv", row, field)
     assert text in message
     assert f"line {row + 1}" in message
 
 
 def test_bad_adsb_code(tmp_path: Path) -> None:
-    rows = with_cell(V3_ADSB_ROWS, 3, 7, "0009")
+    rows = replace_cell(V3_ADSB_ROWS, 3, 7, "0009")
     message = assert_error(make_v3(tmp_path / "ds", adsb=rows), "adsb.csv", 3, "mode_3a")
     assert "'0009' is not a Mode 3/A code" in message
 
@@ -196,7 +188,7 @@ def test_numeric_parquet_code_column_is_refused(tmp_path: Path) -> None:
 
 
 def test_bad_code_deep_in_a_file_read_window_by_window(tmp_path: Path) -> None:
-    rows = with_cell(V3_PLOT_ROWS, 3, 7, "9999")
+    rows = replace_cell(V3_PLOT_ROWS, 3, 7, "9999")
     folder = make_v3(tmp_path / "ds", plots=rows)
     with pytest.raises(DatasetError) as info:
         list(iter_windows(folder, 600.0, chunk_rows=1, force=True))
@@ -205,7 +197,7 @@ def test_bad_code_deep_in_a_file_read_window_by_window(tmp_path: Path) -> None:
 
 
 def test_bad_code_exits_with_status_2_naming_file_row_and_field(tmp_path: Path) -> None:
-    rows = with_cell(V3_PLOT_ROWS, 2, 7, "1238")
+    rows = replace_cell(V3_PLOT_ROWS, 2, 7, "1238")
     folder = make_v3(tmp_path / "ds", plots=rows)
     result = CliRunner().invoke(app, ["calibrate", str(folder)])
     assert result.exit_code == 2, result.output
