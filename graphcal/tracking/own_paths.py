@@ -230,9 +230,9 @@ def _spans(leftovers: Mapping[str, Leftover], labels: Mapping[str, NDArray[np.in
         keep = label >= 0
         if not keep.any():
             continue
-        frame = pd.DataFrame({"k": label[keep], "t": time_s[keep]}).groupby("k")["t"]
-        for k, lo, hi in zip(frame.min().index, frame.min().to_numpy(), frame.max().to_numpy(),
-                             strict=True):
+        span = pd.DataFrame({"k": label[keep], "t": time_s[keep]}).groupby("k")["t"].agg(
+            ["min", "max"])
+        for k, lo, hi in span.itertuples():
             spans[f"{rid}#{k}"] = (float(lo), float(hi))
     return spans
 

@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from graphcal.data.dataset import Site
+from graphcal.tracking.gating import MAX_SPEED_M_S, scan_period
 
 FloatArray = NDArray[np.float64]
 
@@ -42,9 +43,8 @@ FloatArray = NDArray[np.float64]
 MIN_TRACK_PLOTS = 6
 #: Slowest average ground speed of a kept track [m/s].
 MIN_SPEED_M_S = 30.0
-#: Fastest aircraft [m/s] and largest acceleration [m/s^2] (a 3 deg/s turn at 230 m/s is
-#: 12 m/s^2) followed.
-MAX_SPEED_M_S = 350.0
+#: Largest acceleration followed [m/s^2] (a 3 deg/s turn at 230 m/s is 12 m/s^2); the
+#: fastest aircraft is the gates' :data:`~graphcal.tracking.gating.MAX_SPEED_M_S`.
 MAX_ACCELERATION_M_S2 = 15.0
 #: The gates' width in position sigmas.
 GATE_SIGMAS = 4.0
@@ -52,8 +52,6 @@ GATE_SIGMAS = 4.0
 MAX_MISSED_SCANS = 3
 #: The alpha-beta filter's gains.
 ALPHA, BETA = 0.6, 0.3
-#: Scan period assumed for a radar that declares none [s].
-DEFAULT_SCAN_S = 5.0
 
 
 def horizontal_positions(site: Site, plots: Any) -> tuple[FloatArray, FloatArray]:
@@ -121,7 +119,7 @@ def form_tracks(site: Site, plots: Any, track_number: NDArray | None = None,
 def _scan_to_scan(site: Site, time_s: FloatArray, xy: FloatArray, sigma: FloatArray,
                   code: NDArray[np.object_]) -> NDArray[np.int64]:
     """Scan-to-scan gating of plots into tracks (module docstring); every plot's track."""
-    period = float(site.scan_period_s) if site.scan_period_s else DEFAULT_SCAN_S
+    period = scan_period(site)
     n = len(time_s)
     label = np.full(n, -1, dtype=np.int64)
     if n == 0:
