@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.data.align import (
     AdsbAlignment,
+    AdsbTrackTable,
     PlotArrays,
     adsb_track_table,
     overlapping_pairs,
@@ -184,11 +185,12 @@ def _share_rays(rest: Dataset, rest_plots: dict[str, PlotArrays], blocks: Factor
             blocks.rays[rid] = RayExcessCache(site, plots)
 
 
-def radars_with_adsb(dataset: Dataset) -> set[str]:
-    """Radars with at least one plot whose ``target_id`` has ADS-B reports."""
+def radars_with_adsb(dataset: Dataset, tracks: AdsbTrackTable | None = None) -> set[str]:
+    """Radars with at least one plot whose ``target_id`` has ADS-B reports (``tracks``:
+    the ADS-B table's tracks when the caller has them)."""
     if dataset.adsb is None or len(dataset.adsb) == 0:
         return set()
-    targets = adsb_track_table(dataset.adsb).targets
+    targets = (adsb_track_table(dataset.adsb) if tracks is None else tracks).targets
     plots = dataset.plots
     seen = plots["radar_id"][plots["target_id"].astype(str).isin(targets)]
     return {str(rid) for rid in pd.unique(seen)}

@@ -37,6 +37,8 @@ import scipy.sparse
 from numpy.typing import NDArray
 from scipy.linalg import lapack
 
+from graphcal.model import path_kernels
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -239,6 +241,10 @@ def add_measurement_blocks(band: FloatArray, first: IntArray, weights: FloatArra
     """
     if len(first) == 0:
         return
+    if path_kernels.enabled():
+        path_kernels.compiled().add_blocks(band, _int64(first), _contiguous(weights),
+                                           _contiguous(info))
+        return
     n_coefficients = band.shape[1] // 3
     six = info[:, _SYM3_A, _SYM3_B]  # (n, 6): M[a, b] for a <= b
     for d in range(4):
@@ -276,6 +282,11 @@ def scatter_vectors(first: IntArray, weights: FloatArray, vectors: FloatArray,
     """``sum_i B_i kron v_i`` as a length-``n_unknowns`` vector (``vectors`` (n, 3))."""
     if len(first) == 0:
         return np.zeros(n_unknowns)
+    if path_kernels.enabled():
+        out = np.zeros(n_unknowns)
+        path_kernels.compiled().scatter_vectors(out, _int64(first), _contiguous(weights),
+                                                _contiguous(vectors))
+        return out
     return np.asarray(spread_matrix(first, weights, n_unknowns // 3) @ vectors).ravel()
 
 
@@ -292,6 +303,27 @@ def scatter_columns(first: IntArray, weights: FloatArray, blocks: FloatArray,
     n, k = len(first), blocks.shape[2]
     summed = spread_matrix(first, weights, out.shape[0] // 3) @ blocks.reshape(n, 3 * k)
     out[:, columns] += np.asarray(summed).reshape(out.shape[0], k)
+
+
+def evaluate_paths(coefficients: FloatArray, first: IntArray, weights: FloatArray) -> FloatArray:
+    """``sum_j weights_ij c_(first_i + j)`` ``(n, 3)``: the paths (or their rates, with the
+    basis' derivatives as ``weights``) at the measurements."""
+    if path_kernels.enabled():
+        return path_kernels.compiled().evaluate(_contiguous(coefficients), _int64(first),
+                                                _contiguous(weights))
+    out = weights[:, 0, None] * coefficients[first]
+    for j in range(1, 4):
+        out += weights[:, j, None] * coefficients[first + j]
+    return out
+
+
+def _contiguous(array: FloatArray) -> FloatArray:
+    """``array`` as C-contiguous float64 (the type the compiled loops are made for)."""
+    return np.ascontiguousarray(array, dtype=np.float64)
+
+
+def _int64(array: IntArray) -> IntArray:
+    return np.ascontiguousarray(array, dtype=np.int64)
 
 
 def band_matvec(band: FloatArray, x: FloatArray) -> FloatArray:
@@ -311,9 +343,11 @@ class BandFactor:
     lower: FloatArray
 
     @classmethod
-    def of(cls, band: FloatArray) -> BandFactor:
-        """Factorise; :class:`numpy.linalg.LinAlgError` when not positive definite."""
-        return cls(scipy.linalg.cholesky_banded(band, lower=True, check_finite=False))
+    def of(cls, band: FloatArray, overwrite: bool = False) -> BandFactor:
+        """Factorise (in ``band``'s memory with ``overwrite``);
+        :class:`numpy.linalg.LinAlgError` when not positive definite."""
+        return cls(scipy.linalg.cholesky_banded(band, overwrite_ab=overwrite, lower=True,
+                                                check_finite=False))
 
     def forward(self, rhs: FloatArray) -> FloatArray:
         """``L^-1 rhs`` (rhs (n,) or (n, k))."""

@@ -51,6 +51,7 @@ from graphcal.data.align import (
 )
 from graphcal.data.bias import correct_bias
 from graphcal.data.dataset import Dataset, Site
+from graphcal.model import path_kernels
 from graphcal.model.cross_radar import ALTITUDE_SIGMA_M, MAX_2D_ELEVATION_RAD
 from graphcal.model.measurement import measurement_model
 from graphcal.model.parameters import TERM_NAMES, RadarTerms
@@ -64,6 +65,7 @@ from graphcal.model.paths import (
     band_zeros,
     basis,
     basis_derivative,
+    evaluate_paths,
     motion_prior_energy,
     scatter_columns,
     scatter_vectors,
@@ -342,6 +344,9 @@ class TrajectoryBlock:
             lin.cross = np.zeros((n, p))
             lin.bias_information = np.zeros((p, p))
             lin.bias_gradient = np.zeros(p)
+        if path_kernels.enabled():
+            self._accumulate_compiled(lin, groups, want_bias)
+            return lin
         firsts, weights, infos, gradients = [], [], [], []
         pending: dict[str, list[tuple[IntArray, FloatArray, FloatArray, IntArray]]] = {}
         for g in groups:
@@ -380,6 +385,35 @@ class TrajectoryBlock:
             add_measurement_blocks(lin.band, first_all, weights_all, np.concatenate(infos))
             lin.gradient += scatter_vectors(first_all, weights_all, np.concatenate(gradients), n)
         return lin
+
+    def _accumulate_compiled(self, lin: _Linear, groups: list[_Group], want_bias: bool) -> None:
+        """The groups' sums into ``lin`` with the compiled loops (:mod:`path_kernels`):
+        the same sums as NumPy's in :meth:`_linearise_data`, one pass per group."""
+        layout = self.layout
+        loops = path_kernels.compiled()
+        assert lin.phase_cost is not None
+        if want_bias:
+            assert lin.cross is not None and lin.bias_information is not None
+            assert lin.bias_gradient is not None
+            cross, information, gradient = lin.cross, lin.bias_information, lin.bias_gradient
+        else:
+            cross, information, gradient = np.zeros((1, 0)), np.zeros((0, 0)), np.zeros(0)
+        for g in groups:
+            m = g.e.shape[1]
+            s = frames.row_norm(g.e)
+            w = self.kernel.weight(s, m)
+            loss = self.kernel.loss(s, m)
+            lin.cost += float(np.sum(loss))
+            lin.phase_cost += np.bincount(layout.phase[g.interval], loss,
+                                          minlength=layout.n_phases)
+            columns = (g.columns if want_bias else np.zeros(0, dtype=np.int64))
+            hb = g.hb if want_bias else g.hb[:, :, :0]
+            loops.accumulate(lin.band, lin.gradient, cross, information, gradient,
+                             np.ascontiguousarray(g.first, dtype=np.int64),
+                             np.ascontiguousarray(g.weights), np.ascontiguousarray(g.hx),
+                             np.ascontiguousarray(hb), np.ascontiguousarray(g.e),
+                             np.ascontiguousarray(w, dtype=float),
+                             np.ascontiguousarray(columns, dtype=np.int64))
 
     def _radar_groups(self, radar: RadarOnPaths, free: FloatArray, height: FloatArray | None,
                       c: FloatArray, columns: dict[str, IntArray]) -> list[_Group]:
@@ -457,10 +491,7 @@ class TrajectoryBlock:
 
     @staticmethod
     def _evaluate(c: FloatArray, first: IntArray, weights: FloatArray) -> FloatArray:
-        out = weights[:, 0, None] * c[first]
-        for j in range(1, 4):
-            out += weights[:, j, None] * c[first + j]
-        return out
+        return evaluate_paths(c, first, weights)
 
     # ------------------------------------------------------------ elimination
     def _settle_paths(self, named: dict[str, FloatArray], max_steps: int) -> None:
@@ -601,11 +632,17 @@ class TrajectoryBlock:
         energy = np.bincount(layout.phase, motion_prior_energy(coefficients, layout),
                              minlength=layout.n_phases)
         measurement_cost = measurement_cost + self._adsb_phase_cost(coefficients)
+        # The prior of q = 1 (every phase alike on the grid), scaled for each q.
+        unit_prior = band_zeros(layout.n_unknowns)
+        add_motion_prior(unit_prior, layout, np.ones(layout.n_phases))
+        unit_gradient = band_matvec(unit_prior, coefficients.ravel())
+        band = np.empty_like(data_band)
         for q in PROCESS_NOISE_GRID_M2_S3:
-            lin = _Linear(data_band.copy(), data_gradient.copy(), data_cost, [])
-            self._add_prior(lin, coefficients, np.full(layout.n_phases, 1.0 / q))
-            factor = BandFactor.of(lin.band)
-            z = factor.forward(lin.gradient)
+            np.multiply(unit_prior, 1.0 / q, out=band)
+            band += data_band
+            band[0] += RIDGE * np.maximum(band[0].max(initial=1.0), 1.0)
+            factor = BandFactor.of(band, overwrite=True)
+            z = factor.forward(data_gradient + unit_gradient / q)
             reduction = np.bincount(unknown_phase, 0.5 * z * z, minlength=layout.n_phases)
             log_det = np.bincount(unknown_phase, factor.log_diagonal(),
                                   minlength=layout.n_phases)
@@ -702,32 +739,38 @@ def build_trajectory_block(
         plots = {rid: plot_arrays(dataset, rid) for rid in dataset.radar_ids}
     sites = dataset.sites
     frame = NetworkFrame.of(list(sites.values()))
-    pieces = []
-    for rid in sorted(dataset.radar_ids):  # the radars' order does not matter
+    names = sorted(dataset.radar_ids)  # the radars' order does not matter
+    rows_of, radar_of, target_of, time_of = [], [], [], []
+    for r, rid in enumerate(names):
         mine = plots[rid]
-        target = np.asarray(mine.target_id, dtype=object)
-        named = pd.notna(target) & (pd.Series(target).astype(str).str.strip() != "").to_numpy()
-        usable = named & np.isfinite(mine.range_m) & np.isfinite(mine.azimuth_rad)
+        usable = np.isfinite(mine.range_m) & np.isfinite(mine.azimuth_rad)
         if sites[rid].is_3d:
             usable &= np.isfinite(mine.elevation_rad)
-        if not np.any(usable):
-            continue
-        pieces.append(pd.DataFrame({
-            "radar": rid, "k": np.flatnonzero(usable), "target": target[usable].astype(str),
-            "time": mine.time_s[usable]}))
-    if not pieces:
+        k = np.flatnonzero(usable)
+        rows_of.append(k)
+        radar_of.append(np.full(len(k), r))
+        target_of.append(np.asarray(mine.target_id, dtype=object)[k])
+        time_of.append(mine.time_s[k])
+    code, path_target_names = _target_codes(np.concatenate(target_of))
+    named = code >= 0
+    k_all = np.concatenate(rows_of)[named]
+    radar_all = np.concatenate(radar_of)[named]
+    code = code[named]
+    time_arr = np.concatenate(time_of)[named]
+    if len(code) == 0:
         return None
-    table = pd.concat(pieces, ignore_index=True).sort_values(["target", "time"], kind="stable")
-    target_arr = table["target"].to_numpy(dtype=object)
-    time_arr = table["time"].to_numpy(dtype=float)
-    new_path = np.ones(len(table), dtype=bool)
-    new_path[1:] = (target_arr[1:] != target_arr[:-1]) | (np.diff(time_arr) > PATH_SPLIT_GAP_S)
+    # By aircraft (its name's order), then time; ties in the radars' name order.
+    order = np.lexsort((time_arr, code))
+    k_all, radar_all, code, time_arr = k_all[order], radar_all[order], code[order], time_arr[order]
+    new_path = np.ones(len(code), dtype=bool)
+    new_path[1:] = (code[1:] != code[:-1]) | (np.diff(time_arr) > PATH_SPLIT_GAP_S)
     path_id = np.cumsum(new_path) - 1
-    table["path"] = path_id
-    n_radars = table.groupby("path")["radar"].nunique().to_numpy()
-    start = table.groupby("path")["time"].min().to_numpy()
-    end = table.groupby("path")["time"].max().to_numpy()
-    path_target = table.groupby("path")["target"].first().to_numpy(dtype=object)
+    first_row = np.flatnonzero(new_path)
+    last_row = np.append(first_row[1:], len(code)) - 1
+    pairs = np.unique(path_id * len(names) + radar_all)
+    n_radars = np.bincount(pairs // len(names), minlength=len(first_row))
+    start, end = time_arr[first_row].copy(), time_arr[last_row].copy()
+    path_target = path_target_names[code[first_row]]
     # ADS-B on the paths.
     adsb_path = np.zeros(0, dtype=np.int64)
     adsb_rows = np.zeros(0, dtype=np.int64)
@@ -751,30 +794,30 @@ def build_trajectory_block(
         return None
     renumber = np.full(len(keep), -1)
     renumber[keep] = np.arange(int(keep.sum()))
-    table = table[keep[table["path"].to_numpy()]]
-    table["path"] = renumber[table["path"].to_numpy()]
+    in_table = keep[path_id]
+    k_all, radar_all, path_id = k_all[in_table], radar_all[in_table], renumber[path_id[in_table]]
     in_kept = keep[adsb_path]
     adsb_rows, adsb_path = adsb_rows[in_kept], renumber[adsb_path[in_kept]]
     start, end, path_target = start[keep], end[keep], path_target[keep]
     if len(adsb_path):
         adsb_t = tracks.time_s[adsb_rows]
-        lo = pd.Series(adsb_t).groupby(adsb_path).min()
-        hi = pd.Series(adsb_t).groupby(adsb_path).max()
-        start[lo.index.to_numpy()] = np.minimum(start[lo.index.to_numpy()], lo.to_numpy())
-        end[hi.index.to_numpy()] = np.maximum(end[hi.index.to_numpy()], hi.to_numpy())
+        np.minimum.at(start, adsb_path, adsb_t)
+        np.maximum.at(end, adsb_path, adsb_t)
     layout = PathLayout.build(start - 1.0, end + 1.0, spacing_s, PHASE_S)
     # Radars on paths.
     radars: list[RadarOnPaths] = []
-    for rid, part in table.groupby("radar", sort=True):
-        site = sites[str(rid)]
-        mine = plots[str(rid)]
+    for r, rid in enumerate(names):
+        mine_rows = radar_all == r
+        if not np.any(mine_rows):
+            continue
+        site = sites[rid]
+        mine = plots[rid]
         # In an order set by the values (path, time, range, azimuth), not by the rows:
         # the same plots in another file order give the same sums, bit for bit.
-        k = part["k"].to_numpy()
-        path_of = part["path"].to_numpy()
+        k = k_all[mine_rows]
+        path_of = path_id[mine_rows]
         order = np.lexsort((mine.azimuth_rad[k], mine.range_m[k], mine.time_s[k], path_of))
-        part = part.iloc[order]
-        k = k[order]
+        k, path_of = k[order], path_of[order]
         a, c = frame.radar_map(site)
         measured = np.stack([mine.range_m[k], mine.azimuth_rad[k],
                              mine.elevation_rad[k] if site.is_3d else np.full(len(k), np.nan)],
@@ -782,9 +825,9 @@ def build_trajectory_block(
         altitude = np.full(len(k), np.nan)
         if not site.is_3d:
             altitude = mine.altitude_m[k].astype(float)
-        radars.append(RadarOnPaths(str(rid), site, terms[str(rid)], mine.index[k],
-                                   part["path"].to_numpy().astype(np.int64),
-                                   mine.time_s[k], measured, altitude, a, c))
+        radars.append(RadarOnPaths(rid, site, terms[rid], mine.index[k],
+                                   path_of.astype(np.int64), mine.time_s[k], measured,
+                                   altitude, a, c))
     # Variables: the variable radars seen, in the dataset's order (GTSAM keys), then the
     # height model when 2-D plots carry pressure altitudes.
     seen = {r.radar_id for r in radars}
@@ -814,11 +857,23 @@ def build_trajectory_block(
     if block.adsb is not None:
         before = block.n_adsb_gated
         _gate_adsb(block, block._split(start_values))
-        if block.n_adsb_gated != before:
-            block._settle_paths(block._split(start_values), 1)
+        if block.n_adsb_gated != before:  # the first fit again, without those reports
+            block.coefficients = _initial_coefficients(block, block._split(start_values))
     if progress is not None:
         progress("aircraft paths", 1, 1)
     return block
+
+
+def _target_codes(targets: NDArray[np.object_]) -> tuple[IntArray, NDArray[np.object_]]:
+    """Each plot's aircraft as a code into the sorted aircraft names (text), -1 where the
+    plot names none (missing or blank ``target_id``)."""
+    raw, uniques = pd.factorize(targets, use_na_sentinel=True)
+    text = np.asarray([str(u) for u in uniques], dtype=object)
+    named = np.asarray([bool(t.strip()) for t in text], dtype=bool)
+    names, code_of_text = np.unique(text[named], return_inverse=True)
+    code_of_unique = np.full(len(uniques) + 1, -1, dtype=np.int64)  # [-1]: no name
+    code_of_unique[np.flatnonzero(named)] = code_of_text
+    return code_of_unique[raw], names.astype(object)
 
 
 def _adsb_on_paths(layout: PathLayout, frame: NetworkFrame, tracks, rows: IntArray,
@@ -846,13 +901,39 @@ def _adsb_constants(layout: PathLayout, path: IntArray, time_s: FloatArray,
     weights = basis(u)
     interval_offset = np.concatenate([[0], np.cumsum(layout.n_intervals)[:-1]])
     interval = interval_offset[path] + (first - layout.first_coefficient[path])
+    band, rhs, constant = _adsb_sums(layout, first, weights, position, information)
+    return AdsbOnPaths(path, time_s, position, information, first, weights, interval, band, rhs,
+                       constant)
+
+
+def _adsb_sums(layout: PathLayout, first: IntArray, weights: FloatArray, position: FloatArray,
+               information: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+    """The reports' share of the paths' normal matrix, right-hand side and constant."""
     band = band_zeros(layout.n_unknowns)
     add_measurement_blocks(band, first, weights, information)
     rhs = scatter_vectors(first, weights, np.einsum("nij,nj->ni", information, position),
                           layout.n_unknowns)
     constant = 0.5 * float(np.einsum("ni,nij,nj->", position, information, position))
-    return AdsbOnPaths(path, time_s, position, information, first, weights, interval, band, rhs,
-                       constant)
+    return band, rhs, constant
+
+
+def _reweighted(layout: PathLayout, a: AdsbOnPaths, weight: FloatArray) -> AdsbOnPaths:
+    """``a`` with each report's information multiplied by ``weight`` (0 leaves it out).
+
+    Only the reports whose weight is not 1 are summed again, and their change added to
+    the constants: the gate touches a handful of reports among tens of thousands.
+    """
+    changed = np.flatnonzero(weight != 1.0)
+    if len(changed) == 0:
+        return a
+    delta = (weight[changed] - 1.0)[:, None, None] * a.information[changed]
+    band, rhs, constant = _adsb_sums(layout, a.first[changed],
+                                     a.weights[changed], a.position[changed], delta)
+    keep = weight > 0.0
+    return AdsbOnPaths(a.path[keep], a.time_s[keep], a.position[keep],
+                       a.information[keep] * weight[keep, None, None], a.first[keep],
+                       a.weights[keep], a.interval[keep], a.band + band, a.rhs + rhs,
+                       a.constant + constant)
 
 
 def _gate_adsb(block: TrajectoryBlock, named: dict[str, FloatArray]) -> None:
@@ -875,13 +956,11 @@ def _gate_adsb(block: TrajectoryBlock, named: dict[str, FloatArray]) -> None:
         if s.max(initial=0.0) <= ADSB_GROSS_SIGMA:
             break  # nothing gross enough to drag the first fit: gate as it is
         weight = np.minimum(1.0, ADSB_GATE_SIGMA / np.maximum(s, 1e-300))
-        block.adsb = _adsb_constants(block.layout, a.path, a.time_s, a.position,
-                                     a.information * weight[:, None, None])
+        block.adsb = _reweighted(block.layout, a, weight)
         block._settle_paths(named, 1)
     good = whitened_residual() <= ADSB_GATE_SIGMA
     block.n_adsb_gated = int(np.sum(~good))
-    block.adsb = a if np.all(good) else _adsb_constants(
-        block.layout, a.path[good], a.time_s[good], a.position[good], a.information[good])
+    block.adsb = _reweighted(block.layout, a, good.astype(float))
 
 
 def _initial_coefficients(block: TrajectoryBlock, named: dict[str, FloatArray]) -> FloatArray:

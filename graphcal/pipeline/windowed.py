@@ -15,7 +15,7 @@ from __future__ import annotations
 import os
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from itertools import chain
 from pathlib import Path
@@ -23,12 +23,14 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 import pandas as pd
+from threadpoolctl import threadpool_limits
 
 from graphcal.core.errors import EstimationError
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY_NAMES, NAME_FROM_KEY, PARAMETER_NAMES
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset, Site
 from graphcal.data.windows import Window, split_window, split_windows, window_index
+from graphcal.model import path_kernels
 from graphcal.model.information import observability
 from graphcal.model.parameters import RadarTerms, prior_sigmas
 from graphcal.noise import filled_with_notes
@@ -61,6 +63,10 @@ STEP_TIME_TOLERANCE_S = 30.0
 #: ... starting from a grid of this many candidate times over the window.
 STEP_GRID_POINTS = 7
 
+#: Windows calibrated with NumPy's sums before the compiled loops are loaded
+#: (:func:`_compiled_loops_after`): about 0.6 s, a tenth of a one-hour window of a
+#: four-radar network.
+COMPILED_LOOPS_AFTER_WINDOWS = 3
 #: A smoothed window further than this from its summary's linearisation point, in
 #: that window's own sigmas, is worth a warning (the summaries are not re-linearised).
 LARGEST_MOVE_WARNING_SIGMA = 10.0
@@ -87,6 +93,9 @@ def parse_drift(items: Mapping[str, float]) -> dict[str, float]:
     return rates
 
 
+# One BLAS thread: the linear algebra of a window is small, and the folder's reader
+# works on the other core (BLAS threads waiting for a core cost a third of the time).
+@threadpool_limits.wrap(limits=1, user_api="blas")
 def calibrate_windows(
     dataset: Dataset | str | os.PathLike[str],
     window_s: float,
@@ -288,11 +297,10 @@ def _first_pass(dataset: Dataset | str | os.PathLike[str], window_s: float, clea
             assert progress is not None and source is not None
             progress(stage, done, source.total)
 
-        summaries = [s for s in map_windows(summarise_associated, source.windows(),
-                                            scheduler=scheduler, args=(options,),
-                                            progress=None if progress is None else report,
-                                            total=source.total,
-                                            prefetch=not source.read_ahead)
+        mapped = map_windows(summarise_associated, source.windows(), scheduler=scheduler,
+                             args=(options,), progress=None if progress is None else report,
+                             total=source.total, prefetch=not source.read_ahead)
+        summaries = [s for s in _compiled_loops_after(mapped, COMPILED_LOOPS_AFTER_WINDOWS)
                      if s is not None]
     except Exception:
         if source is not None:
@@ -311,6 +319,17 @@ def _finish(cal: Calibration, source: _Source, scheduler: str,
         cal.warnings.extend(source.sigma_warnings)
     cal.info["windows"]["scheduler"] = scheduler
     cal.info["windows"]["streamed"] = not isinstance(dataset, Dataset)
+
+
+def _compiled_loops_after(summaries: Iterable[WindowSummary | None], count: int
+                          ) -> Iterator[WindowSummary | None]:
+    """``summaries`` as they come; after the first ``count`` this process switches to the
+    paths' compiled loops (:mod:`graphcal.model.path_kernels`): a recording of more
+    windows pays their loading time back many times over."""
+    for done, summary in enumerate(summaries, start=1):
+        if done == count:
+            path_kernels.enable()
+        yield summary
 
 
 def _judge(summaries: Sequence[WindowSummary]) -> FitVerdict | None:

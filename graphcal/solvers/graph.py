@@ -698,7 +698,7 @@ def graph(
             if progress is not None:
                 progress("ADS-B association", i + 1, len(radar_ids))
         timing["association_s"] = time.perf_counter() - t0
-    tau_radars = radars_with_adsb(dataset) if want_time else set()
+    tau_radars = radars_with_adsb(dataset, problem.adsb_tracks) if want_time else set()
     keys = {rid: symbol("b", i) for i, rid in enumerate(radar_ids)}
     # ---------------------------------------------------------------- initial values
     t0 = time.perf_counter()

@@ -1,0 +1,117 @@
+"""The compiled loops of :mod:`graphcal.model.path_kernels`.
+
+Importing this module loads Numba and compiles the loops, or loads them from its
+cache: :mod:`graphcal.model.path_kernels` imports it only when the loops are used.
+Each loop is the sum its name says, measurement by measurement; the conventions
+(lower band ``band[d, i] = A[i + d, i]``, unknown ``3 k + axis``) are those of
+:mod:`graphcal.model.paths`.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_jit = numba.njit(cache=True, nogil=True)
+
+
+@_jit
+def add_blocks(band, first, weights, info):  # pragma: no cover - compiled
+    """``band += sum_i (B_i B_i^T) kron M_i`` (``info`` (n, 3, 3) the ``M_i``)."""
+    for i in range(first.shape[0]):
+        base = 3 * first[i]
+        for a in range(4):
+            for c in range(a, 4):
+                ww = weights[i, a] * weights[i, c]
+                for x in range(3):
+                    p = 3 * a + x
+                    for y in range(3):
+                        q = 3 * c + y
+                        if q >= p:
+                            band[q - p, base + p] += ww * info[i, y, x]
+
+
+@_jit
+def scatter_vectors(out, first, weights, vectors):  # pragma: no cover - compiled
+    """``out += sum_i B_i kron v_i`` (``vectors`` (n, 3) the ``v_i``)."""
+    for i in range(first.shape[0]):
+        base = 3 * first[i]
+        for a in range(4):
+            wa = weights[i, a]
+            for x in range(3):
+                out[base + 3 * a + x] += wa * vectors[i, x]
+
+
+@_jit
+def evaluate(coefficients, first, weights):  # pragma: no cover - compiled
+    """``sum_j weights_ij c_(first_i + j)`` ``(n, 3)``."""
+    n = first.shape[0]
+    out = np.zeros((n, 3))
+    for i in range(n):
+        for j in range(4):
+            wj = weights[i, j]
+            row = first[i] + j
+            for x in range(3):
+                out[i, x] += wj * coefficients[row, x]
+    return out
+
+
+@_jit
+def accumulate(band, gradient, cross, bias_information, bias_gradient, first, weights,
+               hx, hb, e, w, columns):  # pragma: no cover - compiled
+    """One group of whitened linearised measurements ``e + Hx dx + Hb db`` with robust
+    weights ``w`` into the normal equations: ``(B B^T) kron (Hx^T w Hx)`` into ``band``,
+    ``B kron (Hx^T w e)`` into ``gradient``, ``B kron (Hx^T w Hb)`` into the bias
+    ``columns`` of ``cross``, and ``Hb^T w Hb``, ``Hb^T w e`` into the bias information and
+    gradient.  ``hx`` (n, m, 3), ``hb`` (n, m, k), ``e`` (n, m), ``w`` (n,)."""
+    n, m = e.shape[0], e.shape[1]
+    k = columns.shape[0]
+    info = np.zeros((3, 3))
+    g = np.zeros(3)
+    kx = np.zeros((3, k))
+    bias_info = np.zeros((k, k))
+    bias_grad = np.zeros(k)
+    for i in range(n):
+        wi = w[i]
+        if wi == 0.0:
+            continue
+        info[:, :] = 0.0
+        g[:] = 0.0
+        kx[:, :] = 0.0
+        for r in range(m):
+            er = wi * e[i, r]
+            for x in range(3):
+                hrx = wi * hx[i, r, x]
+                g[x] += hrx * e[i, r]
+                for y in range(3):
+                    info[x, y] += hrx * hx[i, r, y]
+                for b in range(k):
+                    kx[x, b] += hrx * hb[i, r, b]
+            for b in range(k):
+                hrb = hb[i, r, b]
+                bias_grad[b] += hrb * er
+                for b2 in range(k):
+                    bias_info[b, b2] += wi * hrb * hb[i, r, b2]
+        base = 3 * first[i]
+        for a in range(4):
+            wa = weights[i, a]
+            for c in range(a, 4):
+                ww = wa * weights[i, c]
+                for x in range(3):
+                    p = 3 * a + x
+                    for y in range(3):
+                        q = 3 * c + y
+                        if q >= p:
+                            band[q - p, base + p] += ww * info[y, x]
+            for x in range(3):
+                row = base + 3 * a + x
+                gradient[row] += wa * g[x]
+                for b in range(k):
+                    cross[row, columns[b]] += wa * kx[x, b]
+    for b in range(k):
+        bias_gradient[columns[b]] += bias_grad[b]
+        for b2 in range(k):
+            bias_information[columns[b], columns[b2]] += bias_info[b, b2]
+
+
+__all__ = ["accumulate", "add_blocks", "evaluate", "scatter_vectors"]

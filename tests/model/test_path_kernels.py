@@ -1,0 +1,79 @@
+"""The paths' compiled loops against NumPy's sums (a second implementation of each)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graphcal.model import path_kernels
+from graphcal.model.paths import (
+    add_measurement_blocks,
+    band_zeros,
+    basis,
+    evaluate_paths,
+    scatter_vectors,
+)
+from tests.model.test_trajectory import short_demo, truth_block  # noqa: F401 - fixture
+
+pytest.importorskip("numba")
+
+
+@pytest.fixture
+def numpy_sums(monkeypatch):
+    """NumPy's sums in this test, whatever the process uses."""
+    monkeypatch.setenv(path_kernels.KERNELS_ENV, "numpy")
+    monkeypatch.setitem(path_kernels._state, "enabled", False)
+
+
+def compiled_sums(monkeypatch) -> None:
+    monkeypatch.delenv(path_kernels.KERNELS_ENV, raising=False)
+    assert path_kernels.enable()
+    assert path_kernels.enabled()
+
+
+def random_measurements(n: int, n_coefficients: int, seed: int):
+    rng = np.random.default_rng(seed)
+    first = np.sort(rng.integers(0, n_coefficients - 3, n))
+    weights = basis(rng.random(n))
+    root = rng.normal(size=(n, 3, 3))
+    info = root @ np.swapaxes(root, 1, 2)
+    return first, weights, info, rng.normal(size=(n, 3)), rng.normal(size=(n_coefficients, 3))
+
+
+def test_compiled_sums_equal_numpys(numpy_sums, monkeypatch) -> None:
+    first, weights, info, vectors, coefficients = random_measurements(2000, 300, seed=3)
+    expected_band = band_zeros(900)
+    add_measurement_blocks(expected_band, first, weights, info)
+    expected_vector = scatter_vectors(first, weights, vectors, 900)
+    expected_paths = evaluate_paths(coefficients, first, weights)
+    compiled_sums(monkeypatch)
+    band = band_zeros(900)
+    add_measurement_blocks(band, first, weights, info)
+    scale = np.abs(expected_band).max()
+    assert np.abs(band - expected_band).max() <= 1e-13 * scale
+    assert np.allclose(scatter_vectors(first, weights, vectors, 900), expected_vector,
+                       rtol=0, atol=1e-12)
+    assert np.allclose(evaluate_paths(coefficients, first, weights), expected_paths,
+                       rtol=0, atol=1e-12)
+
+
+def test_compiled_linearisation_equals_numpys(short_demo, numpy_sums, monkeypatch) -> None:  # noqa: F811
+    """The whole linearisation (band, gradient, bias columns, bias information and
+    gradient, cost) of the demo's plots, robust weights included."""
+    block, values = truth_block(short_demo, use_adsb=True, kernel="huber")
+    values = [v + 0.1 * np.abs(v) for v in values]  # off the truth: robust weights < 1
+    named = block._split(values)
+    expected = block._linearise_data(named, True, block.coefficients)
+    compiled_sums(monkeypatch)
+    got = block._linearise_data(named, True, block.coefficients)
+    for name in ("band", "gradient", "cross", "bias_information", "bias_gradient",
+                 "phase_cost"):
+        a, b = getattr(expected, name), getattr(got, name)
+        assert np.abs(a - b).max() <= 1e-10 * max(np.abs(a).max(), 1.0), name
+    assert got.cost == pytest.approx(expected.cost, rel=1e-12)
+
+
+def test_numpy_is_kept_when_asked(monkeypatch) -> None:
+    monkeypatch.setenv(path_kernels.KERNELS_ENV, "numpy")
+    assert not path_kernels.available()
+    assert not path_kernels.enable()
