@@ -188,8 +188,10 @@ def calibrate_command(
     scheduler: Annotated[
         str | None,
         typer.Option(
-            "--scheduler", metavar="synchronous|threads|processes|ADDRESS",
-            help="--window: where windows are calibrated: in this process (default), "
+            "--scheduler", metavar="auto|synchronous|forked|threads|processes|ADDRESS",
+            help="--window: where windows are calibrated: auto (default: forked for a "
+            "large folder on two cores or more, else synchronous), in this process "
+            "(synchronous), in this process and a forked copy taking turns (forked), "
             "threads, one process per core (Dask LocalCluster), or the address of a Dask "
             "scheduler (tcp://host:8786).",
         ),

@@ -3,7 +3,13 @@
 Each window's summary (:func:`graphcal.solvers.windows.summarise_window`) is
 independent work.  :func:`map_windows` runs it over the windows as they are read:
 
-* ``synchronous`` (default): one after the other, in this process (no Dask).
+* ``synchronous``: one after the other, in this process (no Dask).
+* ``forked``: this process and a copy of it forked at the start (Linux), taking the
+  windows in turn (:func:`map_forked`): two cores calibrate while a forked reader
+  reads ahead.
+* ``auto`` (the default, ``None``): ``forked`` where the windows come from a forked
+  reader (a large folder, :mod:`graphcal.pipeline.window_feed`) on two or more
+  cores, else ``synchronous``.
 * ``threads``: a Dask ``distributed`` cluster of threads in this process.
 * ``processes``: a ``distributed`` ``LocalCluster`` of one single-threaded worker
   process per core.
@@ -29,7 +35,7 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 #: The scheduler names; anything else is taken as a cluster address.
-SCHEDULERS = ("synchronous", "threads", "processes")
+SCHEDULERS = ("auto", "synchronous", "forked", "threads", "processes")
 
 Progress = Callable[..., None]
 
@@ -43,11 +49,12 @@ def check_scheduler(scheduler: str | None) -> str:
         For a name that is neither a scheduler nor an address, naming the choices.
     """
     if scheduler is None or scheduler == "":
-        return "synchronous"
+        return "auto"
     if scheduler in SCHEDULERS or "://" in scheduler or ":" in scheduler:
         return scheduler
     raise ValueError(
-        f"unknown scheduler '{scheduler}': use synchronous, threads, processes, or the "
+        f"unknown scheduler '{scheduler}': use auto, synchronous, forked, threads, "
+        "processes, or the "
         "address of a Dask scheduler (e.g. tcp://10.0.0.5:8786)")
 
 
@@ -421,6 +428,8 @@ def map_windows(
     total: int | None = None,
     stage: str = "windows",
     prefetch: bool = True,
+    prepare: Callable[[int], None] | None = None,
+    helper: ForkedHelper | None = None,
 ) -> Iterator[Any]:
     """``function(item, *args)`` for every item, in item order.
 
@@ -443,10 +452,25 @@ def map_windows(
     prefetch : bool
         ``synchronous``: take the items through :func:`read_ahead`; ``False`` when
         they are already produced ahead (:func:`read_in_child`).
+    prepare : callable, optional
+        ``synchronous`` and ``forked``: ``prepare(number)`` is called in the process
+        that calibrates item ``number`` (from 0) before it does (e.g. to load compiled
+        code from some item on).
+    helper : ForkedHelper, optional
+        ``forked``: the copy to use, forked earlier (:func:`map_forked`).
     """
     scheduler = check_scheduler(scheduler)
-    if scheduler == "synchronous":
+    if scheduler == "auto":
+        scheduler = resolve_auto(prefetch)
+    if scheduler == "forked" and (helper is not None or child_reading_available()):
+        yield from map_forked(function, read_ahead(items) if prefetch else items, args=args,
+                              progress=progress, total=total, stage=stage, prepare=prepare,
+                              helper=helper)
+        return
+    if scheduler in ("synchronous", "forked"):
         for done, item in enumerate(read_ahead(items) if prefetch else items, start=1):
+            if prepare is not None:
+                prepare(done - 1)
             result = function(item, *args)
             if progress is not None:
                 progress(stage, done, total or done)
@@ -454,6 +478,156 @@ def map_windows(
         return
     report = None if progress is None else (lambda done, n: progress(stage, done, n))
     yield from _map_on_dask(function, items, scheduler, args, report, total)
+
+
+def resolve_auto(prefetch: bool) -> str:
+    """What ``auto`` means for a map: ``forked`` when the items come from a forked reader
+    (``prefetch`` is then ``False``) on two or more cores, else ``synchronous``."""
+    if not prefetch and (os.cpu_count() or 1) >= 2 and child_reading_available():
+        return "forked"
+    return "synchronous"
+
+
+def map_forked(function: Callable[..., Any], items: Iterable[Any], *,
+               args: tuple[Any, ...] = (), progress: Progress | None = None,
+               total: int | None = None, stage: str = "windows",
+               prepare: Callable[[int], None] | None = None,
+               helper: ForkedHelper | None = None) -> Iterator[Any]:
+    """``function(item, *args)`` for every item, in item order, in two processes: this one
+    and a copy of it forked now, taking the items in turn (odd items in the copy).
+
+    The copy receives each of its items pickled over a pipe while this process works on
+    the item before it, and sends back the result and the warnings it raised (raised
+    again here, in order); an exception is raised here at its item.  ``prepare(number)``
+    runs in the process that takes item ``number``, before it.  The copy is forked
+    before the first item is asked for (this process's threads, if any, are not in
+    it), or given as ``helper`` (made for the same ``function``, ``args`` and
+    ``prepare``), and stopped when the iterator is closed, collected, or exhausted.
+    """
+    helper = ForkedHelper(function, args, prepare) if helper is None else helper
+    try:
+        done = 0
+        iterator = iter(items)
+        while True:
+            mine = next(iterator, _END)
+            if mine is _END:
+                break
+            theirs = next(iterator, _END)
+            if theirs is not _END:
+                helper.send(done + 1, theirs)
+            if prepare is not None:
+                prepare(done)
+            result = function(mine, *args)
+            done += 1
+            if progress is not None:
+                progress(stage, done, total or done)
+            yield result
+            if theirs is _END:
+                break
+            result = helper.receive()
+            done += 1
+            if progress is not None:
+                progress(stage, done, total or done)
+            yield result
+    finally:
+        helper.stop()
+
+
+_END = object()
+
+
+class ForkedHelper:
+    """The forked copy of :func:`map_forked` and its two pipes, forked when made: make it
+    before this process starts threads (its copy has none of them)."""
+
+    def __init__(self, function: Callable[..., Any], args: tuple[Any, ...],
+                 prepare: Callable[[int], None] | None) -> None:
+        import multiprocessing
+
+        context = multiprocessing.get_context("fork")
+        self._in_reader, in_writer = context.Pipe(duplex=False)  # helper -> here
+        out_reader, self._out_writer = context.Pipe(duplex=False)  # here -> helper
+        for connection in (in_writer, self._out_writer):
+            _widen_pipe(connection.fileno())
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r".*fork\(\) may lead to deadlocks",
+                                    category=DeprecationWarning)
+            self._process = context.Process(
+                target=_serve, args=(function, args, prepare, out_reader, in_writer,
+                                     self._in_reader, self._out_writer),
+                name="graphcal-helper", daemon=True)
+            self._process.start()
+        out_reader.close()
+        in_writer.close()
+
+    def send(self, number: int, item: Any) -> None:
+        import pickle
+
+        self._out_writer.send_bytes(pickle.dumps((number, item),
+                                                 protocol=pickle.HIGHEST_PROTOCOL))
+
+    def receive(self) -> Any:
+        import pickle
+
+        try:
+            kind, payload, caught = pickle.loads(self._in_reader.recv_bytes())
+        except EOFError:
+            self._process.join(timeout=5.0)
+            raise RuntimeError(
+                f"the helper process stopped (exit code {self._process.exitcode}) before "
+                "its window was done; out of memory?") from None
+        for message, category, filename, lineno in caught:
+            warnings.warn_explicit(message, category, filename, lineno)
+        if kind == "error":
+            raise payload
+        return payload
+
+    def stop(self) -> None:
+        self._out_writer.close()  # end of file there: the helper returns
+        self._in_reader.close()
+        self._process.join(timeout=1.0)
+        if self._process.is_alive():
+            self._process.terminate()
+            self._process.join()
+
+
+def _serve(function: Callable[..., Any], args: tuple[Any, ...],
+           prepare: Callable[[int], None] | None, reader: Any, writer: Any,
+           *parents_ends: Any) -> None:
+    """:class:`_Helper`'s process: each item received, its result (or error) and warnings
+    sent back, until the end of the pipe."""
+    import pickle
+    import sys
+
+    for connection in parents_ends:
+        connection.close()
+    signal.signal(signal.SIGTERM, _exit_on_signal)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
+    sys.stdout = open(os.dup(1), "w", closefd=True)  # noqa: SIM115 - for the child's life
+    sys.stderr = open(os.dup(2), "w", closefd=True)  # noqa: SIM115
+    while True:
+        try:
+            number, item = pickle.loads(reader.recv_bytes())
+        except (EOFError, OSError):
+            return
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                if prepare is not None:
+                    prepare(number)
+                message: tuple[str, Any] = ("result", function(item, *args))
+            except Exception as exc:  # noqa: BLE001 - handed to the parent
+                try:
+                    pickle.loads(pickle.dumps(exc))
+                except Exception:  # noqa: BLE001 - an exception that cannot travel as it is
+                    exc = RuntimeError(f"{type(exc).__name__}: {exc}")
+                message = ("error", exc)
+        notes = [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
+        try:
+            writer.send_bytes(pickle.dumps((*message, notes),
+                                           protocol=pickle.HIGHEST_PROTOCOL))
+        except OSError:
+            return
 
 
 def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: str,
@@ -498,6 +672,6 @@ def _map_on_dask(function: Callable[..., Any], items: Iterable[Any], scheduler: 
             cluster.close()
 
 
-__all__ = ["SCHEDULERS", "ChildItems", "check_scheduler", "child_reading_available", "map_windows",
-           "quiet_large_graphs",
-           "read_ahead", "read_in_child"]
+__all__ = ["SCHEDULERS", "ChildItems", "ForkedHelper", "check_scheduler",
+           "child_reading_available", "map_forked", "map_windows", "quiet_large_graphs",
+           "read_ahead", "read_in_child", "resolve_auto"]

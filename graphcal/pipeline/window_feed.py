@@ -91,6 +91,15 @@ def _key(folder: Path, window_s: float, clean: bool, force: bool, order: str
     return str(Path(folder).resolve()), float(window_s), bool(clean), bool(force), order
 
 
+def reads_in_child(folder: Path) -> bool:
+    """Whether the folder's windows are read by a forked child (its tables hold at least
+    :data:`CHILD_READER_MIN_BYTES`, and forking is available here)."""
+    try:
+        return _reads_in_child(_table_files(folder))
+    except (OSError, ValueError):
+        return False
+
+
 def _reads_in_child(files: list[Path]) -> bool:
     return _bytes_of(files) >= CHILD_READER_MIN_BYTES and child_reading_available()
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import os
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from itertools import chain
 from pathlib import Path
@@ -35,12 +35,18 @@ from graphcal.model.information import observability
 from graphcal.model.parameters import RadarTerms, prior_sigmas
 from graphcal.noise import filled_with_notes
 from graphcal.pipeline.associate import associated_window, merged_figures
-from graphcal.pipeline.schedulers import check_scheduler, map_windows
+from graphcal.pipeline.schedulers import (
+    ForkedHelper,
+    check_scheduler,
+    child_reading_available,
+    map_windows,
+)
 from graphcal.pipeline.window_feed import (
     FolderReadAgain,
     SpanCheck,
     open_folder_windows,
     read_folder_windows,
+    reads_in_child,
 )
 from graphcal.solvers.drift import DEFAULT_STEP_FALSE_ALARM
 from graphcal.solvers.windows import (
@@ -170,10 +176,10 @@ def calibrate_windows(
     options = options or WindowOptions()
     first_pass = (dataset, window_s, clean, force, breaks, options, scheduler, progress)
     try:
-        source, summaries = _first_pass(*first_pass)
+        source, summaries, scheduler = _first_pass(*first_pass)
     except FolderReadAgain:
         # Read as if in time order, and it is not: the windows may lack late rows.
-        source, summaries = _first_pass(*first_pass, order="auto")
+        source, summaries, scheduler = _first_pass(*first_pass, order="auto")
     # Residuals beyond their sigmas (pooled over the windows) widen every window's.
     widened = _sigma_inflation(summaries)
     summaries = [_widened(s, widened) for s in summaries]
@@ -276,14 +282,21 @@ def _concluded(cal: Calibration, summaries: Sequence[WindowSummary], source: _So
 def _first_pass(dataset: Dataset | str | os.PathLike[str], window_s: float, clean: bool,
                 force: bool, breaks: Mapping[str, Sequence[float]] | None,
                 options: WindowOptions, scheduler: str, progress: Progress | None,
-                order: str | None = None) -> tuple[_Source, list[WindowSummary]]:
-    """The windows' source and every window's summary, in order (the first pass).
+                order: str | None = None) -> tuple[_Source, list[WindowSummary], str]:
+    """The windows' source, every window's summary, in order (the first pass), and the
+    scheduler that made them (``auto`` resolved).
 
     Raises what the folder's span shows to be wrong before any other error, as when
     it was measured before the first window; :class:`FolderReadAgain` when the
     folder was read as if in time order and is not.
     """
-    source = None
+    source = helper = None
+    if scheduler == "auto":  # forked for a large folder on two cores or more
+        scheduler = ("forked" if not isinstance(dataset, Dataset) and reads_in_child(
+            Path(dataset)) and (os.cpu_count() or 1) >= 2 else "synchronous")
+    if scheduler == "forked" and child_reading_available():
+        # Forked now, before the folder's span is measured in a thread.
+        helper = ForkedHelper(summarise_associated, (options,), _compiled_loops_from)
     try:
         source = (_memory_source(dataset, window_s) if isinstance(dataset, Dataset)
                   else _folder_source(Path(dataset), window_s, clean, force, order))
@@ -297,18 +310,22 @@ def _first_pass(dataset: Dataset | str | os.PathLike[str], window_s: float, clea
             assert progress is not None and source is not None
             progress(stage, done, source.total)
 
-        mapped = map_windows(summarise_associated, source.windows(), scheduler=scheduler,
-                             args=(options,), progress=None if progress is None else report,
-                             total=source.total, prefetch=not source.read_ahead)
-        summaries = [s for s in _compiled_loops_after(mapped, COMPILED_LOOPS_AFTER_WINDOWS)
+        summaries = [s for s in map_windows(summarise_associated, source.windows(),
+                                            scheduler=scheduler, args=(options,),
+                                            progress=None if progress is None else report,
+                                            total=source.total,
+                                            prefetch=not source.read_ahead,
+                                            prepare=_compiled_loops_from, helper=helper)
                      if s is not None]
     except Exception:
+        if helper is not None:
+            helper.stop()
         if source is not None:
             source.close()
             source.settle()
         raise
     source.settle()
-    return source, summaries
+    return source, summaries, scheduler
 
 
 def _finish(cal: Calibration, source: _Source, scheduler: str,
@@ -321,15 +338,12 @@ def _finish(cal: Calibration, source: _Source, scheduler: str,
     cal.info["windows"]["streamed"] = not isinstance(dataset, Dataset)
 
 
-def _compiled_loops_after(summaries: Iterable[WindowSummary | None], count: int
-                          ) -> Iterator[WindowSummary | None]:
-    """``summaries`` as they come; after the first ``count`` this process switches to the
-    paths' compiled loops (:mod:`graphcal.model.path_kernels`): a recording of more
-    windows pays their loading time back many times over."""
-    for done, summary in enumerate(summaries, start=1):
-        if done == count:
-            path_kernels.enable()
-        yield summary
+def _compiled_loops_from(number: int) -> None:
+    """From window :data:`COMPILED_LOOPS_AFTER_WINDOWS` on, the process calibrating it
+    uses the paths' compiled loops (:mod:`graphcal.model.path_kernels`): a recording of
+    more windows pays their loading time back many times over."""
+    if number >= COMPILED_LOOPS_AFTER_WINDOWS and not path_kernels.enabled():
+        path_kernels.enable()
 
 
 def _judge(summaries: Sequence[WindowSummary]) -> FitVerdict | None:

@@ -138,3 +138,50 @@ def test_read_in_child_runs_ahead_within_its_byte_budget(tmp_path, monkeypatch,
         assert all(len(item) == size for item in rest)
     finally:
         reader.close()
+
+
+def _square_then_trouble(item: int, fail_at: int | None, warn_at: int | None) -> dict:
+    """A window function for the forked-map tests: squares, warns, fails, and says which
+    process did it."""
+    import os
+    import warnings
+
+    from graphcal.core.errors import DatasetError
+
+    if item == warn_at:
+        warnings.warn(f"odd window {item}", UserWarning, stacklevel=1)
+    if item == fail_at:
+        raise DatasetError("not a number", path="plots.csv", row=item + 2, field="range_m")
+    return {"square": item * item, "pid": os.getpid()}
+
+
+@needs_fork
+def test_map_forked_keeps_the_order_and_shares_the_items_between_two_processes() -> None:
+    import os
+
+    from graphcal.pipeline.schedulers import map_forked
+
+    prepared = []
+    results = list(map_forked(_square_then_trouble, range(9), args=(None, None),
+                              prepare=prepared.append))
+    assert [r["square"] for r in results] == [i * i for i in range(9)]
+    # Even items here, odd ones in the forked copy (prepare runs where the item is done).
+    assert {r["pid"] for r in results[0::2]} == {os.getpid()}
+    assert len({r["pid"] for r in results[1::2]} - {os.getpid()}) == 1
+    assert prepared == [0, 2, 4, 6, 8]
+
+
+@needs_fork
+def test_map_forked_raises_the_copys_warnings_and_errors_here_and_stops_it() -> None:
+    import multiprocessing
+
+    from graphcal.core.errors import DatasetError
+    from graphcal.pipeline.schedulers import map_forked
+
+    seen = []
+    with pytest.warns(UserWarning, match="odd window 3"), pytest.raises(DatasetError) as caught:
+        for result in map_forked(_square_then_trouble, range(20), args=(5, 3)):
+            seen.append(result["square"])
+    assert seen == [0, 1, 4, 9, 16]
+    assert (caught.value.row, caught.value.field) == (7, "range_m")
+    assert not [p for p in multiprocessing.active_children() if p.name == "graphcal-helper"]

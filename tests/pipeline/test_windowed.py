@@ -136,6 +136,24 @@ def test_processes_give_the_same_series_as_this_process(stepping, windowed) -> N
     assert other.info["windows"]["scheduler"] == "processes"
 
 
+def test_forked_copy_gives_the_same_series_as_this_process(stepping, windowed) -> None:
+    """The window map in this process and a forked copy of it (the default for a large
+    folder; both switch to the compiled loops from the fourth window): the same series
+    (within 0.001 sigma) as in this process alone."""
+    from graphcal.pipeline.schedulers import child_reading_available
+
+    if not child_reading_available():
+        pytest.skip("the forked map needs fork (Linux)")
+    _, sim = stepping
+    other = calibrate(sim.dataset, window="15min", scheduler="forked")
+    for rid, entries in windowed.series["radars"].items():
+        for mine, theirs in zip(entries, other.series["radars"][rid], strict=True):
+            for key, sigma in mine["sigma"].items():
+                assert abs(mine[key] - theirs[key]) <= 0.001 * sigma, (rid, key)
+    assert other.info["windows"]["scheduler"] == "forked"
+    assert windowed.info["windows"]["scheduler"] == "synchronous"
+
+
 def test_command_line_window_drift_and_break(stepping, tmp_path: Path) -> None:
     _, sim = stepping
     folder = tmp_path / "ds"
