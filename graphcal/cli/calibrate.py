@@ -236,9 +236,19 @@ def calibrate_command(
         from graphcal.pipeline.window_feed import start_reading
 
         start_reading(dataset_dir, window, clean=clean, force=force)
+    from graphcal.pipeline.calibrate import CONSTANT_BATCH_WINDOW_S, is_long_recording
+
+    # A long recording without --window: constant biases from its windows, read one at a
+    # time by the pipeline (bounded memory); a report needs the data loaded whole.  Its
+    # windows get the same head start.
+    constant_windows = (window is None and method in (None, "graph") and select is None
+                        and report is None and is_long_recording(dataset_dir))
+    if constant_windows:
+        from graphcal.pipeline.window_feed import start_reading
+
+        start_reading(dataset_dir, CONSTANT_BATCH_WINDOW_S, clean=clean, force=force)
     from graphcal.io.folder import SITES_FILE, load_dataset, load_epoch_utc, load_sites
     from graphcal.pipeline.calibrate import calibrate as run_calibration
-    from graphcal.pipeline.calibrate import is_long_recording
     from graphcal.reporting.tables import calibration_tables, sigma_footnote
 
     with errors_to_exit():
@@ -247,10 +257,6 @@ def calibrate_command(
         if out is None and truth_path.exists():  # read (and checked) before the estimation
             truth_data = _read_truth(truth_path)
         start = time.perf_counter()
-        # A long recording without --window: constant biases from its windows, read one at
-        # a time by the pipeline (bounded memory); a report needs the data loaded whole.
-        constant_windows = (window is None and method in (None, "graph") and select is None
-                            and report is None and is_long_recording(dataset_dir))
         if window is not None or constant_windows:
             # Read window by window (bounded memory) by the pipeline: the sites only here.
             dataset = None

@@ -20,6 +20,7 @@ not rows).
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -184,6 +185,35 @@ def first_time(path: Path, required: tuple[str, ...], *, max_lateness_s: float,
     return -math.inf
 
 
+def csv_end_times(path: Path) -> tuple[float, float] | None:
+    """The ``time_s`` of a CSV file's first and last data rows [s], read from its two ends
+    (the header, the first line, the last 64 KiB); ``None`` when they cannot be told
+    (not CSV, no such column, blank or bad values).  Whatever the rows' order, the
+    file spans at least their difference: a cheap lower bound of its span."""
+    import csv
+
+    if path.suffix != ".csv":
+        return None
+    try:
+        with path.open("rb") as handle:
+            head = [handle.readline() for _ in range(2)]
+            size = handle.seek(0, 2)
+            handle.seek(max(size - 65536, 0))
+            tail = handle.read().splitlines()
+    except OSError:
+        return None
+    lines = [line.decode("utf-8-sig", errors="replace") for line in head]
+    last = next((line for line in reversed(tail) if line.strip()), b"")
+    try:
+        header, first = next(csv.reader([lines[0]])), next(csv.reader([lines[1]]))
+        final = next(csv.reader([last.decode("utf-8", errors="replace")]))
+        column = [name.strip() for name in header].index("time_s")
+        times = float(first[column]), float(final[column])
+    except (StopIteration, ValueError, IndexError):
+        return None
+    return times if all(math.isfinite(t) for t in times) else None
+
+
 def scan_times(files: Iterable[Path], required: tuple[str, ...], *, max_lateness_s: float,
                chunk_rows: int = DEFAULT_CHUNK_ROWS) -> TableSpan:
     """Read the ``time_s`` column of a table's files: span, count and time order.
@@ -334,18 +364,44 @@ def dataset_span(folder: str | Path) -> DatasetSpan:
     check_folder(folder)
     sites = load_sites(folder / SITES_FILE)
     plot_files, adsb_files = dataset_tables(folder)
+    key = _files_key(folder, [folder / SITES_FILE, *plot_files, *(adsb_files or [])])
+    with _SPANS_LOCK:
+        known = _SPANS.get(key)
+    if known is not None:
+        return known
     plots = table_span(plot_files, PLOT_COLUMNS)
     if plots.n_rows == 0:
         raise DatasetError("the table has no data rows",
                            path=plot_files[0] if len(plot_files) == 1 else folder / "plots")
     adsb = None if adsb_files is None else table_span(adsb_files, ADSB_COLUMNS)
-    return DatasetSpan(folder, tuple(sites), plots, adsb)
+    span = DatasetSpan(folder, tuple(sites), plots, adsb)
+    with _SPANS_LOCK:
+        if len(_SPANS) >= 8:
+            _SPANS.clear()
+        _SPANS[key] = span
+    return span
+
+
+#: Spans measured in this process, by folder and its files' sizes and modification
+#: times: a run asks several times (is it long? the windows' progress and checks), and a
+#: CSV table's span costs a read of its time column.
+_SPANS: dict[tuple, DatasetSpan] = {}
+_SPANS_LOCK = threading.Lock()
+
+
+def _files_key(folder: Path, files: list[Path]) -> tuple:
+    stats = []
+    for path in files:
+        stat = path.stat()
+        stats.append((str(path), stat.st_size, stat.st_mtime_ns))
+    return (str(folder.resolve()), tuple(stats))
 
 
 __all__ = [
     "DatasetSpan",
     "FileTimes",
     "TableSpan",
+    "csv_end_times",
     "dataset_span",
     "first_time",
     "parquet_times",

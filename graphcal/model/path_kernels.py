@@ -96,6 +96,7 @@ def _warm(kernels: Any) -> None:
     kernels.add_blocks(band, first, weights, np.eye(3)[None])
     kernels.scatter_vectors(np.zeros(12), first, weights, np.ones((1, 3)))
     kernels.evaluate(np.zeros((4, 3)), first, weights)
+    kernels.band_forward(np.ones((12, 4)), np.ones((4, 2)))
     kernels.accumulate(band, np.zeros(12), np.zeros((12, 1)), np.zeros((1, 1)), np.zeros(1),
                        first, weights, np.ones((1, 2, 3)), np.ones((1, 2, 1)), np.ones((1, 2)),
                        np.ones(1), np.zeros(1, dtype=np.int64))

@@ -114,4 +114,22 @@ def accumulate(band, gradient, cross, bias_information, bias_gradient, first, we
             bias_information[columns[b], columns[b2]] += bias_info[b, b2]
 
 
-__all__ = ["accumulate", "add_blocks", "evaluate", "scatter_vectors"]
+@_jit
+def band_forward(lower, rhs):  # pragma: no cover - compiled
+    """``rhs <- L^-1 rhs`` in place (``rhs`` (n, k), C order), ``L`` lower triangular in band
+    storage ``lower[d, i] = L[i + d, i]``: forward substitution, row by row, all the
+    columns of a row at once."""
+    n, k = rhs.shape[0], rhs.shape[1]
+    width = lower.shape[0]
+    for i in range(n):
+        for d in range(1, min(i, width - 1) + 1):
+            factor = lower[d, i - d]
+            if factor != 0.0:
+                for j in range(k):
+                    rhs[i, j] -= factor * rhs[i - d, j]
+        pivot = lower[0, i]
+        for j in range(k):
+            rhs[i, j] /= pivot
+
+
+__all__ = ["accumulate", "add_blocks", "band_forward", "evaluate", "scatter_vectors"]

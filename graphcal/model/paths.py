@@ -352,6 +352,10 @@ class BandFactor:
     def forward(self, rhs: FloatArray) -> FloatArray:
         """``L^-1 rhs`` (rhs (n,) or (n, k))."""
         matrix = rhs.reshape(len(rhs), -1)
+        if path_kernels.enabled() and matrix.shape[1] > 1:
+            out = np.array(matrix, dtype=np.float64, order="C")
+            path_kernels.compiled().band_forward(_contiguous(self.lower), out)
+            return out.reshape(rhs.shape)
         out, info = lapack.dtbtrs(self.lower, np.asfortranarray(matrix), uplo="L")
         if info != 0:
             raise np.linalg.LinAlgError(f"banded triangular solve failed (info {info})")

@@ -295,7 +295,10 @@ def _first_pass(dataset: Dataset | str | os.PathLike[str], window_s: float, clea
         scheduler = ("forked" if not isinstance(dataset, Dataset) and reads_in_child(
             Path(dataset)) and (os.cpu_count() or 1) >= 2 else "synchronous")
     if scheduler == "forked" and child_reading_available():
-        # Forked now, before the folder's span is measured in a thread.
+        # The compiled loops loaded once, here, for both processes (while the reader
+        # reads the first windows); the copy forked now, before the folder's span is
+        # measured in a thread.
+        path_kernels.enable()
         helper = ForkedHelper(summarise_associated, (options,), _compiled_loops_from)
     try:
         source = (_memory_source(dataset, window_s) if isinstance(dataset, Dataset)

@@ -596,6 +596,7 @@ def graph(
     time_offset: bool | None = None,
     progress: Progress | None = None,
     bound: bool = False,
+    summarise_residuals: bool = True,
 ) -> Calibration:
     """Joint calibration of every radar with a GTSAM factor graph.
 
@@ -641,6 +642,9 @@ def graph(
         Trajectory formulation: also compute the Cramér-Rao bound of the model
         (:attr:`Calibration.bound`; one more elimination of the paths).
         :func:`graphcal.calibrate` asks for it when it reports the bound.
+    summarise_residuals : bool
+        Also summarise each radar's residuals against ADS-B (:attr:`Calibration.residuals`,
+        for the report); a window of a calibration over time leaves them out.
 
     Returns
     -------
@@ -861,7 +865,7 @@ def graph(
     cal.information = data_information
     if bound and cross == "trajectory" and blocks.target_state is not None:
         cal.bound = _trajectory_bound(blocks, full_values, labels, priors, radars, settings)
-    for rid, al in blocks.alignments.items():
+    for rid, al in blocks.alignments.items() if summarise_residuals else ():
         if rid in radars:
             bias = terms[rid].bias(values[rid])
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, bias)

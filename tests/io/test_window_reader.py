@@ -276,6 +276,32 @@ def test_dataset_span_from_statistics_and_from_the_time_column(folders, tmp_path
     assert dataset_span(no_statistics).t_end_s == times.max()
 
 
+def test_csv_end_times_are_the_first_and_last_rows_times(folders, tmp_path) -> None:
+    from graphcal.io.dataset_span import csv_end_times
+
+    rows = pd.read_csv(folders["csv"] / "plots.csv")
+    assert csv_end_times(folders["csv"] / "plots.csv") == (
+        rows["time_s"].iloc[0], rows["time_s"].iloc[-1])
+    assert csv_end_times(folders["parquet"] / "plots.parquet") is None
+    blank_last = tmp_path / "plots.csv"
+    blank_last.write_text("radar_id,time_s\nN,5.5\nN,nan\n\n")
+    assert csv_end_times(blank_last) is None  # a last time that is not a number
+    blank_last.write_text("radar_id,time_s\nN,5.5\nS,7200.25\n\n")
+    assert csv_end_times(blank_last) == (5.5, 7200.25)
+
+
+def test_a_changed_table_is_measured_again(folders, tmp_path) -> None:
+    folder = tmp_path / "changing"
+    shutil.copytree(folders["csv"], folder)
+    before = dataset_span(folder)
+    rows = pd.read_csv(folder / "plots.csv")
+    rows = rows[rows["time_s"] < rows["time_s"].median()]
+    rows.to_csv(folder / "plots.csv", index=False)
+    after = dataset_span(folder)
+    assert after.n_plots == len(rows) < before.n_plots
+    assert dataset_span(folder) is after  # unchanged: remembered
+
+
 # --------------------------------------------------------------------------- memory
 
 
