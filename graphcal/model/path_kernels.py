@@ -97,6 +97,9 @@ def _warm(kernels: Any) -> None:
     kernels.scatter_vectors(np.zeros(12), first, weights, np.ones((1, 3)))
     kernels.evaluate(np.zeros((4, 3)), first, weights)
     kernels.band_forward(np.ones((12, 4)), np.ones((4, 2)))
+    position, information = kernels.adsb_reports(np.ones((1, 3)), np.ones(1), np.zeros(3),
+                                                 np.eye(3), 1.5, np.ones(3))
+    kernels.adsb_sums(band, np.zeros(12), first, weights, position, information)
     kernels.accumulate(band, np.zeros(12), np.zeros((12, 1)), np.zeros((1, 1)), np.zeros(1),
                        first, weights, np.ones((1, 2, 3)), np.ones((1, 2, 1)), np.ones((1, 2)),
                        np.ones(1), np.zeros(1, dtype=np.int64))

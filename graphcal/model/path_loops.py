@@ -132,4 +132,70 @@ def band_forward(lower, rhs):  # pragma: no cover - compiled
             rhs[i, j] /= pivot
 
 
-__all__ = ["accumulate", "add_blocks", "band_forward", "evaluate", "scatter_vectors"]
+@_jit
+def adsb_reports(ecef, sigma, origin, rotation, vertical_ratio, axes2):  # pragma: no cover
+    """ADS-B reports in the network frame: positions ``R (x - origin)`` (n, 3) and
+    information matrices (n, 3, 3), ``1 / sigma^2`` horizontally and
+    ``1 / (vertical_ratio sigma)^2`` along the report's vertical (the ellipsoid's normal,
+    the gradient of ``sum x_i^2 / axes2_i``, rotated into the frame)."""
+    n = ecef.shape[0]
+    position = np.zeros((n, 3))
+    information = np.zeros((n, 3, 3))
+    normal = np.zeros(3)
+    up = np.zeros(3)
+    for i in range(n):
+        norm = 0.0
+        for x in range(3):
+            normal[x] = ecef[i, x] / axes2[x]
+            norm += normal[x] * normal[x]
+        norm = np.sqrt(norm)
+        for x in range(3):
+            p = 0.0
+            u = 0.0
+            for y in range(3):
+                p += rotation[x, y] * (ecef[i, y] - origin[y])
+                u += rotation[x, y] * normal[y]
+            position[i, x] = p
+            up[x] = u / norm
+        horizontal = 1.0 / (sigma[i] * sigma[i])
+        vertical = 1.0 / ((vertical_ratio * sigma[i]) * (vertical_ratio * sigma[i]))
+        for x in range(3):
+            for y in range(3):
+                value = (vertical - horizontal) * up[x] * up[y]
+                if x == y:
+                    value += horizontal
+                information[i, x, y] = value
+    return position, information
+
+
+@_jit
+def adsb_sums(band, rhs, first, weights, position, information):  # pragma: no cover
+    """The reports' share of the paths' normal equations: ``(B B^T) kron M`` into ``band``,
+    ``B kron (M z)`` into ``rhs``; returns ``sum z^T M z / 2``."""
+    constant = 0.0
+    mz = np.zeros(3)
+    for i in range(first.shape[0]):
+        for x in range(3):
+            v = 0.0
+            for y in range(3):
+                v += information[i, x, y] * position[i, y]
+            mz[x] = v
+            constant += 0.5 * position[i, x] * v
+        base = 3 * first[i]
+        for a in range(4):
+            wa = weights[i, a]
+            for c in range(a, 4):
+                ww = wa * weights[i, c]
+                for x in range(3):
+                    p = 3 * a + x
+                    for y in range(3):
+                        q = 3 * c + y
+                        if q >= p:
+                            band[q - p, base + p] += ww * information[i, y, x]
+            for x in range(3):
+                rhs[base + 3 * a + x] += wa * mz[x]
+    return constant
+
+
+__all__ = ["accumulate", "add_blocks", "adsb_reports", "adsb_sums", "band_forward", "evaluate",
+           "scatter_vectors"]

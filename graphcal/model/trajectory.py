@@ -879,18 +879,26 @@ def _target_codes(targets: NDArray[np.object_]) -> tuple[IntArray, NDArray[np.ob
 def _adsb_on_paths(layout: PathLayout, frame: NetworkFrame, tracks, rows: IntArray,
                    path: IntArray) -> AdsbOnPaths:
     ecef = tracks.ecef_m[rows]
-    position = frame.from_ecef(ecef)
     sigma = tracks.sigma_m[rows]
     # Horizontal sigma, 1.5 x vertically, about the report's own vertical: the
     # ellipsoid's normal, the gradient of x^2/a^2 + y^2/a^2 + z^2/b^2 (at a few km above
     # the ellipsoid within 1e-6 rad of the normal through the point).
     b2 = frames.WGS84_A_M**2 * (1.0 - frames.WGS84_E2)
-    normal = ecef / np.array([frames.WGS84_A_M**2, frames.WGS84_A_M**2, b2])
-    up = frames.rotate(normal / frames.row_norm(normal)[:, None], frame.rotation)
-    horizontal = 1.0 / sigma**2
-    vertical = 1.0 / (ADSB_VERTICAL_SIGMA_RATIO * sigma) ** 2
-    information = (horizontal[:, None, None] * np.eye(3)[None]
-                   + (vertical - horizontal)[:, None, None] * up[:, :, None] * up[:, None, :])
+    axes2 = np.array([frames.WGS84_A_M**2, frames.WGS84_A_M**2, b2])
+    if path_kernels.enabled():
+        position, information = path_kernels.compiled().adsb_reports(
+            np.ascontiguousarray(ecef, dtype=float), np.ascontiguousarray(sigma, dtype=float),
+            frame.origin_ecef_m, np.ascontiguousarray(frame.rotation),
+            float(ADSB_VERTICAL_SIGMA_RATIO), axes2)
+    else:
+        position = frame.from_ecef(ecef)
+        normal = ecef / axes2
+        up = frames.rotate(normal / frames.row_norm(normal)[:, None], frame.rotation)
+        horizontal = 1.0 / sigma**2
+        vertical = 1.0 / (ADSB_VERTICAL_SIGMA_RATIO * sigma) ** 2
+        information = (horizontal[:, None, None] * np.eye(3)[None]
+                       + (vertical - horizontal)[:, None, None] * up[:, :, None]
+                       * up[:, None, :])
     time_s = tracks.time_s[rows]
     return _adsb_constants(layout, path, time_s, position, information)
 
@@ -910,6 +918,12 @@ def _adsb_sums(layout: PathLayout, first: IntArray, weights: FloatArray, positio
                information: FloatArray) -> tuple[FloatArray, FloatArray, float]:
     """The reports' share of the paths' normal matrix, right-hand side and constant."""
     band = band_zeros(layout.n_unknowns)
+    if path_kernels.enabled():
+        rhs = np.zeros(layout.n_unknowns)
+        constant = path_kernels.compiled().adsb_sums(
+            band, rhs, np.ascontiguousarray(first, dtype=np.int64), np.ascontiguousarray(weights),
+            np.ascontiguousarray(position), np.ascontiguousarray(information))
+        return band, rhs, float(constant)
     add_measurement_blocks(band, first, weights, information)
     rhs = scatter_vectors(first, weights, np.einsum("nij,nj->ni", information, position),
                           layout.n_unknowns)
@@ -951,14 +965,15 @@ def _gate_adsb(block: TrajectoryBlock, named: dict[str, FloatArray]) -> None:
         residual = block._evaluate(block.coefficients, a.first, a.weights) - a.position
         return np.sqrt(np.einsum("ni,nij,nj->n", residual, a.information, residual))
 
+    s = whitened_residual()
     for _ in range(ADSB_GATE_ITERATIONS):
-        s = whitened_residual()
         if s.max(initial=0.0) <= ADSB_GROSS_SIGMA:
             break  # nothing gross enough to drag the first fit: gate as it is
         weight = np.minimum(1.0, ADSB_GATE_SIGMA / np.maximum(s, 1e-300))
         block.adsb = _reweighted(block.layout, a, weight)
         block._settle_paths(named, 1)
-    good = whitened_residual() <= ADSB_GATE_SIGMA
+        s = whitened_residual()
+    good = s <= ADSB_GATE_SIGMA
     block.n_adsb_gated = int(np.sum(~good))
     block.adsb = _reweighted(block.layout, a, good.astype(float))
 

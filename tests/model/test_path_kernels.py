@@ -77,3 +77,18 @@ def test_numpy_is_kept_when_asked(monkeypatch) -> None:
     monkeypatch.setenv(path_kernels.KERNELS_ENV, "numpy")
     assert not path_kernels.available()
     assert not path_kernels.enable()
+
+
+def test_compiled_adsb_sums_equal_numpys(short_demo, numpy_sums, monkeypatch) -> None:  # noqa: F811
+    """The ADS-B reports in the network frame, their information and their share of the
+    paths' normal equations, built both ways."""
+    expected, _ = truth_block(short_demo, use_adsb=True)
+    compiled_sums(monkeypatch)
+    got, _ = truth_block(short_demo, use_adsb=True)
+    a, b = expected.adsb, got.adsb
+    assert np.abs(a.position - b.position).max() <= 1e-6  # metres, over hundreds of km
+    assert np.abs(a.information - b.information).max() <= 1e-12 * np.abs(a.information).max()
+    assert np.abs(a.band - b.band).max() <= 1e-12 * np.abs(a.band).max()
+    assert np.abs(a.rhs - b.rhs).max() <= 1e-10 * np.abs(a.rhs).max()
+    assert b.constant == pytest.approx(a.constant, rel=1e-12)
+    assert np.abs(expected.coefficients - got.coefficients).max() <= 1e-6
