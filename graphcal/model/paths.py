@@ -28,7 +28,7 @@ system, with no Python loop over aircraft or plots.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -263,6 +263,10 @@ def add_motion_prior(band: FloatArray, layout: PathLayout, phase_scale: FloatArr
     """
     first = layout.interval_first
     scale = phase_scale[layout.phase] / layout.spacing_s**3
+    if path_kernels.enabled():
+        path_kernels.compiled().motion_prior(band, _int64(first), _contiguous(scale),
+                                             SECOND_DERIVATIVE_GRAM)
+        return
     same_axis = np.flatnonzero(_AXIS_A == _AXIS_C)
     gram = SECOND_DERIVATIVE_GRAM[_COEF_A[same_axis], _COEF_C[same_axis]]
     base = 3 * first
@@ -341,6 +345,7 @@ class BandFactor:
     """The banded Cholesky factor ``L`` (lower) of a path normal matrix."""
 
     lower: FloatArray
+    _c: FloatArray | None = field(default=None, repr=False)
 
     @classmethod
     def of(cls, band: FloatArray, overwrite: bool = False) -> BandFactor:
@@ -349,17 +354,25 @@ class BandFactor:
         return cls(scipy.linalg.cholesky_banded(band, overwrite_ab=overwrite, lower=True,
                                                 check_finite=False))
 
-    def forward(self, rhs: FloatArray) -> FloatArray:
-        """``L^-1 rhs`` (rhs (n,) or (n, k))."""
+    def forward(self, rhs: FloatArray, overwrite: bool = False) -> FloatArray:
+        """``L^-1 rhs`` (rhs (n,) or (n, k); in ``rhs``'s memory where it can with
+        ``overwrite``)."""
         matrix = rhs.reshape(len(rhs), -1)
         if path_kernels.enabled() and matrix.shape[1] > 1:
-            out = np.array(matrix, dtype=np.float64, order="C")
-            path_kernels.compiled().band_forward(_contiguous(self.lower), out)
+            in_place = overwrite and matrix.flags.c_contiguous and matrix.dtype == np.float64
+            out = matrix if in_place else np.array(matrix, dtype=np.float64, order="C")
+            path_kernels.compiled().band_forward(self._lower_c(), out)
             return out.reshape(rhs.shape)
         out, info = lapack.dtbtrs(self.lower, np.asfortranarray(matrix), uplo="L")
         if info != 0:
             raise np.linalg.LinAlgError(f"banded triangular solve failed (info {info})")
         return out.reshape(rhs.shape)
+
+    def _lower_c(self) -> FloatArray:
+        """The factor in C order, for the compiled loops (made once)."""
+        if self._c is None:
+            self._c = np.ascontiguousarray(self.lower)
+        return self._c
 
     def backward(self, rhs: FloatArray) -> FloatArray:
         """``L^-T rhs``: after :meth:`forward`, ``A^-1`` of the original right-hand side."""

@@ -133,6 +133,18 @@ class NetworkFrame:
     def to_ecef(self, enu_m: FloatArray) -> FloatArray:
         return frames.rotate(enu_m, self.rotation.T) + self.origin_ecef_m
 
+    def heights_and_up(self, enu_m: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Ellipsoidal heights [m] and local verticals (unit, this frame) of points."""
+        if path_kernels.enabled():
+            return path_kernels.compiled().heights_and_up(
+                np.ascontiguousarray(enu_m, dtype=float), self.origin_ecef_m,
+                np.ascontiguousarray(self.rotation), frames.WGS84_A_M, frames.WGS84_B_M,
+                frames.WGS84_E2)
+        lat, lon, h = frames.ecef_to_geodetic(self.to_ecef(enu_m))
+        up_ecef = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon),
+                            np.sin(lat)], axis=-1)
+        return h, frames.rotate(up_ecef, self.rotation)
+
     def radar_map(self, site: Site) -> tuple[FloatArray, FloatArray]:
         """``(A, c)`` with radar ENU = ``A p + c`` for a network-ENU point ``p``."""
         a = site.ecef_to_enu @ self.rotation.T
@@ -201,7 +213,8 @@ class _Linear:
     cost: float
     groups: list[_Group]
     phase_cost: FloatArray | None = None  # (n_phases,): the data's cost by flight phase
-    cross: FloatArray | None = None  # (n_unknowns, P)
+    cross: FloatArray | None = None  # (n_unknowns, P): the first P columns of ``stacked``
+    stacked: FloatArray | None = None  # (n_unknowns, P + 1): cross, then room for the gradient
     bias_information: FloatArray | None = None
     bias_gradient: FloatArray | None = None
 
@@ -341,7 +354,8 @@ class TrajectoryBlock:
         p = self.n_bias
         lin = _Linear(band, gradient, cost, groups, phase_cost=phase_cost)
         if want_bias:
-            lin.cross = np.zeros((n, p))
+            lin.stacked = np.zeros((n, p + 1))
+            lin.cross = lin.stacked[:, :p]
             lin.bias_information = np.zeros((p, p))
             lin.bias_gradient = np.zeros(p)
         if path_kernels.enabled():
@@ -449,11 +463,7 @@ class TrajectoryBlock:
         if not np.any(has):
             return groups
         # The reported height: a measurement of the path's ellipsoidal height.
-        pos = position[has]
-        lat, lon, h = frames.ecef_to_geodetic(self.frame.to_ecef(pos))
-        up_ecef = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon),
-                            np.sin(lat)], axis=-1)
-        up = frames.rotate(up_ecef, self.frame.rotation)
+        h, up = self.frame.heights_and_up(position[has])
         reported = radar.altitude_m[has]
         height_cols = np.zeros(0, dtype=np.int64)
         if height is not None:
@@ -531,7 +541,9 @@ class TrajectoryBlock:
         factor = BandFactor.of(lin.band)
         assert lin.cross is not None and lin.bias_information is not None
         assert lin.bias_gradient is not None
-        stacked = factor.forward(np.column_stack([lin.cross, lin.gradient]))
+        assert lin.stacked is not None
+        lin.stacked[:, -1] = lin.gradient
+        stacked = factor.forward(lin.stacked, overwrite=True)
         zx, zg = stacked[:, :-1], np.ascontiguousarray(stacked[:, -1])
         information = lin.bias_information - zx.T @ zx
         gradient = lin.bias_gradient - zx.T @ zg
