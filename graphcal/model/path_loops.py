@@ -211,48 +211,5 @@ def motion_prior(band, first, scale, gram):  # pragma: no cover - compiled
                     band[3 * (high - low), base + 3 * low + x] += value
 
 
-@_jit
-def heights_and_up(position, origin, rotation, a, b, e2):  # pragma: no cover - compiled
-    """Ellipsoidal heights [m] (n,) and local verticals (n, 3) of network-frame points
-    ``position`` (ECEF ``x = R^T p + origin``; ``a``, ``b``, ``e2`` the ellipsoid's
-    axes and first eccentricity squared): the latitude by
-    :func:`graphcal.core.frames.ecef_to_geodetic`'s steps (Bowring's guess, three
-    refinements), the vertical rotated back into the frame."""
-    n = position.shape[0]
-    height = np.zeros(n)
-    up = np.zeros((n, 3))
-    ep2 = e2 / (1.0 - e2)
-    ecef = np.zeros(3)
-    vertical = np.zeros(3)
-    for i in range(n):
-        for x in range(3):
-            v = origin[x]
-            for y in range(3):
-                v += rotation[y, x] * position[i, y]
-            ecef[x] = v
-        lon = np.arctan2(ecef[1], ecef[0])
-        p = np.hypot(ecef[0], ecef[1])
-        z = ecef[2]
-        theta = np.arctan2(z * a, p * b)
-        lat = np.arctan2(z + ep2 * b * np.sin(theta) ** 3, p - e2 * a * np.cos(theta) ** 3)
-        for _ in range(3):
-            sin_lat = np.sin(lat)
-            big_n = a / np.sqrt(1.0 - e2 * sin_lat ** 2)
-            lat = np.arctan2(z + e2 * big_n * sin_lat, p)
-        sin_lat = np.sin(lat)
-        cos_lat = np.cos(lat)
-        big_n = a / np.sqrt(1.0 - e2 * sin_lat ** 2)
-        height[i] = p * cos_lat + z * sin_lat - a * a / big_n
-        vertical[0] = cos_lat * np.cos(lon)
-        vertical[1] = cos_lat * np.sin(lon)
-        vertical[2] = sin_lat
-        for x in range(3):
-            v = 0.0
-            for y in range(3):
-                v += rotation[x, y] * vertical[y]
-            up[i, x] = v
-    return height, up
-
-
 __all__ = ["accumulate", "add_blocks", "adsb_reports", "adsb_sums", "band_forward", "evaluate",
-           "heights_and_up", "motion_prior", "scatter_vectors"]
+           "motion_prior", "scatter_vectors"]

@@ -135,11 +135,6 @@ class NetworkFrame:
 
     def heights_and_up(self, enu_m: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Ellipsoidal heights [m] and local verticals (unit, this frame) of points."""
-        if path_kernels.enabled():
-            return path_kernels.compiled().heights_and_up(
-                np.ascontiguousarray(enu_m, dtype=float), self.origin_ecef_m,
-                np.ascontiguousarray(self.rotation), frames.WGS84_A_M, frames.WGS84_B_M,
-                frames.WGS84_E2)
         lat, lon, h = frames.ecef_to_geodetic(self.to_ecef(enu_m))
         up_ecef = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon),
                             np.sin(lat)], axis=-1)

@@ -463,6 +463,8 @@ def map_windows(
     if scheduler == "auto":
         scheduler = resolve_auto(prefetch)
     if scheduler == "forked" and (helper is not None or child_reading_available()):
+        # Forked before any thread of this map starts (read_ahead's).
+        helper = ForkedHelper(function, args, prepare) if helper is None else helper
         yield from map_forked(function, read_ahead(items) if prefetch else items, args=args,
                               progress=progress, total=total, stage=stage, prepare=prepare,
                               helper=helper)

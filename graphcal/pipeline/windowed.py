@@ -232,7 +232,9 @@ def calibrate_windows(
                 located_steps.setdefault(rid, []).append((when, statistic))
         parts = [part for index in sorted(cuts)
                  for part in split_window(windows[index], [t for t, _, _ in cuts[index]])]
-        part_summaries = [s for s in map_windows(summarise_associated, parts, scheduler=scheduler,
+        # A few parts: in this process rather than a copy forked now (threads run here).
+        again = "synchronous" if scheduler == "forked" else scheduler
+        part_summaries = [s for s in map_windows(summarise_associated, parts, scheduler=again,
                                                  args=(options,), progress=progress,
                                                  total=len(parts),
                                                  stage="windows holding a step, in parts")

@@ -106,21 +106,3 @@ def test_compiled_motion_prior_equals_numpys(numpy_sums, monkeypatch) -> None:
     add_motion_prior(got, layout, scale)
     assert np.abs(got - expected).max() <= 1e-14 * np.abs(expected).max()
 
-
-def test_compiled_heights_and_verticals_equal_numpys(numpy_sums, monkeypatch) -> None:
-    from graphcal.core import frames
-    from graphcal.model.trajectory import NetworkFrame
-
-    frame = NetworkFrame(np.radians(48.7), np.radians(2.3))
-    rng = np.random.default_rng(8)
-    points = rng.uniform([-300e3, -300e3, 0.0], [300e3, 300e3, 13e3], size=(500, 3))
-    expected_h, expected_up = frame.heights_and_up(points)
-    compiled_sums(monkeypatch)
-    h, up = frame.heights_and_up(points)
-    assert np.abs(h - expected_h).max() <= 1e-6
-    assert np.abs(up - expected_up).max() <= 1e-12
-    # And the heights are those of the geodetic conversion (an independent check of
-    # the frame's round trip: a point straight above the origin).
-    above = np.array([[0.0, 0.0, 5000.0]])
-    assert frame.heights_and_up(above)[0][0] == pytest.approx(
-        frames.ecef_to_geodetic(frame.to_ecef(above))[2][0], abs=1e-6)
