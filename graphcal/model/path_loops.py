@@ -75,43 +75,57 @@ def accumulate(band, gradient, cross, bias_information, bias_gradient, first, we
         wi = w[i]
         if wi == 0.0:
             continue
-        info[:, :] = 0.0
-        g[:] = 0.0
-        kx[:, :] = 0.0
+        for x in range(3):
+            g[x] = 0.0
+            for y in range(3):
+                info[x, y] = 0.0
+            for b in range(k):
+                kx[x, b] = 0.0
         for r in range(m):
             er = wi * e[i, r]
             for x in range(3):
-                hrx = wi * hx[i, r, x]
-                g[x] += hrx * e[i, r]
-                for y in range(3):
-                    info[x, y] += hrx * hx[i, r, y]
+                hrx = hx[i, r, x]
+                whrx = wi * hrx
+                g[x] += hrx * er
+                for y in range(x, 3):
+                    info[x, y] += whrx * hx[i, r, y]
                 for b in range(k):
-                    kx[x, b] += hrx * hb[i, r, b]
+                    kx[x, b] += whrx * hb[i, r, b]
             for b in range(k):
-                hrb = hb[i, r, b]
-                bias_grad[b] += hrb * er
-                for b2 in range(k):
-                    bias_info[b, b2] += wi * hrb * hb[i, r, b2]
+                whrb = wi * hb[i, r, b]
+                bias_grad[b] += hb[i, r, b] * er
+                for b2 in range(b, k):
+                    bias_info[b, b2] += whrb * hb[i, r, b2]
+        info[1, 0] = info[0, 1]
+        info[2, 0] = info[0, 2]
+        info[2, 1] = info[1, 2]
         base = 3 * first[i]
         for a in range(4):
             wa = weights[i, a]
-            for c in range(a, 4):
-                ww = wa * weights[i, c]
-                for x in range(3):
-                    p = 3 * a + x
-                    for y in range(3):
-                        q = 3 * c + y
-                        if q >= p:
-                            band[q - p, base + p] += ww * info[y, x]
+            column = base + 3 * a
+            # The diagonal block: its lower triangle.
+            waa = wa * wa
             for x in range(3):
-                row = base + 3 * a + x
+                for y in range(x, 3):
+                    band[y - x, column + x] += waa * info[y, x]
+            # The blocks below it, whole.
+            for c in range(a + 1, 4):
+                ww = wa * weights[i, c]
+                offset = 3 * (c - a)
+                for x in range(3):
+                    for y in range(3):
+                        band[offset + y - x, column + x] += ww * info[y, x]
+            for x in range(3):
+                row = column + x
                 gradient[row] += wa * g[x]
                 for b in range(k):
                     cross[row, columns[b]] += wa * kx[x, b]
     for b in range(k):
         bias_gradient[columns[b]] += bias_grad[b]
-        for b2 in range(k):
+        for b2 in range(b, k):
             bias_information[columns[b], columns[b2]] += bias_info[b, b2]
+            if b2 != b:
+                bias_information[columns[b2], columns[b]] += bias_info[b, b2]
 
 
 @_jit
