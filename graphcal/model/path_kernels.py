@@ -92,11 +92,11 @@ def _warm(kernels: Any) -> None:
     """Call every loop once on tiny inputs of the types used (loads the cache)."""
     first = np.zeros(1, dtype=np.int64)
     weights = np.full((1, 4), 0.25)
-    band = np.zeros((12, 12))
+    band = np.zeros((12, 12), order="F")  # as paths.band_zeros makes it
     kernels.add_blocks(band, first, weights, np.eye(3)[None])
     kernels.scatter_vectors(np.zeros(12), first, weights, np.ones((1, 3)))
     kernels.evaluate(np.zeros((4, 3)), first, weights)
-    kernels.band_forward(np.ones((12, 4)), np.ones((4, 2)))
+    kernels.band_forward(np.ones((12, 4), order="F"), np.ones((4, 2)))
     position, information = kernels.adsb_reports(np.ones((1, 3)), np.ones(1), np.zeros(3),
                                                  np.eye(3), 1.5, np.ones(3))
     kernels.adsb_sums(band, np.zeros(12), first, weights, position, information)

@@ -205,8 +205,11 @@ class PathLayout:
 
 # --------------------------------------------------------------------------- band assembly
 def band_zeros(n_unknowns: int) -> FloatArray:
-    """An empty lower band ``(HALF_BANDWIDTH + 1, n)``: ``band[d, i] = A[i + d, i]``."""
-    return np.zeros((HALF_BANDWIDTH + 1, n_unknowns))
+    """An empty lower band ``(HALF_BANDWIDTH + 1, n)``: ``band[d, i] = A[i + d, i]``.
+
+    In Fortran order, as LAPACK takes it (no copy for the factorisation), each unknown's
+    column of the band contiguous (the compiled sums touch one column at a time)."""
+    return np.zeros((HALF_BANDWIDTH + 1, n_unknowns), order="F")
 
 
 def spread_matrix(first: IntArray, weights: FloatArray, n_coefficients: int,
@@ -369,9 +372,9 @@ class BandFactor:
         return out.reshape(rhs.shape)
 
     def _lower_c(self) -> FloatArray:
-        """The factor in C order, for the compiled loops (made once)."""
+        """The factor as LAPACK gives it (Fortran order), for the compiled loops."""
         if self._c is None:
-            self._c = np.ascontiguousarray(self.lower)
+            self._c = np.asfortranarray(self.lower)
         return self._c
 
     def backward(self, rhs: FloatArray) -> FloatArray:

@@ -302,7 +302,7 @@ class TrajectoryBlock:
         lin = self._linearise_data(named, want_bias, c)
         # The data's share, for estimating the process noise at this linearisation
         # without linearising again (estimate_process_noise).
-        self._data_snapshot = (lin.band.copy(), lin.gradient.copy(), lin.cost,
+        self._data_snapshot = (lin.band.copy(order="K"), lin.gradient.copy(), lin.cost,
                                lin.phase_cost, c.copy())
         self._add_prior(lin, c, self.phase_scale)
         return lin
