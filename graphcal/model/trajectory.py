@@ -437,17 +437,17 @@ class TrajectoryBlock:
         predicted, d_enu, hb = measurement_model(radar.site).measure(enu, full, free_names)
         e = predicted - radar.measured
         e[:, 1] = frames.wrap_to_pi(e[:, 1])
-        hx = d_enu @ radar.map_a
         m = radar.ndim
-        sigmas = radar.site.measurement_sigmas()[:m]
-        hx = hx[:, :m] / sigmas[None, :, None]
-        e = e[:, :m] / sigmas[None, :]
+        hx = d_enu[:, :m] @ radar.map_a
         hb = np.ascontiguousarray(hb[:, :m])
         if "time_offset" in free_names:
             k = free_names.index("time_offset")
             velocity = self._evaluate(c, first, _basis_rate(u, self.layout.spacing_s))
-            hb[:, :, k] = -np.einsum("nmi,ni->nm", hx * sigmas[None, :, None], velocity)
-        hb /= sigmas[None, :, None]
+            hb[:, :, k] = -np.einsum("nmi,ni->nm", hx, velocity)
+        whiten = 1.0 / radar.site.measurement_sigmas()[:m]
+        hx *= whiten[None, :, None]
+        hb *= whiten[None, :, None]
+        e = e[:, :m] * whiten[None, :]
         cols = columns.get(radar.radar_id, np.zeros(0, dtype=np.int64))
         if len(cols) == 0:
             hb = hb[:, :, :0]
