@@ -69,10 +69,13 @@ STEP_TIME_TOLERANCE_S = 30.0
 #: ... starting from a grid of this many candidate times over the window.
 STEP_GRID_POINTS = 7
 
-#: Windows calibrated with NumPy's sums before the compiled loops are loaded
-#: (:func:`_compiled_loops_after`): about 0.6 s, a tenth of a one-hour window of a
-#: four-radar network.
+#: Windows calibrated with NumPy's sums before the compiled loops may be loaded
+#: (:class:`_CompiledLoopsWhenWorthIt`) ...
 COMPILED_LOOPS_AFTER_WINDOWS = 3
+#: ... when they took at least this long each [s] (a one-hour window of a four-radar
+#: network with 30,000 plots and 80,000 ADS-B reports takes 0.4 s, of which the compiled
+#: loops save 0.15 s).
+COMPILED_LOOPS_MIN_WINDOW_S = 0.25
 #: A smoothed window further than this from its summary's linearisation point, in
 #: that window's own sigmas, is worth a warning (the summaries are not re-linearised).
 LARGEST_MOVE_WARNING_SIGMA = 10.0
@@ -293,6 +296,7 @@ def _first_pass(dataset: Dataset | str | os.PathLike[str], window_s: float, clea
     folder was read as if in time order and is not.
     """
     source = helper = None
+    prepare = _CompiledLoopsWhenWorthIt()
     if scheduler == "auto":  # forked for a large folder on two cores or more
         scheduler = ("forked" if not isinstance(dataset, Dataset) and reads_in_child(
             Path(dataset)) and (os.cpu_count() or 1) >= 2 else "synchronous")
@@ -301,7 +305,7 @@ def _first_pass(dataset: Dataset | str | os.PathLike[str], window_s: float, clea
         # reads the first windows); the copy forked now, before the folder's span is
         # measured in a thread.
         path_kernels.enable()
-        helper = ForkedHelper(summarise_associated, (options,), _compiled_loops_from)
+        helper = ForkedHelper(summarise_associated, (options,), prepare)
     try:
         source = (_memory_source(dataset, window_s) if isinstance(dataset, Dataset)
                   else _folder_source(Path(dataset), window_s, clean, force, order))
@@ -320,7 +324,7 @@ def _first_pass(dataset: Dataset | str | os.PathLike[str], window_s: float, clea
                                             progress=None if progress is None else report,
                                             total=source.total,
                                             prefetch=not source.read_ahead,
-                                            prepare=_compiled_loops_from, helper=helper)
+                                            prepare=prepare, helper=helper)
                      if s is not None]
     except Exception:
         if helper is not None:
@@ -343,12 +347,27 @@ def _finish(cal: Calibration, source: _Source, scheduler: str,
     cal.info["windows"]["streamed"] = not isinstance(dataset, Dataset)
 
 
-def _compiled_loops_from(number: int) -> None:
-    """From window :data:`COMPILED_LOOPS_AFTER_WINDOWS` on, the process calibrating it
-    uses the paths' compiled loops (:mod:`graphcal.model.path_kernels`): a recording of
-    more windows pays their loading time back many times over."""
-    if number >= COMPILED_LOOPS_AFTER_WINDOWS and not path_kernels.enabled():
-        path_kernels.enable()
+class _CompiledLoopsWhenWorthIt:
+    """``prepare`` of the window map: after :data:`COMPILED_LOOPS_AFTER_WINDOWS` windows
+    (not counting the first, which also pays for loading the solvers), the process
+    calibrating them switches to the paths' compiled loops
+    (:mod:`graphcal.model.path_kernels`) if they took at least
+    :data:`COMPILED_LOOPS_MIN_WINDOW_S` each: loading the loops (about 0.4 s, a few
+    seconds the first time on a machine) then pays back within a few windows."""
+
+    def __init__(self) -> None:
+        self._started: float | None = None
+        self._timed = -1  # windows done since the first one ended
+
+    def __call__(self, number: int) -> None:
+        now = time.perf_counter()
+        if self._timed == 0:
+            self._started = now
+        elif (self._started is not None and self._timed >= COMPILED_LOOPS_AFTER_WINDOWS
+              and not path_kernels.enabled()
+              and (now - self._started) / self._timed >= COMPILED_LOOPS_MIN_WINDOW_S):
+            path_kernels.enable()
+        self._timed += 1
 
 
 def _judge(summaries: Sequence[WindowSummary]) -> FitVerdict | None:

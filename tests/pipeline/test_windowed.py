@@ -138,8 +138,8 @@ def test_processes_give_the_same_series_as_this_process(stepping, windowed) -> N
 
 def test_forked_copy_gives_the_same_series_as_this_process(stepping, windowed) -> None:
     """The window map in this process and a forked copy of it (the default for a large
-    folder; both switch to the compiled loops from the fourth window): the same series
-    (within 0.001 sigma) as in this process alone."""
+    folder; both with the compiled loops, loaded before the fork): the same series
+    (within 0.001 sigma) as in this process alone, with NumPy's sums."""
     from graphcal.pipeline.schedulers import child_reading_available
 
     if not child_reading_available():
@@ -392,3 +392,27 @@ def test_the_command_does_not_load_a_long_recording_whole(demo_dir, monkeypatch,
     assert result.exit_code == 0, result.output
     info = json.loads(out.read_text())["info"]
     assert info["windows"]["constant"] is True and info["windows"]["n_windows"] == 3
+
+
+@pytest.mark.parametrize(("seconds_per_window", "loads"), [(0.1, False), (0.4, True)])
+def test_compiled_loops_load_after_three_windows_that_were_slow_enough(
+        monkeypatch, seconds_per_window: float, loads: bool) -> None:
+    import types
+
+    import graphcal.pipeline.windowed as windowed
+
+    clock = [0.0]
+    monkeypatch.setattr(windowed, "time", types.SimpleNamespace(perf_counter=lambda: clock[0]))
+    monkeypatch.setattr(windowed.path_kernels, "enabled", lambda: False)
+    loaded = []
+    monkeypatch.setattr(windowed.path_kernels, "enable", lambda: loaded.append(clock[0]))
+    prepare = windowed._CompiledLoopsWhenWorthIt()
+    for number in range(7):
+        prepare(number)
+        # The first window also loads the solvers: it is not counted.
+        clock[0] += 2.0 if number == 0 else seconds_per_window
+    # Asked at the fifth window (after three timed ones), when they pay: then at every
+    # later one too here, since `enabled` is held at False.
+    assert bool(loaded) == loads
+    if loads:
+        assert loaded[0] == pytest.approx(2.0 + 3 * seconds_per_window)
