@@ -34,6 +34,7 @@ from graphcal.cli.noise import noise_command
 from graphcal.cli.observability import observability_command
 from graphcal.cli.report import report_command
 from graphcal.cli.simulate import simulate_command
+from graphcal.core.allocator import keep_freed_memory
 
 app = typer.Typer(
     help="Joint bias calibration of air-surveillance radar networks.",
@@ -100,6 +101,7 @@ def main() -> None:  # pragma: no cover - console entry point
     then end the process at once (:func:`exit_at_once`)."""
     install_signal_handlers()
     route_warnings()
+    keep_freed_memory()
     try:
         app()
         status: object = 0
