@@ -16,19 +16,31 @@ _jit = numba.njit(cache=True, nogil=True)
 
 
 @_jit
+def add_block(band, base, weights, info):  # pragma: no cover - compiled
+    """``band += (B B^T) kron M`` for one measurement whose first coefficient's first
+    unknown is ``base`` (``weights`` its four ``B``, ``info`` the 3 x 3 ``M``)."""
+    for a in range(4):
+        wa = weights[a]
+        column = base + 3 * a
+        # The diagonal block: its lower triangle.
+        waa = wa * wa
+        for x in range(3):
+            for y in range(x, 3):
+                band[y - x, column + x] += waa * info[y, x]
+        # The blocks below it, whole.
+        for c in range(a + 1, 4):
+            ww = wa * weights[c]
+            offset = 3 * (c - a)
+            for x in range(3):
+                for y in range(3):
+                    band[offset + y - x, column + x] += ww * info[y, x]
+
+
+@_jit
 def add_blocks(band, first, weights, info):  # pragma: no cover - compiled
     """``band += sum_i (B_i B_i^T) kron M_i`` (``info`` (n, 3, 3) the ``M_i``)."""
     for i in range(first.shape[0]):
-        base = 3 * first[i]
-        for a in range(4):
-            for c in range(a, 4):
-                ww = weights[i, a] * weights[i, c]
-                for x in range(3):
-                    p = 3 * a + x
-                    for y in range(3):
-                        q = 3 * c + y
-                        if q >= p:
-                            band[q - p, base + p] += ww * info[i, y, x]
+        add_block(band, 3 * first[i], weights[i], info[i])
 
 
 @_jit
@@ -100,23 +112,11 @@ def accumulate(band, gradient, cross, bias_information, bias_gradient, first, we
         info[2, 0] = info[0, 2]
         info[2, 1] = info[1, 2]
         base = 3 * first[i]
+        add_block(band, base, weights[i], info)
         for a in range(4):
             wa = weights[i, a]
-            column = base + 3 * a
-            # The diagonal block: its lower triangle.
-            waa = wa * wa
             for x in range(3):
-                for y in range(x, 3):
-                    band[y - x, column + x] += waa * info[y, x]
-            # The blocks below it, whole.
-            for c in range(a + 1, 4):
-                ww = wa * weights[i, c]
-                offset = 3 * (c - a)
-                for x in range(3):
-                    for y in range(3):
-                        band[offset + y - x, column + x] += ww * info[y, x]
-            for x in range(3):
-                row = column + x
+                row = base + 3 * a + x
                 gradient[row] += wa * g[x]
                 for b in range(k):
                     cross[row, columns[b]] += wa * kx[x, b]
@@ -196,18 +196,10 @@ def adsb_sums(band, rhs, first, weights, position, information):  # pragma: no c
             mz[x] = v
             constant += 0.5 * position[i, x] * v
         base = 3 * first[i]
+        add_block(band, base, weights[i], information[i])
         for a in range(4):
-            wa = weights[i, a]
-            for c in range(a, 4):
-                ww = wa * weights[i, c]
-                for x in range(3):
-                    p = 3 * a + x
-                    for y in range(3):
-                        q = 3 * c + y
-                        if q >= p:
-                            band[q - p, base + p] += ww * information[i, y, x]
             for x in range(3):
-                rhs[base + 3 * a + x] += wa * mz[x]
+                rhs[base + 3 * a + x] += weights[i, a] * mz[x]
     return constant
 
 
@@ -225,5 +217,5 @@ def motion_prior(band, first, scale, gram):  # pragma: no cover - compiled
                     band[3 * (high - low), base + 3 * low + x] += value
 
 
-__all__ = ["accumulate", "add_blocks", "adsb_reports", "adsb_sums", "band_forward", "evaluate",
-           "motion_prior", "scatter_vectors"]
+__all__ = ["accumulate", "add_block", "add_blocks", "adsb_reports", "adsb_sums", "band_forward",
+           "evaluate", "motion_prior", "scatter_vectors"]

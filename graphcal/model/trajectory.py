@@ -359,12 +359,7 @@ class TrajectoryBlock:
         firsts, weights, infos, gradients = [], [], [], []
         pending: dict[str, list[tuple[IntArray, FloatArray, FloatArray, IntArray]]] = {}
         for g in groups:
-            m = g.e.shape[1]
-            s = frames.row_norm(g.e)
-            w = self.kernel.weight(s, m)
-            loss = self.kernel.loss(s, m)
-            lin.cost += float(np.sum(loss))
-            phase_cost += np.bincount(layout.phase[g.interval], loss, minlength=layout.n_phases)
+            w = self._robust_weights(lin, g)
             weighted = g.hx * w[:, None, None]
             infos.append(np.swapaxes(weighted, 1, 2) @ g.hx)
             gradients.append(np.einsum("nmi,nm->ni", weighted, g.e))
@@ -395,12 +390,22 @@ class TrajectoryBlock:
             lin.gradient += scatter_vectors(first_all, weights_all, np.concatenate(gradients), n)
         return lin
 
+    def _robust_weights(self, lin: _Linear, g: _Group) -> FloatArray:
+        """The group's robust weights; its robust cost added to ``lin`` (in all and by
+        flight phase)."""
+        assert lin.phase_cost is not None
+        m = g.e.shape[1]
+        s = frames.row_norm(g.e)
+        loss = self.kernel.loss(s, m)
+        lin.cost += float(np.sum(loss))
+        lin.phase_cost += np.bincount(self.layout.phase[g.interval], loss,
+                                      minlength=self.layout.n_phases)
+        return self.kernel.weight(s, m)
+
     def _accumulate_compiled(self, lin: _Linear, groups: list[_Group], want_bias: bool) -> None:
         """The groups' sums into ``lin`` with the compiled loops (:mod:`path_kernels`):
         the same sums as NumPy's in :meth:`_linearise_data`, one pass per group."""
-        layout = self.layout
         loops = path_kernels.compiled()
-        assert lin.phase_cost is not None
         if want_bias:
             assert lin.cross is not None and lin.bias_information is not None
             assert lin.bias_gradient is not None
@@ -408,13 +413,7 @@ class TrajectoryBlock:
         else:
             cross, information, gradient = np.zeros((1, 0)), np.zeros((0, 0)), np.zeros(0)
         for g in groups:
-            m = g.e.shape[1]
-            s = frames.row_norm(g.e)
-            w = self.kernel.weight(s, m)
-            loss = self.kernel.loss(s, m)
-            lin.cost += float(np.sum(loss))
-            lin.phase_cost += np.bincount(layout.phase[g.interval], loss,
-                                          minlength=layout.n_phases)
+            w = self._robust_weights(lin, g)
             columns = (g.columns if want_bias else np.zeros(0, dtype=np.int64))
             hb = g.hb if want_bias else g.hb[:, :, :0]
             loops.accumulate(lin.band, lin.gradient, cross, information, gradient,

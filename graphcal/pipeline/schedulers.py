@@ -367,6 +367,18 @@ def _exit_on_signal(signum: int, frame: Any) -> None:
     raise SystemExit(128 + signum)
 
 
+def _travelling(exc: BaseException) -> BaseException:
+    """``exc`` if it survives pickling (to be raised in the parent), else a
+    :class:`RuntimeError` with its type and message."""
+    import pickle
+
+    try:
+        pickle.loads(pickle.dumps(exc))
+    except Exception:  # noqa: BLE001 - an exception that cannot travel as it is
+        return RuntimeError(f"{type(exc).__name__}: {exc}")
+    return exc
+
+
 def _produce_into(function: Callable[..., Iterable[Any]], args: tuple[Any, ...],
                   reader: Any, writer: Any) -> None:
     """:func:`read_in_child`'s child: every item and warning, then the end or the error."""
@@ -403,11 +415,7 @@ def _produce_into(function: Callable[..., Iterable[Any]], args: tuple[Any, ...],
             except (KeyboardInterrupt, BrokenPipeError):
                 raise
             except BaseException as exc:  # noqa: BLE001 - handed to the parent
-                try:
-                    pickle.loads(pickle.dumps(exc))
-                except Exception:  # noqa: BLE001 - an exception that cannot travel as it is
-                    exc = RuntimeError(f"{type(exc).__name__}: {exc}")
-                ending = ("error", exc)
+                ending = ("error", _travelling(exc))
             send_warnings(caught)
             put(ending)
             outbox.finish()
@@ -619,11 +627,7 @@ def _serve(function: Callable[..., Any], args: tuple[Any, ...],
                     prepare(number)
                 message: tuple[str, Any] = ("result", function(item, *args))
             except Exception as exc:  # noqa: BLE001 - handed to the parent
-                try:
-                    pickle.loads(pickle.dumps(exc))
-                except Exception:  # noqa: BLE001 - an exception that cannot travel as it is
-                    exc = RuntimeError(f"{type(exc).__name__}: {exc}")
-                message = ("error", exc)
+                message = ("error", _travelling(exc))
         notes = [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
         try:
             writer.send_bytes(pickle.dumps((*message, notes),

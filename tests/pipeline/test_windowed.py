@@ -28,6 +28,14 @@ runner = CliRunner()
 READING_CROSS = "pairwise"
 
 
+def assert_same_series(expected: Calibration, got: Calibration, within_sigma: float) -> None:
+    """Every window's every bias of ``got`` within ``within_sigma`` of ``expected``'s sigma."""
+    for rid, entries in expected.series["radars"].items():
+        for mine, theirs in zip(entries, got.series["radars"][rid], strict=True):
+            for key, sigma in mine["sigma"].items():
+                assert abs(mine[key] - theirs[key]) <= within_sigma * sigma, (rid, key)
+
+
 @pytest.fixture(scope="module")
 def stepping():
     """The demo network for one hour, SUD's range offset stepping 60 m at 2000 s."""
@@ -129,10 +137,7 @@ def test_processes_give_the_same_series_as_this_process(stepping, windowed) -> N
     pytest.importorskip("distributed")
     _, sim = stepping
     other = calibrate(sim.dataset, window="15min", scheduler="processes")
-    for rid, entries in windowed.series["radars"].items():
-        for mine, theirs in zip(entries, other.series["radars"][rid], strict=True):
-            for key, sigma in mine["sigma"].items():
-                assert abs(mine[key] - theirs[key]) <= 0.01 * sigma, (rid, key)
+    assert_same_series(windowed, other, within_sigma=0.01)
     assert other.info["windows"]["scheduler"] == "processes"
 
 
@@ -146,10 +151,7 @@ def test_forked_copy_gives_the_same_series_as_this_process(stepping, windowed) -
         pytest.skip("the forked map needs fork (Linux)")
     _, sim = stepping
     other = calibrate(sim.dataset, window="15min", scheduler="forked")
-    for rid, entries in windowed.series["radars"].items():
-        for mine, theirs in zip(entries, other.series["radars"][rid], strict=True):
-            for key, sigma in mine["sigma"].items():
-                assert abs(mine[key] - theirs[key]) <= 0.001 * sigma, (rid, key)
+    assert_same_series(windowed, other, within_sigma=0.001)
     assert other.info["windows"]["scheduler"] == "forked"
     assert windowed.info["windows"]["scheduler"] == "synchronous"
 
@@ -200,10 +202,7 @@ def test_a_folder_is_read_window_by_window_with_the_same_result(stepping, window
     write_dataset(sim.dataset, folder, fmt="parquet")
     streamed = calibrate(folder, window="15min")
     assert streamed.info["windows"]["streamed"] is True
-    for rid, entries in windowed.series["radars"].items():
-        for mine, theirs in zip(entries, streamed.series["radars"][rid], strict=True):
-            for key, sigma in mine["sigma"].items():
-                assert abs(mine[key] - theirs[key]) <= 0.01 * sigma, (rid, key)
+    assert_same_series(windowed, streamed, within_sigma=0.01)
 
 
 def test_a_folder_read_in_a_child_process_gives_the_same_series(stepping, tmp_path: Path,
