@@ -135,9 +135,7 @@ class NetworkFrame:
 
     def heights_and_up(self, enu_m: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Ellipsoidal heights [m] and local verticals (unit, this frame) of points."""
-        lat, lon, h = frames.ecef_to_geodetic(self.to_ecef(enu_m))
-        up_ecef = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon),
-                            np.sin(lat)], axis=-1)
+        h, up_ecef = frames.ecef_to_height_and_normal(self.to_ecef(enu_m))
         return h, frames.rotate(up_ecef, self.rotation)
 
     def radar_map(self, site: Site) -> tuple[FloatArray, FloatArray]:
@@ -238,7 +236,10 @@ class TrajectoryBlock:
     n_calls: int = 0
     _prior_cache: tuple[FloatArray, FloatArray] | None = field(default=None, repr=False)
     _reduced_cache: tuple[tuple[bytes, bytes], tuple] | None = field(default=None, repr=False)
-    _data_snapshot: tuple | None = field(default=None, repr=False)
+    #: The last elimination's biases (flat), ``L^-1 X`` and the paths' factor ``L``: the
+    #: paths' first-order response to a change of the biases (:meth:`_follow_biases`).
+    _path_response: tuple[FloatArray, FloatArray, BandFactor] | None = field(
+        default=None, repr=False)
 
     # ------------------------------------------------------------ layout of the biases
     @property
@@ -272,7 +273,7 @@ class TrajectoryBlock:
         fixed = {r.radar_id: np.zeros(0) for r in radars if r.radar_id not in names}
         return dataclasses.replace(self, radars=radars, variables=variables,
                                    fixed_values=fixed, last_weights={}, n_calls=0,
-                                   _reduced_cache=None)
+                                   _reduced_cache=None, _path_response=None)
 
     def values_of(self, named: dict[str, FloatArray]) -> list[FloatArray]:
         """The factor's variable values in order, from a dict by radar id (``""``: the
@@ -297,13 +298,16 @@ class TrajectoryBlock:
 
     # ------------------------------------------------------------ linearisation
     def _linearise(self, named: dict[str, FloatArray], want_bias: bool,
-                   coefficients: FloatArray | None = None) -> _Linear:
+                   coefficients: FloatArray | None = None,
+                   estimate_process_noise: bool = False) -> _Linear:
+        """The normal equations of paths and biases at these biases and paths; with
+        ``estimate_process_noise``, the phases' process noise is first estimated from
+        the data's share (:meth:`_estimate_process_noise`) and the prior is then that
+        of the new noise."""
         c = self.coefficients if coefficients is None else coefficients
         lin = self._linearise_data(named, want_bias, c)
-        # The data's share, for estimating the process noise at this linearisation
-        # without linearising again (estimate_process_noise).
-        self._data_snapshot = (lin.band.copy(order="K"), lin.gradient.copy(), lin.cost,
-                               lin.phase_cost, c.copy())
+        if estimate_process_noise:
+            self._estimate_process_noise(lin, c)
         self._add_prior(lin, c, self.phase_scale)
         return lin
 
@@ -500,7 +504,7 @@ class TrajectoryBlock:
     # ------------------------------------------------------------ elimination
     def _settle_paths(self, named: dict[str, FloatArray], max_steps: int) -> None:
         """Gauss-Newton steps of the paths at fixed biases."""
-        self._reduced_cache = None
+        self._reduced_cache = self._path_response = None
         for _ in range(max_steps):
             lin = self._linearise(named, want_bias=False)
             factor = BandFactor.of(lin.band)
@@ -510,7 +514,8 @@ class TrajectoryBlock:
             if 0.5 * float(z @ z) < PATH_STEP_TOLERANCE:
                 break
 
-    def reduced(self, values: list[FloatArray], want: bool
+    def reduced(self, values: list[FloatArray], want: bool,
+                estimate_process_noise: bool = False
                 ) -> tuple[float, FloatArray | None, FloatArray | None]:
         """The reduced cost, gradient and information on the biases (paths eliminated).
 
@@ -521,17 +526,25 @@ class TrajectoryBlock:
         the paths' measurement model is nearly linear).  The paths then take that step,
         the start of the next call.  ``want`` is accepted for symmetry: the bias columns
         are always formed, and the last call's result is served again for the same
-        biases.
+        biases.  With ``estimate_process_noise`` the phases' process noise is first
+        estimated at this linearisation (:meth:`_estimate_process_noise`), and the
+        reduced system is that of the new noise.
         """
-        key = (b"".join(np.asarray(v, dtype=float).tobytes() for v in values),
-               self.phase_scale.tobytes())
-        if self._reduced_cache is not None and self._reduced_cache[0] == key:
+        def key() -> tuple[bytes, bytes]:
+            return (b"".join(np.asarray(v, dtype=float).tobytes() for v in values),
+                    self.phase_scale.tobytes())
+
+        if (not estimate_process_noise and self._reduced_cache is not None
+                and self._reduced_cache[0] == key()):
             return self._reduced_cache[1]
         self.n_calls += 1
+        flat = np.concatenate([np.ravel(v) for v in values]).astype(float)
+        self._follow_biases(flat)
         named = self._split(values)
         # Always with the bias columns: GTSAM asks for the error at a point and then,
         # when it accepts the point, for its linearisation there (served from the cache).
-        lin = self._linearise(named, want_bias=True)
+        lin = self._linearise(named, want_bias=True,
+                              estimate_process_noise=estimate_process_noise)
         factor = BandFactor.of(lin.band)
         assert lin.cross is not None and lin.bias_information is not None
         assert lin.bias_gradient is not None
@@ -545,10 +558,28 @@ class TrajectoryBlock:
         # The paths move to their optimum at these biases (the step the reduced system
         # assumes), the start of the next call.
         self.coefficients = self.coefficients - factor.backward(zg).reshape(-1, 3)
+        self._path_response = (flat, zx, factor)
         self._record_weights(lin)
         out = (cost, gradient, 0.5 * (information + information.T))
-        self._reduced_cache = (key, out)
+        self._reduced_cache = (key(), out)
         return out
+
+    def _follow_biases(self, flat: FloatArray) -> None:
+        """Move the paths with the biases' change since the last elimination.
+
+        That elimination left the paths at their optimum for its biases ``b0``; at biases
+        ``b`` the joint Gauss-Newton step moves them further by ``-A^-1 X (b - b0)``
+        (``L^-T (L^-1 X) (b - b0)`` with its factor): the paths follow the biases, as a
+        bundle adjustment back-substitutes its points, so that the next linearisation is
+        at the joint iterate rather than at paths fitted to the old biases.
+        """
+        response = self._path_response
+        if response is None or len(response[0]) != len(flat):
+            return
+        previous, zx, factor = response
+        change = flat - previous
+        if np.any(change != 0.0):
+            self.coefficients = self.coefficients - factor.backward(zx @ change).reshape(-1, 3)
 
     def normal_equations(self, values: list[FloatArray]) -> dict[str, FloatArray]:
         """The joint Gauss-Newton normal equations of paths and biases at the current
@@ -611,7 +642,7 @@ class TrajectoryBlock:
         self.last_weights = {rid: np.concatenate(w) for rid, w in weights.items()}
 
     # ------------------------------------------------------------ process noise
-    def estimate_process_noise(self) -> FloatArray:
+    def _estimate_process_noise(self, lin: _Linear, coefficients: FloatArray) -> FloatArray:
         """Each phase's process noise [m^2/s^3] by maximum marginal likelihood (grid).
 
         For each ``q`` of :data:`PROCESS_NOISE_GRID_M2_S3` the paths' Laplace
@@ -620,12 +651,11 @@ class TrajectoryBlock:
         intervals); every phase
         takes the ``q`` that maximises its share.  Sets and returns the phases' ``q``.
 
-        It uses the data of the last linearisation (that of the last :meth:`reduced`), not
-        linearising again.
+        ``lin`` is the data's share of a linearisation at the paths ``coefficients``,
+        before the motion prior is added (:meth:`_linearise`).
         """
-        if self._data_snapshot is None:
-            raise RuntimeError("estimate_process_noise needs a linearisation first (reduced)")
-        data_band, data_gradient, data_cost, measurement_cost, coefficients = self._data_snapshot
+        assert lin.phase_cost is not None
+        data_band, data_gradient, measurement_cost = lin.band, lin.gradient, lin.phase_cost
         layout = self.layout
         unknown_phase = layout.unknown_phase()
         best = np.full(layout.n_phases, -np.inf)

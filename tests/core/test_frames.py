@@ -113,6 +113,25 @@ def test_ecef_to_geodetic_matches_pymap3d():
     np.testing.assert_allclose(our_alt, alt, rtol=0, atol=1e-6)
 
 
+def test_ecef_to_height_and_normal_matches_pymap3d():
+    """The trig-free height and normal agree with pymap3d.ecef2geodetic from -10 km to
+    100 km: heights to 1e-6 m, the normal to 1e-11 rad, and the normal is the local
+    vertical (the third row of pymap3d's ENU rotation at that latitude and longitude)."""
+    rng = np.random.default_rng(12)
+    lat, lon, alt = random_geodetic(rng, 2000, -1e4, 1e5)
+    ecef = geodetic_to_ecef(lat, lon, alt)
+    height, normal = frames.ecef_to_height_and_normal(ecef)
+    ref_lat, ref_lon, ref_alt = pymap3d.ecef2geodetic(ecef[:, 0], ecef[:, 1], ecef[:, 2], deg=False)
+    np.testing.assert_allclose(height, ref_alt, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(height, alt, rtol=0, atol=1e-6)
+    up = np.column_stack(pymap3d.enu2ecef(0.0, 0.0, 1.0, ref_lat, ref_lon, 0.0, deg=False)) \
+        - np.column_stack(pymap3d.enu2ecef(0.0, 0.0, 0.0, ref_lat, ref_lon, 0.0, deg=False))
+    np.testing.assert_allclose(np.linalg.norm(normal, axis=1), 1.0, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(normal, up, rtol=0, atol=1e-9)
+    expected = np.column_stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+    np.testing.assert_allclose(normal, expected, rtol=0, atol=1e-11)
+
+
 @pytest.mark.parametrize(("lat0", "lon0", "h0"), SITES, ids=SITE_IDS)
 def test_ecef_enu_match_pymap3d(lat0, lon0, h0):
     """ecef_to_enu / enu_to_ecef agree with pymap3d.ecef2enu / enu2ecef.
