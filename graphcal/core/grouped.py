@@ -35,8 +35,7 @@ def group_medians(group: IntArray, columns: list[FloatArray]
     medians : list of ndarray, each shape (g,)
         Each column's median per group.
     """
-    codes, first, inverse, counts = np.unique(group, return_index=True, return_inverse=True,
-                                              return_counts=True)
+    codes, first, inverse, counts = group_runs(group)
     order = np.argsort(first, kind="stable")
     starts = np.cumsum(counts) - counts
     low, high = starts + (counts - 1) // 2, starts + counts // 2
@@ -47,6 +46,50 @@ def group_medians(group: IntArray, columns: list[FloatArray]
         ranked = values[by_value[group_order(inverse[by_value], values[by_value])]]
         medians.append((0.5 * (ranked[low] + ranked[high]))[order])
     return codes[order], counts[order], medians
+
+
+def group_runs(group: NDArray) -> tuple[NDArray, IntArray, IntArray, IntArray]:
+    """The groups of ``group``: ``np.unique(group, return_index=True, return_inverse=True,
+    return_counts=True)``, faster.
+
+    When the codes fit in 16 bits (:func:`_fits_16_bits`), one stable radix sort of the
+    codes orders the rows by group, ties by row, so that each run's first row is its
+    group's first appearance; otherwise ``np.unique`` runs.
+
+    Parameters
+    ----------
+    group : ndarray of int, shape (n,)
+        Each row's group code.
+
+    Returns
+    -------
+    codes : ndarray, shape (g,)
+        The distinct codes, in increasing order.
+    first : ndarray of int, shape (g,)
+        The row of each one's first appearance.
+    inverse : ndarray of int, shape (n,)
+        Each row's position in ``codes``.
+    counts : ndarray of int, shape (g,)
+        Each one's rows.
+    """
+    group = np.asarray(group)
+    if not _fits_16_bits(group):
+        return np.unique(group, return_index=True, return_inverse=True, return_counts=True)
+    n = len(group)
+    order = np.argsort((group + 1).astype(np.int16), kind="stable")
+    ordered = group[order]
+    starts = np.flatnonzero(np.concatenate([[True], ordered[1:] != ordered[:-1]]))
+    counts = np.diff(np.append(starts, n))
+    inverse = np.empty(n, dtype=np.intp)
+    inverse[order] = np.repeat(np.arange(len(starts)), counts)
+    return ordered[starts], order[starts], inverse, counts
+
+
+def _fits_16_bits(group: NDArray) -> bool:
+    """Whether ``group`` holds (at least two) integer codes from -1 to 32,766, a radix
+    sort's range (``group + 1`` in ``int16``)."""
+    return bool(len(group) > 1 and group.dtype.kind in "iu" and group.min() >= -1
+                and group.max() < np.iinfo(np.int16).max)
 
 
 def group_order(group: NDArray, values: FloatArray) -> IntArray:
@@ -71,12 +114,10 @@ def group_order(group: NDArray, values: FloatArray) -> IntArray:
     """
     group = np.asarray(group)
     values = np.asarray(values)
-    n = len(group)
-    if (n > 1 and group.dtype.kind in "iu" and values.dtype.kind == "f"
-            and group.min() >= -1 and group.max() < np.iinfo(np.int16).max
+    if (_fits_16_bits(group) and values.dtype.kind == "f"
             and bool(np.all(values[1:] >= values[:-1]))):
         return np.argsort((group + 1).astype(np.int16), kind="stable")
     return np.lexsort((values, group))
 
 
-__all__ = ["group_medians", "group_order"]
+__all__ = ["group_medians", "group_order", "group_runs"]

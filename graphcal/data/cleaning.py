@@ -188,8 +188,64 @@ def _keep(table: pd.DataFrame, keep: BoolArray) -> pd.DataFrame:
     return table.loc[keep].reset_index(drop=True)
 
 
+def _rows(array: NDArray, rows: NDArray) -> NDArray:
+    """``array[rows]`` along the first axis (indices or a boolean mask): the same rows,
+    several times faster than fancy indexing for an ``(n, 3)`` array."""
+    if rows.dtype == bool:
+        return np.compress(rows, array, axis=0)
+    return np.take(array, rows, axis=0)
+
+
 def _column(table: pd.DataFrame, name: str) -> FloatArray:
     return pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+
+
+@dataclass(frozen=True)
+class _Text:
+    """A text column as integer codes, found once and kept through the cleaning.
+
+    Attributes
+    ----------
+    codes : ndarray of int
+        ``pd.factorize(column.astype(str))`` of the column as it was read (-1 where
+        missing), then the codes of the rows kept by each step.
+    names : pandas.Index
+        The text of each code (some unused once rows are dropped).
+    fresh : bool
+        No row has been dropped since: the codes are still in order of first
+        appearance, without unused ones, as ``pd.factorize`` gives them.
+    exact : bool
+        The column holds text (a string dtype), which ``astype(str)`` leaves as it
+        is: equal codes are equal values of the column itself, not only of its text.
+    """
+
+    codes: NDArray[np.intp]
+    names: pd.Index
+    fresh: bool
+    exact: bool
+
+    @classmethod
+    def of(cls, column: pd.Series) -> _Text:
+        """The codes of a column (``pd.factorize`` of its text)."""
+        codes, names = pd.factorize(column.astype(str))
+        exact = pd.api.types.is_string_dtype(column.dtype) and column.dtype != object
+        return cls(codes, pd.Index(names), True, exact)
+
+    def kept(self, keep: BoolArray) -> _Text:
+        """The codes of the rows where ``keep``."""
+        if keep.all():
+            return self
+        return _Text(self.codes[keep], self.names, False, self.exact)
+
+    def where(self, of_name: BoolArray) -> BoolArray:
+        """Per row, ``of_name`` of its text (one value per name); ``False`` where missing."""
+        return np.append(np.asarray(of_name, dtype=bool), False)[self.codes]
+
+    def counts(self) -> dict[str, int]:
+        """Rows per text (as ``column.astype(str).value_counts()``, zeros included)."""
+        present = self.codes[self.codes >= 0]
+        sizes = np.bincount(present, minlength=len(self.names))
+        return {str(name): int(size) for name, size in zip(self.names, sizes, strict=True)}
 
 
 # --------------------------------------------------------------------------- non-finite
@@ -215,20 +271,35 @@ def drop_non_finite_plots(
     report : CleaningReport
         ``counts["plots_non_finite"]``.
     """
+    bad = _non_finite_plots(plots, sites, None)
+    return _infinite_to_nan(_keep(plots, ~bad)), _report(plots_non_finite=int(bad.sum()))
+
+
+def _non_finite_plots(plots: pd.DataFrame, sites: Mapping[str, Site] | None,
+                      radar: _Text | None) -> BoolArray:
+    """:func:`drop_non_finite_plots`'s rows to drop (``radar``: the ``radar_id`` codes,
+    when known)."""
     bad = np.zeros(len(plots), dtype=bool)
     for name in _PLOT_REQUIRED:
         bad |= ~np.isfinite(_column(plots, name))
     if sites is not None and "elevation_deg" in plots:
         three_d = [rid for rid, site in sites.items() if site.is_3d]
-        is_3d = plots["radar_id"].isin(three_d).to_numpy(dtype=bool)
+        if radar is not None and radar.exact:
+            is_3d = radar.where(radar.names.isin(three_d))
+        else:
+            is_3d = plots["radar_id"].isin(three_d).to_numpy(dtype=bool)
         bad |= is_3d & ~np.isfinite(_column(plots, "elevation_deg"))
-    out = _keep(plots, ~bad)
+    return bad
+
+
+def _infinite_to_nan(plots: pd.DataFrame) -> pd.DataFrame:
+    """The plots with an infinite ``altitude_m`` or ``elevation_deg`` set to NaN (in place)."""
     for name in ("altitude_m", "elevation_deg"):
-        if name in out:
-            values = _column(out, name)
+        if name in plots:
+            values = _column(plots, name)
             if np.isinf(values).any():
-                out[name] = np.where(np.isinf(values), np.nan, values)
-    return out, _report(plots_non_finite=int(bad.sum()))
+                plots[name] = np.where(np.isinf(values), np.nan, values)
+    return plots
 
 
 def drop_out_of_range_plots(
@@ -248,6 +319,13 @@ def drop_out_of_range_plots(
     report : CleaningReport
         ``counts["plots_out_of_range"]`` and one warning when any were dropped.
     """
+    bad, report = _out_of_range_plots(plots, max_range_m)
+    return _keep(plots, ~bad), report
+
+
+def _out_of_range_plots(plots: pd.DataFrame, max_range_m: float
+                        ) -> tuple[BoolArray, CleaningReport]:
+    """:func:`drop_out_of_range_plots`'s rows to drop, and its report."""
     r = _column(plots, "range_m")
     bad = np.isfinite(r) & ((r < 0.0) | (r > max_range_m))
     report = _report(plots_out_of_range=int(bad.sum()))
@@ -258,7 +336,7 @@ def drop_out_of_range_plots(
             f"({max_range_m / 1e3:,.0f} km) or negative dropped, the first row "
             f"{plots.index[first]} of radar {plots['radar_id'].iloc[first]} "
             f"(range_m {r[first]:.6g}): corrupt values?")
-    return _keep(plots, ~bad), report
+    return bad, report
 
 
 def drop_non_finite_adsb(adsb: pd.DataFrame) -> tuple[pd.DataFrame, CleaningReport]:
@@ -279,13 +357,20 @@ def drop_non_finite_adsb(adsb: pd.DataFrame) -> tuple[pd.DataFrame, CleaningRepo
         ``counts["adsb_non_finite"]``, ``counts["adsb_no_height"]`` and, when the
         latter is not zero, one warning.
     """
+    drop, report = _non_finite_adsb(adsb, _Text.of(adsb["target_id"]))
+    return _keep(adsb, ~drop), report
+
+
+def _non_finite_adsb(adsb: pd.DataFrame, target: _Text) -> tuple[BoolArray, CleaningReport]:
+    """:func:`drop_non_finite_adsb`'s rows to drop, and its report (``target``: the
+    ``target_id`` codes)."""
     bad = np.zeros(len(adsb), dtype=bool)
     for name in _ADSB_REQUIRED:
         bad |= ~np.isfinite(_column(adsb, name))
     if "sigma_m" in adsb:
         sigma = _column(adsb, "sigma_m")
         bad |= ~(np.isfinite(sigma) & (sigma > 0.0))
-    bad |= adsb["target_id"].astype(str).str.strip().eq("").to_numpy(dtype=bool)
+    bad |= target.where(target.names.str.strip() == "")
     alt = _column(adsb, "alt_m")
     bad |= np.isinf(alt)
     no_height = np.isnan(alt) & ~bad
@@ -298,7 +383,7 @@ def drop_non_finite_adsb(adsb: pd.DataFrame) -> tuple[pd.DataFrame, CleaningRepo
             "used: a calibration needs the height above the ellipsoid to place a report "
             "(a source such as CAT021 without I021/140 gives none, and a pressure altitude "
             f"is not one); {int(baro.sum())} of them carry baro_alt_m")
-    return _keep(adsb, ~(bad | no_height)), report
+    return bad | no_height, report
 
 
 # --------------------------------------------------------------------------- duplicates
@@ -348,18 +433,23 @@ def _same(a: NDArray, b: NDArray) -> BoolArray:
     return a == b
 
 
-def _duplicated(table: pd.DataFrame, key: list[str]) -> BoolArray:
+def _duplicated(table: pd.DataFrame, key: list[str],
+                texts: Mapping[str, _Text] | None = None) -> BoolArray:
     """``table.duplicated(subset=key, keep="first")`` by sorting instead of hashing.
 
     Rows are ordered by the first two key columns; only rows in runs of equal values
     there are compared on the whole key (NaN equal to NaN, ``-0.0`` to ``0.0``, as
     pandas), in their original order, so the first of each set of duplicates is kept.
+    ``texts`` gives the codes of text columns already found (used when exact: which
+    rows are duplicates does not depend on how the codes are numbered).
     """
     n = len(table)
     duplicate = np.zeros(n, dtype=bool)
     if n < 2 or not key:
         return duplicate
-    values = [_key_values(table, name) for name in key]
+    texts = texts or {}
+    values = [texts[name].codes if name in texts and texts[name].exact
+              else _key_values(table, name) for name in key]
     order = group_order(values[0], values[1]) if len(values) > 1 else np.lexsort(values[:1])
     same = np.ones(n - 1, dtype=bool)
     for v in values[:2]:
@@ -401,9 +491,12 @@ class _Tracks:
     order: NDArray[np.int64]
 
     @classmethod
-    def of(cls, adsb: pd.DataFrame) -> _Tracks:
-        codes, names = pd.factorize(adsb["target_id"].astype(str), sort=False)
-        return cls(codes, pd.Index(names), group_order(codes, _column(adsb, "time_s")))
+    def of(cls, adsb: pd.DataFrame, target: _Text | None = None) -> _Tracks:
+        """The track order of ``adsb`` (``target``: its ``target_id`` codes, when known)."""
+        if target is None or not target.fresh:
+            target = _Text.of(adsb["target_id"])
+        return cls(target.codes, target.names,
+                   group_order(target.codes, _column(adsb, "time_s")))
 
     def kept(self, keep: BoolArray, adsb_kept: pd.DataFrame) -> _Tracks:
         """The same for ``adsb_kept``, the rows where ``keep`` (as :func:`_keep` gives them).
@@ -543,19 +636,48 @@ def _isolated_outliers(
     span = t2 - t0
     with np.errstate(invalid="ignore", divide="ignore"):
         w = np.where(span > 0, (t1 - t0) / span, 0.5)
-    across = ecef_m[2:] - ecef_m[:-2]  # from each report's predecessor to its successor
-    chord = ecef_m[:-2] + w[:, None] * across
-    deviation = np.where(inner, frames.row_norm(ecef_m[1:-1] - chord), 0.0)
+    off_chord, bypass = _chord_distances(ecef_m, w)
+    deviation = np.where(inner, off_chord, 0.0)
     sigma = np.maximum(sigma_m[1:-1], np.maximum(sigma_m[:-2], sigma_m[2:]))
     slack = gate_sigmas * _SIGMA_3D * sigma * np.sqrt(1.5)
     allowed = 0.5 * max_accel_mps2 * (t1 - t0) * (t2 - t1) + slack
-    bypass = frames.row_norm(across)
     consistent = bypass <= max_speed_mps * span + gate_sigmas * _SIGMA_3D * np.hypot(
         sigma_m[:-2], sigma_m[2:])
     padded = np.concatenate([[0.0], deviation, [0.0]])
     local_max = (deviation >= padded[:-2]) & (deviation >= padded[2:])
     out[1:-1] = inner & (deviation > allowed) & local_max & consistent
     return out
+
+
+def _chord_distances(ecef_m: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Each inner report's distance [m] from the chord of its two neighbours, and the
+    chord's length [m].
+
+    ``frames.row_norm`` of ``ecef_m[1:-1] - (ecef_m[:-2] + w * across)`` and of ``across
+    = ecef_m[2:] - ecef_m[:-2]`` (from each report's predecessor to its successor), the
+    same arithmetic coordinate by coordinate (the same bits, without broadcasting
+    ``w`` over rows of three).
+
+    Parameters
+    ----------
+    ecef_m : ndarray, shape (n, 3)
+        Positions in track order [m].
+    w : ndarray, shape (n - 2,)
+        Each inner report's time as a fraction of its neighbours' interval.
+
+    Returns
+    -------
+    off_chord, chord : ndarray, shape (n - 2,)
+        Distances [m].
+    """
+    off_sq = chord_sq = np.zeros(len(w))  # 0 + a square is the square, to the bit
+    for k in range(ecef_m.shape[1]):
+        e = ecef_m[:, k]
+        across = e[2:] - e[:-2]
+        off = e[1:-1] - (e[:-2] + w * across)
+        off_sq = off_sq + off * off
+        chord_sq = chord_sq + across * across
+    return np.sqrt(off_sq), np.sqrt(chord_sq)
 
 
 def gate_adsb_kinematics(
@@ -643,14 +765,19 @@ def _gate_keep(
     flight = np.cumsum(gap) - 1
     size = np.bincount(flight)
     judged = size[flight] >= min_track_reports
-    ecef = ecef_all[order]
+    ecef = _rows(ecef_all, order)
     sigma = _sigma(adsb)[order]
     wild = judged & _isolated_outliers(flight, time_s, ecef, sigma, max_speed_mps,
                                        max_accel_mps2, gate_sigmas)
-    rest = np.flatnonzero(~wild)
-    jump, _ = _jumps(flight[rest], time_s[rest], ecef[rest], sigma[rest], max_speed_mps,
-                     gate_sigmas)
-    jump &= judged[rest][1:]
+    if wild.any():
+        rest = np.flatnonzero(~wild)
+        jump, _ = _jumps(flight[rest], time_s[rest], _rows(ecef, rest), sigma[rest],
+                         max_speed_mps, gate_sigmas)
+        jump &= judged[rest][1:]
+    else:  # the same, without copying every array
+        rest = np.arange(len(flight))
+        jump, _ = _jumps(flight, time_s, ecef, sigma, max_speed_mps, gate_sigmas)
+        jump &= judged[1:]
     whole = np.zeros(len(codes), dtype=bool)
     if jump.any():
         f = flight[rest]
@@ -664,7 +791,7 @@ def _gate_keep(
         short = (seg_size <= max_wild_run) & (longest[seg_flight] > max_wild_run)
         wild[rest[short[segment]]] = True
         kept = np.flatnonzero(~wild)
-        jump2, distance2 = _jumps(flight[kept], time_s[kept], ecef[kept], sigma[kept],
+        jump2, distance2 = _jumps(flight[kept], time_s[kept], _rows(ecef, kept), sigma[kept],
                                   max_speed_mps, gate_sigmas)
         jump2 &= judged[kept][1:]
         bad_flights = np.unique(flight[kept][:-1][jump2])
@@ -716,7 +843,7 @@ def _interpolate_adsb(
     a_key = a_code * span + (a_time - t0)
     order = tracks.order  # a_key's order, which it keeps after rounding
     a_key, a_code_s, a_time_s = a_key[order], a_code[order], a_time[order]
-    ecef = ecef_all[order]
+    ecef = _rows(ecef_all, order)
     q_key = q_code * span + (time_s - t0)
     j = np.searchsorted(a_key, q_key, side="right") - 1
     valid = (q_code >= 0) & (j >= 0) & (j < len(a_key) - 1)
@@ -727,7 +854,7 @@ def _interpolate_adsb(
         w = (time_s - a_time_s[j]) / dt
     ok = valid & same & (dt > 0) & (dt <= max_gap_s) & (w >= 0.0) & (w <= 1.0)
     w = np.where(ok, w, 0.0)
-    ref = (1.0 - w)[:, None] * ecef[j] + w[:, None] * ecef[j + 1]
+    ref = (1.0 - w)[:, None] * _rows(ecef, j) + w[:, None] * _rows(ecef, j + 1)
     ref[~ok] = np.nan
     return ref, ok
 
@@ -808,7 +935,7 @@ def check_identities(
         ``counts["plots_identity_cleared"]`` and :attr:`CleaningReport.mislabelled`.
     """
     return _check_identities(plots, adsb, _Tracks.of(adsb), _ecef(adsb), sites, floor_m,
-                             z_limit, min_aircraft, min_plots, max_gap_s)
+                             z_limit, min_aircraft, min_plots, max_gap_s, None)
 
 
 def _check_identities(
@@ -822,22 +949,24 @@ def _check_identities(
     min_aircraft: int,
     min_plots: int,
     max_gap_s: float,
+    texts: tuple[_Text, _Text] | None,
 ) -> tuple[pd.DataFrame, CleaningReport]:
-    """:func:`check_identities`, with the ADS-B track order and ECEF positions given."""
+    """:func:`check_identities`, with the ADS-B track order and ECEF positions given, and
+    the plots' ``radar_id`` and ``target_id`` codes when known (``texts``)."""
     report = _report()
     out = plots.reset_index(drop=True)
     if len(out) == 0 or len(adsb) < 2:
         return out, report
-    # Identities and radars as integer codes (first-seen order, as grouping them by text).
-    target, names = pd.factorize(out["target_id"].astype(str))
-    names = pd.Index(names)
-    has_id = np.append(np.asarray(names != "", dtype=bool), False)[target]  # -1: missing
+    # Identities and radars as integer codes (how they are numbered changes nothing).
+    radar_text, target_text = texts or (_Text.of(out["radar_id"]), _Text.of(out["target_id"]))
+    target, names = target_text.codes, target_text.names
+    has_id = target_text.where(names != "")  # -1: missing
     time_s = _column(out, "time_s")
     ref, ok = _interpolate_adsb(adsb, tracks, adsb_ecef, np.where(has_id, target, -1), names,
                                 time_s, max_gap_s)
     ok &= has_id
-    radar, radar_names = pd.factorize(out["radar_id"].astype(str))
-    radar_code = {str(name): code for code, name in enumerate(radar_names)}
+    radar = radar_text.codes
+    radar_code = {str(name): code for code, name in enumerate(radar_text.names)}
     range_m = _column(out, "range_m")
     azimuth = np.deg2rad(_column(out, "azimuth_deg"))
     clear = np.zeros(len(out), dtype=bool)
@@ -846,7 +975,7 @@ def _check_identities(
         rows = np.flatnonzero(ok & mine)
         if len(rows) == 0:
             continue
-        r_ref, az_ref, _ = site.polar_from_ecef(ref[rows])
+        r_ref, az_ref, _ = site.polar_from_ecef(_rows(ref, rows))
         d_range = range_m[rows] - r_ref
         d_az = frames.wrap_to_pi(azimuth[rows] - az_ref)
         codes, counts, (dr, da, r) = group_medians(target[rows], [d_range, d_az, r_ref])
@@ -921,15 +1050,20 @@ def coverage_warnings(
     -------
     list of str
     """
+    return _coverage_warnings(plots, sites, has_adsb, _Text.of(plots["radar_id"]).counts())
+
+
+def _coverage_warnings(plots: pd.DataFrame, sites: Mapping[str, Site], has_adsb: bool,
+                       counts: Mapping[str, int]) -> list[str]:
+    """:func:`coverage_warnings`, with the plots per radar given (:meth:`_Text.counts`)."""
     warnings: list[str] = []
-    radar = plots["radar_id"].astype(str)
-    counts = radar.value_counts()
     with_plots = [rid for rid in sites if counts.get(rid, 0) > 0]
     for rid in sites:
         if counts.get(rid, 0) == 0:
             warnings.append(f"radar {rid} has no plots; not calibrated")
     if has_adsb:
         return warnings
+    radar = plots["radar_id"].astype(str)
     altitude = _column(plots, "altitude_m") if "altitude_m" in plots else None
     for rid in with_plots:
         if sites[rid].is_3d:
@@ -998,7 +1132,7 @@ ADSB_GRID_FRACTION = 0.8
 TYPICAL_SPEED_MPS = 250.0
 
 
-def _time_quanta(time_s: FloatArray, groups: NDArray | None = None
+def _time_quanta(time_s: FloatArray, groups: pd.Series | NDArray | None = None
                  ) -> tuple[float | None, dict[object, float]]:
     """The largest step of :data:`TIME_QUANTA_S` that nearly all ``time_s`` are multiples
     of (:data:`TIME_QUANTUM_FRACTION`), or ``None``; without one, the same per group
@@ -1007,7 +1141,8 @@ def _time_quanta(time_s: FloatArray, groups: NDArray | None = None
     t = time_s[ok]
     if t.size < 50:
         return None, {}
-    codes, labels = pd.factorize(groups[ok]) if groups is not None else (None, [])
+    codes, labels = (None, []) if groups is None else pd.factorize(
+        groups if ok.all() else groups[ok])
     size = np.bincount(codes, minlength=len(labels)) if codes is not None else None
     per_group: dict[object, float] = {}
     for step in TIME_QUANTA_S:
@@ -1069,7 +1204,7 @@ def time_stamp_warnings(plots: pd.DataFrame, adsb: pd.DataFrame | None) -> list[
     warnings: list[str] = []
     start = max(0, (len(plots) - TIME_QUANTUM_ROWS) // 2)
     block = plots.iloc[start:start + TIME_QUANTUM_ROWS]
-    step, per_radar = _time_quanta(_column(block, "time_s"), block["radar_id"].to_numpy())
+    step, per_radar = _time_quanta(_column(block, "time_s"), block["radar_id"])
     if step is not None:
         warnings.append(_quantum_warning("the plots'", step))
     for name, radar_step in per_radar.items():
@@ -1129,32 +1264,16 @@ def clean_dataset(
     """
     report = CleaningReport()
     report.warnings.extend(time_stamp_warnings(dataset.plots, dataset.adsb))
-    plots, step = drop_non_finite_plots(dataset.plots, dataset.sites)
-    report.merge(step)
-    plots, step = drop_out_of_range_plots(plots)
-    report.merge(step)
-    plots, step = drop_duplicate_plots(plots)
-    report.merge(step)
+    plots, radar, target = _clean_plots(dataset.plots, dataset.sites, report)
     adsb = dataset.adsb
     if adsb is not None:
-        for check in (drop_non_finite_adsb, drop_duplicate_adsb):
-            adsb, step = check(adsb)
-            report.merge(step)
-        # The track order and the ECEF positions: found once, for the stale reports,
-        # the gate and the identity check.
-        tracks = _Tracks.of(adsb)
-        stale = _stale(adsb, tracks, ("lat_deg", "lon_deg"))
-        adsb, tracks = _keep_tracks(adsb, tracks, ~stale)
-        report.merge(_report(adsb_stale=int(stale.sum())))
-        ecef = _ecef(adsb)
-        keep, step = _gate_keep(adsb, tracks, ecef, max_speed_mps, max_accel_mps2, gate_sigmas,
-                                max_wild_run, DEFAULT_MIN_TRACK_REPORTS, DEFAULT_FLIGHT_GAP_S)
-        (adsb, tracks), ecef = _keep_tracks(adsb, tracks, keep), ecef[keep]
-        report.merge(step)
+        adsb, tracks, ecef = _clean_adsb(adsb, report, max_speed_mps, max_accel_mps2,
+                                         gate_sigmas, max_wild_run)
         if check_identity:
             plots, step = _check_identities(
                 plots, adsb, tracks, ecef, dataset.sites, identity_floor_m, identity_z,
-                DEFAULT_IDENTITY_MIN_AIRCRAFT, DEFAULT_IDENTITY_MIN_PLOTS, max_gap_s)
+                DEFAULT_IDENTITY_MIN_AIRCRAFT, DEFAULT_IDENTITY_MIN_PLOTS, max_gap_s,
+                None if target is None else (radar, target))
             report.merge(step)
     if adsb is not None and len(adsb) == 0:
         if dataset.adsb is not None and len(dataset.adsb):
@@ -1168,8 +1287,76 @@ def clean_dataset(
             report.notes.append(note)
         adsb = None
     has_adsb = adsb is not None
-    report.warnings.extend(coverage_warnings(plots, dataset.sites, has_adsb))
+    report.warnings.extend(_coverage_warnings(plots, dataset.sites, has_adsb, radar.counts()))
     return dataclasses.replace(dataset, plots=plots, adsb=adsb, cleaning=report), report
+
+
+def _clean_plots(plots: pd.DataFrame, sites: Mapping[str, Site], report: CleaningReport
+                 ) -> tuple[pd.DataFrame, _Text, _Text | None]:
+    """:func:`drop_non_finite_plots`, :func:`drop_out_of_range_plots` and
+    :func:`drop_duplicate_plots`, their reports merged into ``report``.
+
+    Returns
+    -------
+    plots : pandas.DataFrame
+        The plots kept.
+    radar, target : _Text
+        Their ``radar_id`` and ``target_id`` codes, found once (``target`` ``None``
+        without such a column).
+    """
+    radar = _Text.of(plots["radar_id"])
+    target = _Text.of(plots["target_id"]) if "target_id" in plots else None
+    texts = {"radar_id": radar} if target is None else {"radar_id": radar, "target_id": target}
+    bad = _non_finite_plots(plots, sites, radar)
+    plots = _infinite_to_nan(_keep(plots, ~bad))
+    report.merge(_report(plots_non_finite=int(bad.sum())))
+    texts = {name: text.kept(~bad) for name, text in texts.items()}
+    bad, step = _out_of_range_plots(plots, MAX_PLOT_RANGE_M)
+    plots = _keep(plots, ~bad)
+    report.merge(step)
+    texts = {name: text.kept(~bad) for name, text in texts.items()}
+    duplicate = _duplicated(plots, [name for name in _PLOT_KEY if name in plots], texts)
+    plots = _keep(plots, ~duplicate)
+    report.merge(_report(plots_duplicate=int(duplicate.sum())))
+    texts = {name: text.kept(~duplicate) for name, text in texts.items()}
+    return plots, texts["radar_id"], texts.get("target_id")
+
+
+def _clean_adsb(adsb: pd.DataFrame, report: CleaningReport, max_speed_mps: float,
+                max_accel_mps2: float, gate_sigmas: float, max_wild_run: int
+                ) -> tuple[pd.DataFrame, _Tracks, FloatArray]:
+    """Steps 1 to 4 on the ADS-B reports (:func:`drop_non_finite_adsb`,
+    :func:`drop_duplicate_adsb`, :func:`drop_stale_adsb`, :func:`gate_adsb_kinematics`),
+    their reports merged into ``report``.
+
+    Returns
+    -------
+    adsb : pandas.DataFrame
+        The reports kept.
+    tracks : _Tracks
+        Their track order.
+    ecef : ndarray, shape (n, 3)
+        Their ECEF positions [m].
+    """
+    target = _Text.of(adsb["target_id"])
+    drop, step = _non_finite_adsb(adsb, target)
+    adsb, target = _keep(adsb, ~drop), target.kept(~drop)
+    report.merge(step)
+    duplicate = _duplicated(adsb, list(_ADSB_KEY), {"target_id": target})
+    adsb, target = _keep(adsb, ~duplicate), target.kept(~duplicate)
+    report.merge(_report(adsb_duplicate=int(duplicate.sum())))
+    # The track order and the ECEF positions: found once, for the stale reports, the
+    # gate and the identity check.
+    tracks = _Tracks.of(adsb, target)
+    stale = _stale(adsb, tracks, ("lat_deg", "lon_deg"))
+    adsb, tracks = _keep_tracks(adsb, tracks, ~stale)
+    report.merge(_report(adsb_stale=int(stale.sum())))
+    ecef = _ecef(adsb)
+    keep, step = _gate_keep(adsb, tracks, ecef, max_speed_mps, max_accel_mps2, gate_sigmas,
+                            max_wild_run, DEFAULT_MIN_TRACK_REPORTS, DEFAULT_FLIGHT_GAP_S)
+    (adsb, tracks), ecef = _keep_tracks(adsb, tracks, keep), _rows(ecef, keep)
+    report.merge(step)
+    return adsb, tracks, ecef
 
 
 def ensure_clean(dataset: Dataset) -> Dataset:

@@ -80,6 +80,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core.errors import ImplausibleDataError
+from graphcal.core.grouped import group_medians
 from graphcal.data.dataset import Site
 
 #: Fewest plots (or reports) a heuristic judges a radar (or a column) on.
@@ -213,11 +214,30 @@ def _fmt(value: float) -> str:
 
 # --------------------------------------------------------------------------- per field
 def _per_radar(plots: pd.DataFrame) -> pd.DataFrame:
-    """Per radar: plots, aircraft named (0: none), largest azimuth [deg] and range [m]."""
-    named = plots["target_id"].where(plots["target_id"] != "")
-    return plots.assign(_named=named).groupby("radar_id", sort=False).agg(
-        n=("range_m", "size"), aircraft=("_named", "nunique"),
-        az_max=("azimuth_deg", "max"), r_max=("range_m", "max"))
+    """Per radar: plots, aircraft named (0: none), largest azimuth [deg] and range [m].
+
+    As ``groupby("radar_id", sort=False).agg(n="size", aircraft="nunique", az_max="max",
+    r_max="max")``: radars in order of first appearance, missing values skipped (a
+    radar's maximum NaN when all are), on integer codes instead of pandas' groupby.
+    """
+    radar, names = pd.factorize(plots["radar_id"])
+    mine = radar >= 0
+    radar = radar[mine]
+    n = np.bincount(radar, minlength=len(names))
+    target, aircraft = pd.factorize(plots["target_id"])
+    named = np.append(np.asarray(aircraft != "", dtype=bool), False)[target][mine]
+    pairs = np.unique(radar[named] * np.int64(len(aircraft) + 1) + target[mine][named])
+    stats = {"n": n, "aircraft": np.bincount(pairs // (len(aircraft) + 1),
+                                             minlength=len(names))}
+    for name, column in (("az_max", "azimuth_deg"), ("r_max", "range_m")):
+        largest = np.full(len(names), np.nan)
+        np.fmax.at(largest, radar, plots[column].to_numpy(dtype=float, na_value=np.nan)[mine])
+        stats[name] = largest
+    # The index as groupby gives it: of the column's type, inferred from the values
+    # when that is object (text: str).
+    index = pd.Index(names if names.dtype != object else np.asarray(names, dtype=object),
+                     name="radar_id")
+    return pd.DataFrame(stats, index=index)
 
 
 def _azimuth_radians(stats: pd.DataFrame) -> Finding | None:
@@ -282,10 +302,18 @@ def _flight_levels(values: pd.Series) -> Finding | None:
 
 
 def _median_height(frame: pd.DataFrame, column: str) -> pd.Series:
-    """Median height per aircraft (``target_id``), finite values of named aircraft only."""
+    """Median height per aircraft (``target_id``), finite values of named aircraft only.
+
+    As ``Series.groupby(target_id).median()`` (aircraft in sorted order), by
+    :func:`graphcal.core.grouped.group_medians`.
+    """
     values = frame[column].to_numpy(dtype=float, na_value=np.nan)
-    ok = np.isfinite(values) & (frame["target_id"].to_numpy() != "")
-    return pd.Series(values[ok]).groupby(frame["target_id"].to_numpy()[ok]).median()
+    target, names = pd.factorize(frame["target_id"])
+    named = np.append(np.asarray(names != "", dtype=bool), False)[target]
+    ok = np.isfinite(values) & named
+    codes, _, (medians,) = group_medians(target[ok], [values[ok]])
+    aircraft = pd.Index(np.asarray(names, dtype=object)[codes])
+    return pd.Series(medians, index=aircraft).sort_index()
 
 
 def _height_ratio(plots: pd.DataFrame, adsb: pd.DataFrame) -> Finding | None:
@@ -327,26 +355,29 @@ def _site_altitude(sites: Mapping[str, Site], plots: pd.DataFrame,
                        tuple(rid for rid, _ in out))
     if "altitude_m" not in plots:
         return None
-    rid_col = plots["radar_id"].to_numpy()
+    radar, rids = pd.factorize(plots["radar_id"])
     height = plots["altitude_m"].to_numpy(dtype=float, na_value=np.nan)
     slant = plots["range_m"].to_numpy(dtype=float)
     antenna = pd.Series({rid: s.alt_m for rid, s in sites.items()})
-    site_alt = antenna.reindex(rid_col).to_numpy(dtype=float)
-    ok = np.isfinite(height) & np.isfinite(site_alt) & ~np.isin(rid_col, list(skip))
+    site_alt = np.append(antenna.reindex(rids).to_numpy(dtype=float), np.nan)[radar]
+    skipped = np.append(np.asarray(rids.isin(list(skip)), dtype=bool), False)[radar]
+    ok = np.isfinite(height) & np.isfinite(site_alt) & ~skipped
     if not ok.any():
         return None
     beyond = np.abs(height[ok] - site_alt[ok]) > slant[ok] + GEOMETRY_MARGIN_M
-    counts = pd.DataFrame({"rid": rid_col[ok], "beyond": beyond}).groupby("rid")["beyond"].agg(
-        ["size", "mean"])
-    bad = counts[(counts["size"] >= MIN_PLOTS) & (counts["mean"] > GEOMETRY_FRACTION)]
-    if bad.empty:
+    size = np.bincount(radar[ok], minlength=len(rids))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fraction = np.bincount(radar[ok], weights=beyond, minlength=len(rids)) / size
+    bad = sorted((str(rids[k]), float(fraction[k])) for k in
+                 np.flatnonzero((size >= MIN_PLOTS) & (fraction > GEOMETRY_FRACTION)))
+    if not bad:
         return None
-    names = ", ".join(f"{rid} ({_fmt(sites[str(rid)].alt_m)} m: {frac:.0%} of its plots)"
-                      for rid, frac in zip(bad.index, bad["mean"], strict=True))
+    names = ", ".join(f"{rid} ({_fmt(sites[rid].alt_m)} m: {frac:.0%} of its plots)"
+                      for rid, frac in bad)
     return Finding("sites", "alt_m",
                    f"antenna height of radar {names} differs from the plots' altitude_m by more "
                    "than their slant range, which no geometry allows: alt_m wrong (another "
-                   "unit, a typing error)?", tuple(str(r) for r in bad.index))
+                   "unit, a typing error)?", tuple(rid for rid, _ in bad))
 
 
 def ground_distance_m(lat_deg: NDArray[np.float64], lon_deg: NDArray[np.float64],
@@ -458,10 +489,15 @@ def _far_aircraft(code: NDArray[np.int64], res_r: NDArray[np.float64],
     height or a clock error."""
     if not len(code):
         return np.zeros(0, dtype=np.int64)
-    frame = pd.DataFrame({"code": code, "r": np.abs(res_r), "a": np.abs(res_a)})
-    medians = frame.groupby("code").median()
-    far = (medians["r"] > GEOMETRY_FAR_RANGE_M) | (medians["a"] > GEOMETRY_FAR_AZIMUTH_RAD)
-    return medians.index[far.to_numpy()].to_numpy(dtype=np.int64)
+    r, a = np.abs(res_r), np.abs(res_a)
+    if np.isnan(r).any() or np.isnan(a).any():  # skipped by pandas, not by group_medians
+        medians = pd.DataFrame({"code": code, "r": r, "a": a}).groupby("code").median()
+        codes = medians.index.to_numpy()
+        median_r, median_a = medians["r"].to_numpy(), medians["a"].to_numpy()
+    else:
+        codes, _, (median_r, median_a) = group_medians(code, [r, a])
+    far = (median_r > GEOMETRY_FAR_RANGE_M) | (median_a > GEOMETRY_FAR_AZIMUTH_RAD)
+    return np.sort(codes[far]).astype(np.int64)
 
 
 def _geometry_one(site: Site, time_s: NDArray[np.float64], range_m: NDArray[np.float64],

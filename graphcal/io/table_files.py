@@ -269,10 +269,10 @@ def blank_rows(frame: pd.DataFrame) -> NDArray[np.bool_]:
     text_columns = []
     for column in frame.columns:
         values = frame[column]
-        if pd.api.types.is_numeric_dtype(values):
-            blank &= values.isna().to_numpy(dtype=bool)
-        else:
+        if not pd.api.types.is_numeric_dtype(values):
             text_columns.append(column)
+        elif blank.any():  # else no row is blank, whatever the other columns hold
+            blank &= values.isna().to_numpy(dtype=bool)
     for column in text_columns:
         if not blank.any():
             break
@@ -361,7 +361,7 @@ def _iter_csv_arrow(path: Path, header: list[str], chunk_rows: int | None,
             table = pa_csv.read_csv(path, read_options=read, parse_options=parse,
                                     convert_options=convert)
             _check_arrow_header(table.schema.names, columns)
-            yield table.to_pandas()
+            yield _to_pandas(table)
             return
         reader = pa_csv.open_csv(path, read_options=read, parse_options=parse,
                                  convert_options=convert)
@@ -376,11 +376,17 @@ def _iter_csv_arrow(path: Path, header: list[str], chunk_rows: int | None,
             n_held += batch.num_rows
             while n_held >= chunk_rows:
                 table = pa.Table.from_batches(held, schema=reader.schema)
-                yield table.slice(0, chunk_rows).to_pandas()
+                yield _to_pandas(table.slice(0, chunk_rows))
                 rest = table.slice(chunk_rows)
                 held, n_held = rest.to_batches(), rest.num_rows
     if n_held:
-        yield pa.Table.from_batches(held, schema=reader.schema).to_pandas()
+        yield _to_pandas(pa.Table.from_batches(held, schema=reader.schema))
+
+
+def _to_pandas(table: pa.Table) -> pd.DataFrame:
+    """The rows as a frame, a block per column: not first copied into one 2-D block of
+    floats, which validation takes apart column by column anyway."""
+    return table.to_pandas(split_blocks=True)
 
 
 def _check_arrow_header(names: list[str], columns: list[str]) -> None:

@@ -50,6 +50,34 @@ def _times(frame: pd.DataFrame) -> NDArray[np.float64]:
     return frame["time_s"].to_numpy(dtype=float)
 
 
+def rows_where(frame: pd.DataFrame, times: NDArray[np.float64], mask: NDArray[np.bool_]
+               ) -> tuple[pd.DataFrame, NDArray[np.float64]]:
+    """``frame.loc[mask]`` and ``times[mask]``: the same rows, as a slice (no copy) when
+    they are one run, as the rows of a chunk in time order are on either side of a time.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        A chunk of rows.
+    times : ndarray of float, shape (n,)
+        Its ``time_s`` [s].
+    mask : ndarray of bool, shape (n,)
+        The rows wanted.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The rows wanted, with their index labels.
+    times : ndarray of float
+        Their times [s].
+    """
+    hits = np.flatnonzero(mask)
+    if hits.size and hits[-1] - hits[0] + 1 == hits.size:
+        run = slice(int(hits[0]), int(hits[-1]) + 1)
+        return frame.iloc[run], times[run]
+    return frame.loc[mask], times[mask]
+
+
 def empty_table(files: Sequence[Path], required: tuple[str, ...],
                 validate: Validator) -> pd.DataFrame:
     """The table's columns without rows: what a span without rows holds."""
@@ -165,7 +193,7 @@ class OrderedTable:
             keep = times >= self._floor_s
             if keep.any():
                 if not keep.all():
-                    frame, times = frame.loc[keep], times[keep]
+                    frame, times = rows_where(frame, times, keep)
                 self._frames.append((i, self._sequence, frame, times))
                 self._sequence += 1
         return True
@@ -199,7 +227,7 @@ class OrderedTable:
             if inside.all():
                 parts.append(frame)
             elif inside.any():
-                parts.append(frame.loc[inside])
+                parts.append(rows_where(frame, times, inside)[0])
         if not parts:
             return self._empty.iloc[:0]
         return pd.concat(parts, ignore_index=True)
@@ -213,7 +241,7 @@ class OrderedTable:
             if keep.all():
                 kept.append((source, sequence, frame, times))
             elif keep.any():
-                kept.append((source, sequence, frame.loc[keep], times[keep]))
+                kept.append((source, sequence, *rows_where(frame, times, keep)))
         self._frames = kept
 
     def close(self) -> None:
@@ -327,4 +355,5 @@ __all__ = [
     "TableSource",
     "Validator",
     "empty_table",
+    "rows_where",
 ]

@@ -116,6 +116,7 @@ from graphcal.io.table_stream import (
     TableSource,
     Validator,
     empty_table,
+    rows_where,
 )
 
 #: The plausibility heuristics run on the first window and then on every this many
@@ -206,7 +207,7 @@ def _between(adsb: pd.DataFrame, t0_s: float, t1_s: float) -> pd.DataFrame:
     """Rows with ``t0_s <= time_s < t1_s``, fresh ``RangeIndex``."""
     times = adsb["time_s"].to_numpy(dtype=float)
     inside = (times >= t0_s) & (times < t1_s)
-    return adsb.loc[inside].reset_index(drop=True)
+    return rows_where(adsb, times, inside)[0].reset_index(drop=True)
 
 
 def _window_dataset(dataset: Dataset, adsb_lo_s: float, adsb_hi_s: float,
