@@ -40,6 +40,12 @@ class DatasetError(GraphcalInputError):
     """A dataset folder (sites.toml, plots, adsb) is missing or invalid."""
 
 
+class RowsOutOfOrderError(DatasetError):
+    """A table read in one pass as if in time order has a row earlier than the reader's
+    tolerance (:class:`~graphcal.io.table_stream.TableSource`): a caller that took the
+    order for granted reads the table again, sorting it first."""
+
+
 class ScenarioError(GraphcalInputError):
     """A scenario file is invalid."""
 

@@ -10,7 +10,8 @@ says whether its rows come in time order (within a tolerance): what the
 window-by-window reader (:mod:`graphcal.io.window_reader`) needs to choose between
 reading the files once in order and sorting their rows by window first;
 :func:`first_time` says when a file in time order starts, from its statistics or its
-first rows.
+first rows.  :func:`end_times_span` reads only the first and last rows of CSV files:
+the span of tables whose reader checks their time order itself.
 
 Times that are missing or not numbers are left out here (the validation of the
 full rows reports them); spans and counts are of data rows (blank CSV lines are
@@ -54,8 +55,8 @@ class FileTimes:
     ----------
     path : Path
         The file.
-    n_rows : int
-        Its data rows.
+    n_rows : int or None
+        Its data rows; ``None`` when not counted (:func:`end_times_span`).
     t_min_s, t_max_s : float
         Smallest and largest ``time_s`` [s]; NaN when no row has a time.
     late_row : int or None
@@ -68,7 +69,7 @@ class FileTimes:
     """
 
     path: Path
-    n_rows: int
+    n_rows: int | None
     t_min_s: float
     t_max_s: float
     late_row: int | None = None
@@ -82,9 +83,10 @@ class TableSpan:
     files: tuple[FileTimes, ...]
 
     @property
-    def n_rows(self) -> int:
-        """Data rows in all files."""
-        return sum(f.n_rows for f in self.files)
+    def n_rows(self) -> int | None:
+        """Data rows in all files (``None`` when not counted)."""
+        counts = [f.n_rows for f in self.files]
+        return None if any(n is None for n in counts) else sum(n for n in counts if n)
 
     @property
     def t_min_s(self) -> float:
@@ -136,13 +138,14 @@ class DatasetSpan:
         return self.plots.t_max_s
 
     @property
-    def n_plots(self) -> int:
-        """Plots in the dataset (before validation and cleaning)."""
+    def n_plots(self) -> int | None:
+        """Plots in the dataset (before validation and cleaning; ``None`` when not
+        counted)."""
         return self.plots.n_rows
 
     @property
-    def n_adsb(self) -> int:
-        """ADS-B reports (0 without an ADS-B table)."""
+    def n_adsb(self) -> int | None:
+        """ADS-B reports (0 without an ADS-B table; ``None`` when not counted)."""
         return 0 if self.adsb is None else self.adsb.n_rows
 
     def window_indices(self, window_s: float) -> range:
@@ -382,6 +385,44 @@ def dataset_span(folder: str | Path) -> DatasetSpan:
     return span
 
 
+def end_times_span(folder: str | Path) -> DatasetSpan | None:
+    """A folder's span from its CSV files' first and last rows (:func:`csv_end_times`),
+    without reading them.
+
+    For a reader that takes the rows' time order for granted and checks it as it reads
+    (:class:`~graphcal.io.table_stream.TableSource` raises
+    :class:`~graphcal.core.errors.RowsOutOfOrderError`): in time order to within that
+    tolerance, a file spans its first to its last row, give or take the tolerance.  The
+    rows are not counted (``n_rows`` is ``None``) and their order not looked at
+    (``late_row`` is ``None``).  ``None`` when a table file is not CSV or a file's ends
+    cannot be read (:func:`dataset_span` then measures the folder).
+
+    Raises
+    ------
+    DatasetError
+        If the folder or ``sites.toml`` is missing or unreadable.
+    """
+    folder = Path(folder)
+    check_folder(folder)
+    sites = load_sites(folder / SITES_FILE)
+    plot_files, adsb_files = dataset_tables(folder)
+    tables = []
+    for files in (plot_files, adsb_files):
+        if files is None:
+            tables.append(None)
+            continue
+        spans = []
+        for path in files:
+            ends = csv_end_times(path)
+            if ends is None:
+                return None
+            spans.append(FileTimes(path, None, min(ends), max(ends)))
+        tables.append(TableSpan(tuple(spans)))
+    plots, adsb = tables
+    assert plots is not None
+    return DatasetSpan(folder, tuple(sites), plots, adsb)
+
+
 #: Spans measured in this process, by folder and its files' sizes and modification
 #: times: a run asks several times (is it long? the windows' progress and checks), and a
 #: CSV table's span costs a read of its time column.
@@ -403,6 +444,7 @@ __all__ = [
     "TableSpan",
     "csv_end_times",
     "dataset_span",
+    "end_times_span",
     "first_time",
     "parquet_times",
     "scan_times",

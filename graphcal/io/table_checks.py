@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from graphcal.core.errors import DatasetError
 from graphcal.data.cleaning import MAX_PLOT_RANGE_M
 from graphcal.data.dataset import ADSB_DEFAULT_SIGMA_M, MODE_3A_PATTERN, Site
 from graphcal.data.sensor_models import adsb_sigma_from_nacp
@@ -38,20 +39,22 @@ class FirstProblem:
 
     def __init__(self, table: RawRows) -> None:
         self._table = table
-        self._first: tuple[int, str, str] | None = None
+        self._first: tuple[int, str, str, type[DatasetError]] | None = None
 
-    def flag(self, bad: NDArray[np.bool_], column: str, describe: Callable[[int], str]) -> None:
-        """Record the first row where ``bad`` holds; ``describe(pos)`` makes its message."""
+    def flag(self, bad: NDArray[np.bool_], column: str, describe: Callable[[int], str],
+             kind: type[DatasetError] = DatasetError) -> None:
+        """Record the first row where ``bad`` holds; ``describe(pos)`` makes its message,
+        raised as ``kind``."""
         hits = np.flatnonzero(np.asarray(bad, dtype=bool))
         if hits.size and (self._first is None or hits[0] < self._first[0]):
             pos = int(hits[0])
-            self._first = (pos, column, describe(pos))
+            self._first = (pos, column, describe(pos), kind)
 
     def raise_first(self) -> None:
         """Raise the earliest recorded problem, if any."""
         if self._first is not None:
-            pos, column, message = self._first
-            raise self._table.error(message, pos=pos, column=column)
+            pos, column, message, kind = self._first
+            raise self._table.error(message, pos=pos, column=column, kind=kind)
 
 
 #: ``extra(problems, time_s)``: a caller's own check of a chunk's rows (module docstring).

@@ -90,16 +90,17 @@ class RawRows:
     frame: pd.DataFrame
     rows: NDArray[np.int64]
 
-    def error(self, message: str, *, pos: int | None = None, column: str | None = None
-              ) -> DatasetError:
-        """A :class:`DatasetError` for frame row ``pos`` (0-based) and ``column``.
+    def error(self, message: str, *, pos: int | None = None, column: str | None = None,
+              kind: type[DatasetError] = DatasetError) -> DatasetError:
+        """A :class:`DatasetError` (or its subclass ``kind``) for frame row ``pos``
+        (0-based) and ``column``.
 
         A CSV file's line number is added to the message, after the row number.
         """
         row = None if pos is None else int(self.rows[pos])
         if row is not None and self.path.suffix == ".csv":
             message = f"{message} (line {row + 1})"
-        return DatasetError(message, path=self.path, row=row, field=column)
+        return kind(message, path=self.path, row=row, field=column)
 
 
 # --------------------------------------------------------------------------- locating

@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from graphcal.core.errors import RowsOutOfOrderError
 from graphcal.data.windows import window_index
 from graphcal.io.table_checks import ExtraCheck, FirstProblem
 from graphcal.io.table_files import RawRows, read_rows, table_columns
@@ -103,7 +104,8 @@ class TableSource:
         Rows read at a time.
     max_lateness_s : float or None
         With a number, a row more than this [s] earlier than a row above it (in
-        these files) is an error; ``None`` checks no order.
+        these files) is an error (:class:`~graphcal.core.errors.RowsOutOfOrderError`);
+        ``None`` checks no order.
     t_min_s : float, optional
         The earliest time in the files, when known (:func:`graphcal.io.dataset_span.scan_times`):
         the source is not read before a span reaches it.
@@ -159,7 +161,8 @@ class TableSource:
             f"{time_s[pos]:g} s is {before[pos] - time_s[pos]:g} s earlier than a row read "
             f"before it ({before[pos]:g} s); read window by window in one pass, a table's "
             f"rows must be in time order to within {lateness:g} s: sort it by time_s, or let "
-            "the reader sort it by window first (order \"auto\" or \"any\")"))
+            "the reader sort it by window first (order \"auto\" or \"any\")"),
+            kind=RowsOutOfOrderError)
 
 
 class OrderedTable:

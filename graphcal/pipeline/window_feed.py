@@ -15,14 +15,16 @@ that child's windows; a child never taken is stopped when the process ends.  Thi
 module imports no solver, so starting costs the caller nothing.
 
 A folder of CSV tables is read as if its rows were in time order
-(``order="sorted"``), without the reader's first pass over their times.  The
-caller measures the spans meanwhile anyway, in a thread, while it calibrates the
-first windows (:class:`SpanCheck`): for its progress, for the time-overlap check
-(:func:`graphcal.io.window_reader.check_span_overlap`) and to confirm the time
-order.  If they show a file out of order, the windows taken so far may lack late
-rows: :class:`FolderReadAgain` tells the caller to drop them and read the folder
-again with ``order="auto"`` (:func:`open_folder_windows`).  A folder with Parquet
-tables is read with ``order="auto"``, whose first pass is cheap there.
+(``order="sorted"``), without the reader's first pass over their times.  The reader
+checks the order as it reads; a row out of order means that the windows taken so far
+may lack late rows: :class:`FolderReadAgain` tells the caller to drop them and read
+the folder again with ``order="auto"`` (:func:`open_folder_windows`).  The caller
+takes the span meanwhile, in a thread (:class:`SpanCheck`), for its progress and
+for the time-overlap check (:func:`graphcal.io.window_reader.check_span_overlap`):
+of such a folder from its files' first and last rows
+(:func:`graphcal.io.dataset_span.end_times_span`), which the reader's check makes
+the span.  A folder with Parquet tables is read with ``order="auto"``, whose first
+pass is cheap there.
 """
 
 from __future__ import annotations
@@ -51,11 +53,19 @@ def read_folder_windows(folder: Path, window_s: float, clean: bool, force: bool,
                         order: str = "auto") -> Iterator[Any]:
     """:func:`~graphcal.io.window_reader.iter_windows` of the folder (module-level, so a
     child process can run it), without the time-overlap check, which is the
-    caller's (module docstring)."""
+    caller's (module docstring).  Read as if in time order (``order="sorted"``), a row
+    out of order raises :class:`FolderReadAgain`."""
+    from graphcal.core.errors import RowsOutOfOrderError
     from graphcal.io.window_reader import iter_windows
 
-    yield from iter_windows(folder, window_s, clean=clean, force=force, order=order,
-                            time_overlap=False)
+    try:
+        yield from iter_windows(folder, window_s, clean=clean, force=force, order=order,
+                                time_overlap=False)
+    except RowsOutOfOrderError as exc:
+        if order != "sorted":
+            raise
+        raise FolderReadAgain(f"{folder}: a table's rows are not in time order ({exc})"
+                              ) from None
 
 
 def reading_order(folder: Path) -> str:
@@ -174,8 +184,9 @@ class FolderReadAgain(Exception):  # noqa: N818 - a signal to the caller, not an
 
 
 class SpanCheck:
-    """A folder's :func:`~graphcal.io.dataset_span.dataset_span`, measured in a thread
-    while its windows are read and calibrated, and checked when asked (module docstring).
+    """A folder's span, measured in a thread while its windows are read and calibrated,
+    and checked when asked (module docstring): :func:`~graphcal.io.dataset_span.dataset_span`,
+    or :func:`~graphcal.io.dataset_span.end_times_span` when read in time order.
 
     Parameters
     ----------
@@ -185,7 +196,8 @@ class SpanCheck:
         Leave out the time-overlap check (``--force``).
     order : str
         The order the windows are read in: ``"sorted"`` takes the files' time order
-        for granted, which :meth:`result` then confirms.
+        for granted (the reader checks it; :meth:`result` confirms it too when the
+        span was measured from every row).
     """
 
     def __init__(self, folder: Path, *, force: bool, order: str) -> None:
@@ -199,12 +211,29 @@ class SpanCheck:
         self._thread.start()
 
     def _measure(self) -> None:
-        from graphcal.io.dataset_span import dataset_span
+        from graphcal.io.dataset_span import dataset_span, end_times_span
 
         try:
-            self._span = dataset_span(self._folder)
+            # Read in time order, the reader checks the order: the ends give the span.
+            quick = end_times_span(self._folder) if self._order == "sorted" else None
+            self._span = (quick if quick is not None and self._overlaps(quick)
+                          else dataset_span(self._folder))
         except BaseException as exc:  # noqa: BLE001 - raised by result(), in the caller
             self._error = exc
+
+    def _overlaps(self, span: DatasetSpan) -> bool:
+        """Whether ``span`` passes the time-overlap check (or it is not made): the ends
+        of a file out of order may not, which its full span then decides."""
+        from graphcal.core.errors import ImplausibleDataError
+        from graphcal.io.window_reader import check_span_overlap
+
+        if self._force:
+            return True
+        try:
+            check_span_overlap(span)
+        except ImplausibleDataError:
+            return False
+        return True
 
     @property
     def done(self) -> bool:

@@ -10,9 +10,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from graphcal.core.errors import DatasetError
+from graphcal.core.errors import DatasetError, RowsOutOfOrderError
 from graphcal.data.windows import split_windows
-from graphcal.io.dataset_span import dataset_span, scan_times
+from graphcal.io.dataset_span import dataset_span, end_times_span, scan_times
 from graphcal.io.folder import load_dataset
 from graphcal.io.window_reader import iter_windows
 from graphcal.simulation.scenario import parse_scenario
@@ -172,6 +172,29 @@ def test_parts_that_overlap_in_time_are_read_side_by_side(folders, tmp_path) -> 
                                                     order="sorted")))
 
 
+def test_the_span_from_the_ends_of_csv_files(folders, tmp_path) -> None:
+    """In time order, a CSV table's first and last rows give the span every row gives;
+    the rows are not counted; a Parquet table has no such ends (``None``)."""
+    folder = folders["csv"]
+    quick, full = end_times_span(folder), dataset_span(folder)
+    assert quick is not None and quick.radar_ids == full.radar_ids
+    assert (quick.t_start_s, quick.t_end_s) == (full.t_start_s, full.t_end_s)
+    assert quick.adsb is not None and full.adsb is not None
+    assert (quick.adsb.t_min_s, quick.adsb.t_max_s) == (full.adsb.t_min_s, full.adsb.t_max_s)
+    assert quick.n_plots is None and full.n_plots == len(pd.read_csv(folder / "plots.csv"))
+    shuffled = tmp_path / "shuffled"
+    shutil.copytree(folder, shuffled)
+    plots = pd.read_csv(shuffled / "plots.csv", dtype={"target_id": str})
+    first_last = plots.iloc[[len(plots) // 2, len(plots) // 2 + 1]]
+    rest = plots.drop(index=first_last.index)
+    pd.concat([first_last.iloc[:1], rest, first_last.iloc[1:]]).to_csv(
+        shuffled / "plots.csv", index=False)
+    ends = end_times_span(shuffled)
+    assert ends is not None  # the ends of a file out of order: not its span
+    assert ends.t_start_s == first_last["time_s"].min() > full.t_start_s
+    assert end_times_span(folders["parquet"]) is None
+
+
 def test_stopping_early_removes_the_temporary_folder(folders, tmp_path) -> None:
     windows = iter_windows(folders["parquet"], WINDOW_S, order="any", spill_dir=tmp_path)
     first = next(windows)
@@ -193,6 +216,7 @@ def test_a_row_out_of_order_names_the_file_and_row(folders, tmp_path) -> None:
     with pytest.raises(DatasetError) as info:
         list(iter_windows(folder, WINDOW_S, order="sorted", chunk_rows=700))
     error = info.value
+    assert isinstance(error, RowsOutOfOrderError)  # a caller may read again, sorting first
     assert error.path == folder / "plots.csv" and error.row == 2000 and error.field == "time_s"
     assert "time order" in str(error) and "sort it by time_s" in str(error)
     assert "(line 2001)" in str(error)

@@ -323,6 +323,37 @@ def test_a_late_row_deep_in_a_csv_table_sends_the_reading_back(stepping, tmp_pat
 
 
 @pytest.mark.parametrize("threshold", [0, 1 << 60], ids=["child", "here"])
+def test_the_ends_of_tables_out_of_order_do_not_refuse_them(stepping, tmp_path: Path,
+                                                           monkeypatch, threshold) -> None:
+    """Plots whose first and last rows are from the first minutes and ADS-B whose first
+    and last rows are from the last: their ends (the span of tables in time order) do
+    not overlap in time, their rows do.  The full span decides (no refusal), the reader
+    finds the rows out of order and reads again: the ordered folder's series."""
+    import pandas as pd
+
+    import graphcal.pipeline.window_feed as window_feed
+    from graphcal.io.dataset_span import end_times_span
+
+    monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", threshold)
+    _, sim = stepping
+    folder = tmp_path / "ends"
+    write_dataset(sim.dataset, folder)
+    plots = pd.read_csv(folder / "plots.csv", dtype={"target_id": str, "radar_id": str})
+    early = plots.index[plots["time_s"] < 300.0][5]
+    pd.concat([plots.drop(index=early), plots.loc[[early]]]).to_csv(folder / "plots.csv",
+                                                                     index=False)
+    adsb = pd.read_csv(folder / "adsb.csv", dtype={"target_id": str})
+    late = adsb.index[adsb["time_s"] > adsb["time_s"].max() - 300.0][5]
+    pd.concat([adsb.loc[[late]], adsb.drop(index=late)]).to_csv(folder / "adsb.csv",
+                                                                index=False)
+    ends = end_times_span(folder)
+    assert ends is not None and ends.adsb is not None
+    assert ends.adsb.t_min_s > ends.t_end_s + 600.0  # the ends do not overlap
+    _assert_series_as_ordered(sim, tmp_path,
+                              calibrate(folder, window="15min", cross=READING_CROSS))
+
+
+@pytest.mark.parametrize("threshold", [0, 1 << 60], ids=["child", "here"])
 def test_adsb_on_another_time_base_is_refused_before_anything_else(
         stepping, tmp_path: Path, monkeypatch, threshold) -> None:
     """ADS-B two days after the plots: the time-overlap finding, measured beside the
