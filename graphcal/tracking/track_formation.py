@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from scipy.optimize import linear_sum_assignment
 
 from graphcal.data.dataset import Site
 from graphcal.tracking.gating import MAX_SPEED_M_S, scan_period
@@ -119,6 +118,8 @@ def form_tracks(site: Site, plots: Any, track_number: NDArray | None = None,
 def _scan_to_scan(site: Site, time_s: FloatArray, xy: FloatArray, sigma: FloatArray,
                   code: NDArray[np.object_]) -> NDArray[np.int64]:
     """Scan-to-scan gating of plots into tracks (module docstring); every plot's track."""
+    from scipy.optimize import linear_sum_assignment  # only when plots lack an address
+
     period = scan_period(site)
     n = len(time_s)
     label = np.full(n, -1, dtype=np.int64)
