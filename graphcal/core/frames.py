@@ -62,7 +62,8 @@ def geodetic_to_ecef(lat_rad: ArrayLike, lon_rad: ArrayLike, alt_m: ArrayLike) -
 
     ``x = (N + h) cos(lat) cos(lon)``, ``y = (N + h) cos(lat) sin(lon)``,
     ``z = (N (1 - e^2) + h) sin(lat)``, ``N = a / sqrt(1 - e^2 sin^2(lat))``
-    (paper 003 eq. 3, corrected).
+    (paper 003 eq. 3, corrected).  The inputs broadcast against each other; the
+    components are written straight into the (C-contiguous) result.
     """
     lat = np.asarray(lat_rad, dtype=float)
     lon = np.asarray(lon_rad, dtype=float)
@@ -71,10 +72,12 @@ def geodetic_to_ecef(lat_rad: ArrayLike, lon_rad: ArrayLike, alt_m: ArrayLike) -
     sin_lat = np.sin(lat)
     cos_lat = np.cos(lat)
     n = WGS84_A_M / np.sqrt(1.0 - WGS84_E2 * sin_lat**2)
-    x = (n + alt) * cos_lat * np.cos(lon)
-    y = (n + alt) * cos_lat * np.sin(lon)
-    z = (n * (1.0 - WGS84_E2) + alt) * sin_lat
-    return np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+    ecef = np.empty(np.broadcast_shapes(lat.shape, lon.shape, alt.shape) + (3,))
+    horizontal = (n + alt) * cos_lat  # distance from the polar axis [m]
+    np.multiply(horizontal, np.cos(lon), out=ecef[..., 0])
+    np.multiply(horizontal, np.sin(lon), out=ecef[..., 1])
+    np.multiply(n * (1.0 - WGS84_E2) + alt, sin_lat, out=ecef[..., 2])
+    return ecef
 
 
 def ecef_to_geodetic(ecef_m: ArrayLike) -> tuple[Array, Array, Array]:

@@ -116,8 +116,31 @@ def group_order(group: NDArray, values: FloatArray) -> IntArray:
     values = np.asarray(values)
     if (_fits_16_bits(group) and values.dtype.kind == "f"
             and bool(np.all(values[1:] >= values[:-1]))):
-        return np.argsort((group + 1).astype(np.int16), kind="stable")
+        return group_rows(group)
     return np.lexsort((values, group))
 
 
-__all__ = ["group_medians", "group_order", "group_runs"]
+def group_rows(group: NDArray) -> IntArray:
+    """Row order by group code, ties by row: ``np.argsort(group, kind="stable")``,
+    faster.
+
+    When the codes fit in 16 bits (:func:`_fits_16_bits`), one stable radix sort of
+    the codes (as ``int16``); otherwise numpy's stable sort of the codes.
+
+    Parameters
+    ----------
+    group : ndarray of int, shape (n,)
+        Each row's group code (``-1`` allowed).
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+        The row indices in order.
+    """
+    group = np.asarray(group)
+    if _fits_16_bits(group):
+        return np.argsort((group + 1).astype(np.int16), kind="stable")
+    return np.argsort(group, kind="stable")
+
+
+__all__ = ["group_medians", "group_order", "group_rows", "group_runs"]

@@ -47,7 +47,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
-from graphcal.core.grouped import group_medians, group_order
+from graphcal.core.grouped import group_medians, group_order, group_rows
 
 if TYPE_CHECKING:
     from graphcal.data.dataset import Dataset, Site
@@ -197,7 +197,12 @@ def _rows(array: NDArray, rows: NDArray) -> NDArray:
 
 
 def _column(table: pd.DataFrame, name: str) -> FloatArray:
-    return pd.to_numeric(table[name], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+    """A column as floats, NaN where missing or not a number (a read-only view of a
+    ``float64`` column, which ``pd.to_numeric`` would give back as it is)."""
+    values = table[name]
+    if values.dtype == np.float64:
+        return values.to_numpy(dtype=float, na_value=np.nan)
+    return pd.to_numeric(values, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
 
 
 @dataclass(frozen=True)
@@ -827,7 +832,7 @@ def _interpolate_adsb(
 
     The targets are ``target_names[target_code]``; ``ecef_all`` the reports' ECEF
     positions.  Vectorised over all aircraft: rows are keyed by ``code * span + time``
-    so that one ``searchsorted`` finds every bracket.
+    so that one ``searchsorted`` finds every bracket (:func:`_brackets`).
     """
     n = len(time_s)
     ref = np.full((n, 3), np.nan)
@@ -840,12 +845,11 @@ def _interpolate_adsb(
     a_time = _column(adsb, "time_s")
     t0 = min(a_time.min(), time_s.min())
     span = max(a_time.max(), time_s.max()) - t0 + 4.0 * max_gap_s + 1.0
-    a_key = a_code * span + (a_time - t0)
-    order = tracks.order  # a_key's order, which it keeps after rounding
-    a_key, a_code_s, a_time_s = a_key[order], a_code[order], a_time[order]
-    ecef = _rows(ecef_all, order)
+    order = tracks.order  # the keys' order, which they keep after rounding
+    a_code_s, a_time_s = a_code[order], a_time[order]
+    a_key = a_code_s * span + (a_time_s - t0)
     q_key = q_code * span + (time_s - t0)
-    j = np.searchsorted(a_key, q_key, side="right") - 1
+    j = _brackets(a_key, q_key, group_rows(q_code))  # by aircraft: close keys
     valid = (q_code >= 0) & (j >= 0) & (j < len(a_key) - 1)
     j = np.clip(j, 0, len(a_key) - 2)
     same = (a_code_s[j] == q_code) & (a_code_s[j + 1] == q_code)
@@ -854,9 +858,26 @@ def _interpolate_adsb(
         w = (time_s - a_time_s[j]) / dt
     ok = valid & same & (dt > 0) & (dt <= max_gap_s) & (w >= 0.0) & (w <= 1.0)
     w = np.where(ok, w, 0.0)
-    ref = (1.0 - w)[:, None] * _rows(ecef, j) + w[:, None] * _rows(ecef, j + 1)
+    ref = ((1.0 - w)[:, None] * _rows(ecef_all, order[j])
+           + w[:, None] * _rows(ecef_all, order[j + 1]))
     ref[~ok] = np.nan
     return ref, ok
+
+
+def _brackets(keys: FloatArray, queries: FloatArray, by_query: NDArray[np.intp]
+              ) -> NDArray[np.intp]:
+    """Per query, the last of the sorted ``keys`` at or before it (-1: none).
+
+    ``np.searchsorted(keys, queries, side="right") - 1``, the queries searched in
+    the order ``by_query`` (any permutation: one that brings close queries together
+    keeps the searches' memory accesses close, several times faster than random
+    order).  ``keys`` and ``queries`` are in the same unit (here ``code * span +
+    time`` [s]).
+    """
+    found = np.empty(len(queries), dtype=np.intp)
+    found[by_query] = np.searchsorted(keys, queries[by_query], side="right")
+    found -= 1
+    return found
 
 
 def _robust_line(x: FloatArray, y: FloatArray) -> FloatArray:

@@ -398,20 +398,7 @@ def _coverage(sites: Mapping[str, Site], plots: pd.DataFrame, adsb: pd.DataFrame
              if rid in sites and rid not in skip and stats.loc[rid, "n"] >= MIN_PLOTS}
     if not reach:
         return None
-    named = plots[plots["radar_id"].isin(list(reach)) & (plots["target_id"] != "")]
-    spans = (named.groupby(["radar_id", "target_id"], sort=False)["time_s"]
-             .agg(t0="min", t1="max").reset_index())
-    reports = adsb[["target_id", "time_s", "lat_deg", "lon_deg"]]
-    joined = reports.merge(spans, on="target_id")
-    joined = joined[(joined["time_s"] >= joined["t0"]) & (joined["time_s"] <= joined["t1"])]
-    covered: dict[str, tuple[float, float]] = {}
-    for rid, group in joined.groupby("radar_id", sort=False):
-        if len(group) < MIN_REPORTS:
-            continue
-        site = sites[str(rid)]
-        d = ground_distance_m(group["lat_deg"].to_numpy(dtype=float),
-                              group["lon_deg"].to_numpy(dtype=float), site.lat_rad, site.lon_rad)
-        covered[str(rid)] = (float(np.mean(d <= reach[str(rid)])), float(np.median(d)))
+    covered = _covered(sites, plots, adsb, reach)
     if covered:
         bad = {rid: v for rid, v in covered.items() if v[0] < COVERAGE_FRACTION}
         if not bad:
@@ -444,6 +431,91 @@ def _coverage(sites: Mapping[str, Site], plots: pd.DataFrame, adsb: pd.DataFrame
     return Finding("adsb", "lat_deg",
                    f"only {fraction:.1%} of the ADS-B reports lie within any radar's range: "
                    "latitude and longitude swapped, or a sign lost?")
+
+
+def _positions(values: pd.Series, among: pd.Index) -> NDArray[np.intp]:
+    """Per value, its position in ``among`` (distinct values; -1: not there, or missing).
+
+    ``among.get_indexer(values)``, looked up once per distinct value.
+    """
+    codes, uniques = pd.factorize(values)
+    return np.append(among.get_indexer(uniques), -1)[codes]
+
+
+@dataclass(frozen=True)
+class _Spans:
+    """Per radar and aircraft named in the plots, the time span of its plots there.
+
+    As ``groupby(["radar_id", "target_id"], sort=False)["time_s"].agg(["min", "max"])``
+    on the plots of the radars with a ``target_id`` other than ``""``, as arrays of
+    shape ``(radars, aircraft)``.
+
+    Attributes
+    ----------
+    names : pandas.Index
+        The aircraft (``target_id``), in order of first appearance.
+    t0, t1 : ndarray of float, shape (radars, aircraft)
+        First and last plot time [s]; NaN for a pair without plots (or times).
+    first : ndarray of int, shape (radars, aircraft)
+        The row of the pair's first plot (``len(plots)`` for none): the order of
+        the groups.
+    """
+
+    names: pd.Index
+    t0: NDArray[np.float64]
+    t1: NDArray[np.float64]
+    first: NDArray[np.int64]
+
+    @classmethod
+    def of(cls, plots: pd.DataFrame, radars: list[str]) -> _Spans:
+        """The spans of the plots of ``radars`` (in that order)."""
+        radar = _positions(plots["radar_id"], pd.Index(radars))
+        target, names = pd.factorize(plots["target_id"])
+        named = (radar >= 0) & (target >= 0)
+        named[named] = np.asarray(names != "", dtype=bool)[target[named]]
+        rows = np.flatnonzero(named)
+        key = radar[rows] * len(names) + target[rows]
+        time_s = plots["time_s"].to_numpy(dtype=float)[rows]
+        shape = (len(radars), len(names))
+        t0, t1 = np.full(shape, np.nan), np.full(shape, np.nan)
+        first = np.full(shape, len(plots), dtype=np.int64)
+        np.fmin.at(t0.reshape(-1), key, time_s)  # min and max without the NaN, as pandas
+        np.fmax.at(t1.reshape(-1), key, time_s)
+        np.minimum.at(first.reshape(-1), key, rows)
+        return cls(pd.Index(names), t0, t1, first)
+
+
+def _covered(sites: Mapping[str, Site], plots: pd.DataFrame, adsb: pd.DataFrame,
+             reach: Mapping[str, float]) -> dict[str, tuple[float, float]]:
+    """Per radar of ``reach``: the fraction of the ADS-B reports of the aircraft it sees,
+    while it sees them, within its reach [m], and their median distance [m].
+
+    Radars with fewer than :data:`MIN_REPORTS` such reports are left out; the others
+    come in the order of their first report (ties: in the order of their plots of
+    its aircraft), as a join of the reports with the spans of :class:`_Spans`,
+    grouped by radar, gives them.
+    """
+    radars = list(reach)
+    spans = _Spans.of(plots, radars)
+    if not len(spans.names):
+        return {}
+    code = _positions(adsb["target_id"], spans.names)
+    time_s = adsb["time_s"].to_numpy(dtype=float)
+    aircraft = np.where(code >= 0, code, 0)
+    inside = (code >= 0) & (time_s >= spans.t0[:, aircraft]) & (time_s <= spans.t1[:, aircraft])
+    seen = [(int(rows[0]), int(spans.first[r, aircraft[rows[0]]]), r, rows)
+            for r, rows in enumerate(np.flatnonzero(row) for row in inside) if len(rows)]
+    lat = adsb["lat_deg"].to_numpy(dtype=float)
+    lon = adsb["lon_deg"].to_numpy(dtype=float)
+    covered: dict[str, tuple[float, float]] = {}
+    for _, _, r, rows in sorted(seen, key=lambda entry: entry[:2]):
+        if len(rows) < MIN_REPORTS:
+            continue
+        rid = radars[r]
+        site = sites[rid]
+        d = ground_distance_m(lat[rows], lon[rows], site.lat_rad, site.lon_rad)
+        covered[rid] = (float(np.mean(d <= reach[rid])), float(np.median(d)))
+    return covered
 
 
 @dataclass(frozen=True)

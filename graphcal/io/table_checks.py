@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 from numpy.typing import NDArray
 
 from graphcal.core.errors import DatasetError
@@ -79,9 +80,48 @@ def _numeric(table: RawRows, problems: FirstProblem, column: str) -> NDArray[np.
     return parsed
 
 
+#: The dtype of :func:`_text`'s columns: pandas' default for ``str`` (``astype(str)``).
+TEXT_DTYPE = pd.api.types.pandas_dtype(str)
+
+
+def _printable_ascii(chunk: pa.Array, *, lower: bool) -> bool:
+    """Whether every byte of a pyarrow (large) string array's cells is printable ASCII
+    other than the blank (0x21-0x7e), and no upper-case letter when ``lower``; no
+    cell may be missing."""
+    large = pa.types.is_large_string(chunk.type)
+    if chunk.null_count or not (large or pa.types.is_string(chunk.type)):
+        return False
+    _, offsets_buffer, data_buffer = chunk.buffers()
+    width = np.int64 if large else np.int32
+    offsets = np.frombuffer(offsets_buffer, dtype=width)
+    start, end = offsets[chunk.offset], offsets[chunk.offset + len(chunk)]
+    if start == end:
+        return True
+    data = np.frombuffer(data_buffer, dtype=np.uint8)[start:end]
+    # Unsigned wrap-around: one comparison tests a byte range.
+    if ((data - np.uint8(0x21)) >= 0x5E).any():
+        return False
+    return not (lower and ((data - np.uint8(0x41)) < 26).any())
+
+
+def _text_unchanged(values: pd.Series, *, lower: bool) -> bool:
+    """Whether :func:`_text` would give ``values`` back as they are: a column of
+    :data:`TEXT_DTYPE` stored by pyarrow, no cell missing, and no blank, non-ASCII
+    byte or (``lower``) upper-case letter in any cell, so that stripping and
+    lower-casing change nothing."""
+    if values.dtype != TEXT_DTYPE or getattr(values.dtype, "storage", None) != "pyarrow":
+        return False
+    array = pa.array(values.array)
+    chunks = array.chunks if isinstance(array, pa.ChunkedArray) else [array]
+    return all(_printable_ascii(chunk, lower=lower) for chunk in chunks)
+
+
 def _text(table: RawRows, column: str, *, lower: bool = False) -> pd.Series:
     """A text column without surrounding blanks, ``""`` where missing."""
-    text = table.frame[column].astype("string").fillna("").str.strip()
+    values = table.frame[column]
+    if _text_unchanged(values, lower=lower):
+        return values
+    text = values.astype("string").fillna("").str.strip()
     if lower:
         text = text.str.lower()
     return text.astype(str)

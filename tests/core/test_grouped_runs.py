@@ -27,3 +27,12 @@ def test_none_or_one_row() -> None:
         expected = np.unique(group, return_index=True, return_inverse=True, return_counts=True)
         for got, want in zip(group_runs(group), expected, strict=True):
             np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("low, high", [(-1, 300), (0, 50_000), (-7, 5)])
+def test_group_rows_is_numpy_stable_argsort(low, high) -> None:
+    """Rows by group code, ties in row order: numpy's stable argsort, radix or not."""
+    from graphcal.core.grouped import group_rows
+
+    group = np.random.default_rng(high).integers(low, high, 5000)
+    np.testing.assert_array_equal(group_rows(group), np.argsort(group, kind="stable"))
