@@ -84,6 +84,20 @@ def test_without_adsb_biases_and_height_model_within_3_sigma(runs) -> None:
     assert cal.atmosphere.sigma["height_offset_m"] < 15.0
 
 
+def test_the_height_model_without_adsb_is_said_to_be_a_lower_bound(runs) -> None:
+    """Without ADS-B the trajectory formulation's height model is biased by about two
+    sigma in simulation (benchmarks/v2_study.py): the calibration says so, with ADS-B
+    positions (even without baro_alt_m) it does not, nor in the pairwise formulation."""
+    from graphcal.solvers.graph import HEIGHT_MODEL_WITHOUT_ADSB_NOTE
+
+    run = runs[0]
+    assert HEIGHT_MODEL_WITHOUT_ADSB_NOTE in graph(run.dataset, use_adsb=False).warnings
+    assert HEIGHT_MODEL_WITHOUT_ADSB_NOTE not in graph(
+        run.dataset, use_adsb=False, cross="pairwise").warnings
+    no_baro = dataclasses.replace(run.dataset, adsb=run.dataset.adsb.drop(columns="baro_alt_m"))
+    assert HEIGHT_MODEL_WITHOUT_ADSB_NOTE not in graph(no_baro).warnings
+
+
 def test_pressure_altitudes_declared_geometric_bias_the_estimates(runs) -> None:
     """The same data with plot_altitude = "geometric": each 2-D plot is placed 185 m plus 2 %
     too low, and the range terms and the 3-D elevation biases absorb it, tens of sigma off."""
