@@ -530,15 +530,11 @@ class TrajectoryBlock:
         estimated at this linearisation (:meth:`_estimate_process_noise`), and the
         reduced system is that of the new noise.
         """
-        def key() -> tuple[bytes, bytes]:
-            return (b"".join(np.asarray(v, dtype=float).tobytes() for v in values),
-                    self.phase_scale.tobytes())
-
+        flat = np.concatenate([np.ravel(v) for v in values] or [np.zeros(0)]).astype(float)
         if (not estimate_process_noise and self._reduced_cache is not None
-                and self._reduced_cache[0] == key()):
+                and self._reduced_cache[0] == (flat.tobytes(), self.phase_scale.tobytes())):
             return self._reduced_cache[1]
         self.n_calls += 1
-        flat = np.concatenate([np.ravel(v) for v in values]).astype(float)
         self._follow_biases(flat)
         named = self._split(values)
         # Always with the bias columns: GTSAM asks for the error at a point and then,
@@ -561,7 +557,8 @@ class TrajectoryBlock:
         self._path_response = (flat, zx, factor)
         self._record_weights(lin)
         out = (cost, gradient, 0.5 * (information + information.T))
-        self._reduced_cache = (key(), out)
+        # Keyed by the noise the system was reduced with (estimate_process_noise sets it).
+        self._reduced_cache = ((flat.tobytes(), self.phase_scale.tobytes()), out)
         return out
 
     def _follow_biases(self, flat: FloatArray) -> None:

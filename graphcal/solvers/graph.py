@@ -975,8 +975,8 @@ def _height_model_estimate(
 def _paths_without_adsb(block: Any) -> bool:
     """The trajectory formulation's paths hold 2-D plots' pressure altitudes and no ADS-B
     report (neither positions nor heights)."""
-    return bool(getattr(block, "n_pressure_plots", int)()
-                and getattr(block, "adsb", None) is None)
+    return (hasattr(block, "n_pressure_plots") and block.adsb is None
+            and block.n_pressure_plots() > 0)
 
 
 #: The trajectory formulation's height model without ADS-B: measured biased

@@ -276,22 +276,36 @@ def _assert_series_as_ordered(sim, tmp_path: Path, got: Calibration) -> None:
                 assert abs(mine[key] - theirs[key]) <= 1e-6 * sigma, (rid, key)
 
 
-@pytest.mark.parametrize("threshold", [0, 1 << 60], ids=["child", "here"])
-def test_a_csv_folder_out_of_time_order_is_read_sorted_by_window(stepping, tmp_path: Path,
-                                                                 monkeypatch, threshold) -> None:
-    """A CSV folder is read as if in time order while its spans are measured; a file
-    found out of order sends the reader back to sorting by window: the same series."""
+def _written_csv(sim, folder: Path, monkeypatch, threshold: int):
+    """The simulation's dataset written to ``folder`` (CSV), read by a forked child when
+    its tables reach ``threshold`` bytes, and its plots table as written."""
     import pandas as pd
 
     import graphcal.pipeline.window_feed as window_feed
 
     monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", threshold)
+    write_dataset(sim.dataset, folder)
+    assert window_feed.reading_order(folder) == "sorted"
+    return pd.read_csv(folder / "plots.csv", dtype={"target_id": str, "radar_id": str})
+
+
+def _row_moved(frame, row, position: int):
+    """``frame`` with the row labelled ``row`` moved to ``position`` among the others."""
+    import pandas as pd
+
+    rest = frame.drop(index=row)
+    return pd.concat([rest.iloc[:position], frame.loc[[row]], rest.iloc[position:]])
+
+
+@pytest.mark.parametrize("threshold", [0, 1 << 60], ids=["child", "here"])
+def test_a_csv_folder_out_of_time_order_is_read_sorted_by_window(stepping, tmp_path: Path,
+                                                                 monkeypatch, threshold) -> None:
+    """A CSV folder is read as if in time order while its spans are measured; a file
+    found out of order sends the reader back to sorting by window: the same series."""
     _, sim = stepping
     shuffled = tmp_path / "shuffled"
-    write_dataset(sim.dataset, shuffled)
-    plots = pd.read_csv(shuffled / "plots.csv", dtype={"target_id": str, "radar_id": str})
+    plots = _written_csv(sim, shuffled, monkeypatch, threshold)
     plots.sample(frac=1.0, random_state=2).to_csv(shuffled / "plots.csv", index=False)
-    assert window_feed.reading_order(shuffled) == "sorted"
     _assert_series_as_ordered(sim, tmp_path,
                               calibrate(shuffled, window="15min", cross=READING_CROSS))
 
@@ -303,21 +317,11 @@ def test_a_late_row_deep_in_a_csv_table_sends_the_reading_back(stepping, tmp_pat
     read as if in order, the first windows are calibrated before the late row is met.
     They are dropped and the folder read again sorted by window: the first window counts
     that row, and the series is the ordered folder's."""
-    import pandas as pd
-
-    import graphcal.pipeline.window_feed as window_feed
-
-    monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", threshold)
     _, sim = stepping
     late = tmp_path / "late"
-    write_dataset(sim.dataset, late)
-    plots = pd.read_csv(late / "plots.csv", dtype={"target_id": str, "radar_id": str})
+    plots = _written_csv(sim, late, monkeypatch, threshold)
     moved = plots.index[plots["time_s"] < 600.0][5]
-    rest = plots.drop(index=moved)
-    at = len(rest) - 50
-    late_plots = pd.concat([rest.iloc[:at], plots.loc[[moved]], rest.iloc[at:]])
-    late_plots.to_csv(late / "plots.csv", index=False)
-    assert window_feed.reading_order(late) == "sorted"
+    _row_moved(plots, moved, len(plots) - 51).to_csv(late / "plots.csv", index=False)
     _assert_series_as_ordered(sim, tmp_path,
                               calibrate(late, window="15min", cross=READING_CROSS))
 
@@ -331,21 +335,16 @@ def test_the_ends_of_tables_out_of_order_do_not_refuse_them(stepping, tmp_path: 
     finds the rows out of order and reads again: the ordered folder's series."""
     import pandas as pd
 
-    import graphcal.pipeline.window_feed as window_feed
     from graphcal.io.dataset_span import end_times_span
 
-    monkeypatch.setattr(window_feed, "CHILD_READER_MIN_BYTES", threshold)
     _, sim = stepping
     folder = tmp_path / "ends"
-    write_dataset(sim.dataset, folder)
-    plots = pd.read_csv(folder / "plots.csv", dtype={"target_id": str, "radar_id": str})
+    plots = _written_csv(sim, folder, monkeypatch, threshold)
     early = plots.index[plots["time_s"] < 300.0][5]
-    pd.concat([plots.drop(index=early), plots.loc[[early]]]).to_csv(folder / "plots.csv",
-                                                                     index=False)
+    _row_moved(plots, early, len(plots) - 1).to_csv(folder / "plots.csv", index=False)
     adsb = pd.read_csv(folder / "adsb.csv", dtype={"target_id": str})
     late = adsb.index[adsb["time_s"] > adsb["time_s"].max() - 300.0][5]
-    pd.concat([adsb.loc[[late]], adsb.drop(index=late)]).to_csv(folder / "adsb.csv",
-                                                                index=False)
+    _row_moved(adsb, late, 0).to_csv(folder / "adsb.csv", index=False)
     ends = end_times_span(folder)
     assert ends is not None and ends.adsb is not None
     assert ends.adsb.t_min_s > ends.t_end_s + 600.0  # the ends do not overlap
