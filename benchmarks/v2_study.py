@@ -90,6 +90,10 @@ def main() -> None:
             "within_3_sigma": float(np.mean(np.abs(z) < 3.0)),
             "normalised_error_variance": float(np.mean(z**2)),
             "rmse_over_crlb": eff, "max_rmse_over_crlb": float(max(eff.values())),
+            "mean_z": {label: float(np.mean([e / s for e, s, _ in r]))
+                       for label, r in rows.items()},
+            "mean_z2": {label: float(np.mean([(e / s) ** 2 for e, s, _ in r]))
+                        for label, r in rows.items()},
             "chance_bound_99": bound,
             "above_chance_bound": sorted(k for k, v in eff.items() if v > bound),
             "seconds": seconds,
@@ -101,6 +105,11 @@ def main() -> None:
               f"{r['max_rmse_over_crlb']:.2f} (median {np.median(list(eff.values())):.2f}; "
               f"99 % chance bound {bound:.2f}, above it: "
               f"{', '.join(r['above_chance_bound']) or 'none'}), {seconds:.0f} s")
+        worst = max(r["mean_z"], key=lambda k: abs(r["mean_z"][k]))
+        print(f"  mean z per parameter: largest {r['mean_z'][worst]:+.2f} ({worst}); "
+              "height model " + ", ".join(
+                  f"{k.split('.')[1]} {r['mean_z'][k]:+.2f} (mean z^2 {r['mean_z2'][k]:.2f})"
+                  for k in r["mean_z"] if k.startswith("atmosphere.")))
     atomic_write_text(RESULTS, json.dumps(report, indent=2) + "\n")
     print(f"wrote {RESULTS.relative_to(ROOT)}")
 

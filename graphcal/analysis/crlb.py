@@ -323,9 +323,14 @@ def _cross_information(
             lat, lon, _ = frames.ecef_to_geodetic(ecef)
             up = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)],
                           axis=-1)
-            hx[:, 2, :] = up / ALTITUDE_SIGMA_M
-            if height is not None:  # p measures (h - d) / (1 + k)
-                hb[:, 2, height[1]] = -height_jacobian(pressure_m) / ALTITUDE_SIGMA_M
+            # p measures (h - d) / (1 + k) with 1-sigma ALTITUDE_SIGMA_M (the trajectory
+            # formulation's measurement of the reported altitude).
+            per_metre = 1.0 / ALTITUDE_SIGMA_M
+            if height is not None:
+                per_metre /= 1.0 + height[0].height_scale
+            hx[:, 2, :] = up * per_metre
+            if height is not None:
+                hb[:, 2, height[1]] = -height_jacobian(pressure_m) * per_metre
         blocks.append((r_index, plots.target_id.astype(str), plots.time_s, hx, hb))
     empty = {"n_events": 0, "n_event_plots": 0}
     if not blocks:

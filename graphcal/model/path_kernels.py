@@ -100,7 +100,7 @@ def _warm(kernels: Any) -> None:
     position, information = kernels.adsb_reports(np.ones((1, 3)), np.ones(1), np.zeros(3),
                                                  np.eye(3), 1.5, np.ones(3))
     kernels.adsb_sums(band, np.zeros(12), first, weights, position, information)
-    kernels.motion_prior(band, first, np.ones(1), np.eye(4))
+    kernels.motion_prior(band, first, np.ones((1, 3)), np.eye(4))
     kernels.accumulate(band, np.zeros(12), np.zeros((12, 1)), np.zeros((1, 1)), np.zeros(1),
                        first, weights, np.ones((1, 2, 3)), np.ones((1, 2, 1)), np.ones((1, 2)),
                        np.ones(1), np.zeros(1, dtype=np.int64))

@@ -205,16 +205,16 @@ def adsb_sums(band, rhs, first, weights, position, information):  # pragma: no c
 
 @_jit
 def motion_prior(band, first, scale, gram):  # pragma: no cover - compiled
-    """``band += sum_k scale_k (G kron I_3)`` at interval ``k``'s four coefficients
-    (``first`` its first coefficient, ``gram`` the 4 x 4 ``int B'' B''``)."""
+    """``band += sum_k G kron diag(scale_k)`` at interval ``k``'s four coefficients
+    (``first`` its first coefficient, ``scale`` (k, 3) per axis, ``gram`` the 4 x 4
+    ``int B'' B''``)."""
     for k in range(first.shape[0]):
         base = 3 * first[k]
-        s = scale[k]
         for low in range(4):
             for high in range(low, 4):
-                value = s * gram[high, low]
+                g = gram[high, low]
                 for x in range(3):
-                    band[3 * (high - low), base + 3 * low + x] += value
+                    band[3 * (high - low), base + 3 * low + x] += scale[k, x] * g
 
 
 __all__ = ["accumulate", "add_block", "add_blocks", "adsb_reports", "adsb_sums", "band_forward",

@@ -106,6 +106,10 @@ class PathLayout:
         The flight phase (a run of intervals of one path sharing one process noise)
         of each interval, intervals ordered path by path.
     n_phases : int
+    vertical_phase : ndarray (n_intervals_total,) of int
+        The same for the vertical axis's own process noise (shorter runs: an aircraft
+        levels off in seconds); ``phase`` when not given.
+    n_vertical_phases : int
     """
 
     spacing_s: float
@@ -114,28 +118,28 @@ class PathLayout:
     first_coefficient: IntArray
     phase: IntArray
     n_phases: int
+    vertical_phase: IntArray | None = None
+    n_vertical_phases: int = 0
+
+    def __post_init__(self) -> None:
+        if self.vertical_phase is None:
+            object.__setattr__(self, "vertical_phase", self.phase)
+            object.__setattr__(self, "n_vertical_phases", self.n_phases)
 
     @classmethod
     def build(cls, start_s: FloatArray, end_s: FloatArray, spacing_s: float,
-              phase_s: float) -> PathLayout:
-        """Paths spanning ``[start_s, end_s]`` each, flight phases of ``phase_s`` seconds."""
+              phase_s: float, vertical_phase_s: float | None = None) -> PathLayout:
+        """Paths spanning ``[start_s, end_s]`` each, flight phases of ``phase_s`` seconds
+        (the vertical axis's of ``vertical_phase_s``, by default the same)."""
         start_s = np.asarray(start_s, dtype=float)
         end_s = np.asarray(end_s, dtype=float)
         n_intervals = np.maximum(np.ceil((end_s - start_s) / spacing_s).astype(np.int64), 1)
         first = np.concatenate([[0], np.cumsum(n_intervals + 3)]).astype(np.int64)
-        per_phase = max(int(round(phase_s / spacing_s)), 1)
-        path_of_interval = np.repeat(np.arange(len(n_intervals)), n_intervals)
-        interval_in_path = np.arange(int(n_intervals.sum())) - np.repeat(
-            np.concatenate([[0], np.cumsum(n_intervals)[:-1]]), n_intervals)
-        # Phases: runs of per_phase intervals within a path (the last run of a path may
-        # be up to twice as long rather than very short).
-        phases_per_path = np.maximum(n_intervals // per_phase, 1)
-        local_phase = np.minimum(interval_in_path // per_phase,
-                                 phases_per_path[path_of_interval] - 1)
-        first_phase = np.concatenate([[0], np.cumsum(phases_per_path)[:-1]])
-        phase = first_phase[path_of_interval] + local_phase
-        return cls(float(spacing_s), start_s, n_intervals, first, phase.astype(np.int64),
-                   int(phases_per_path.sum()))
+        phase, n_phases = _phase_runs(n_intervals, phase_s / spacing_s)
+        vertical, n_vertical = (phase, n_phases) if vertical_phase_s is None else _phase_runs(
+            n_intervals, vertical_phase_s / spacing_s)
+        return cls(float(spacing_s), start_s, n_intervals, first, phase, n_phases,
+                   vertical, n_vertical)
 
     @property
     def n_paths(self) -> int:
@@ -180,15 +184,34 @@ class PathLayout:
             np.concatenate([[0], np.cumsum(self.n_intervals)[:-1]]), self.n_intervals)
         return self.first_coefficient[path] + local
 
-    def unknown_phase(self) -> IntArray:
+    def unknown_phase(self, vertical: bool = False) -> IntArray:
         """The flight phase of every unknown: coefficient ``j`` of a path counts with its
-        interval ``clip(j - 2, 0, n_intervals - 1)`` (the middle of its support)."""
+        interval ``clip(j - 2, 0, n_intervals - 1)`` (the middle of its support); with
+        ``vertical``, its vertical phase."""
         n_coef = np.diff(self.first_coefficient)
         path = np.repeat(np.arange(self.n_paths), n_coef)
         local = np.arange(self.n_coefficients) - self.first_coefficient[path]
         interval_offset = np.concatenate([[0], np.cumsum(self.n_intervals)[:-1]])
         interval = interval_offset[path] + np.clip(local - 2, 0, self.n_intervals[path] - 1)
-        return np.repeat(self.phase[interval], 3)
+        phase = self.vertical_phase if vertical else self.phase
+        assert phase is not None
+        return np.repeat(phase[interval], 3)
+
+
+def _phase_runs(n_intervals: IntArray, intervals_per_phase: float) -> tuple[IntArray, int]:
+    """Each interval's phase (runs of ``intervals_per_phase`` intervals within a path; the
+    last run of a path may be up to twice as long rather than very short) and their
+    number."""
+    per_phase = max(int(round(intervals_per_phase)), 1)
+    path_of_interval = np.repeat(np.arange(len(n_intervals)), n_intervals)
+    interval_in_path = np.arange(int(n_intervals.sum())) - np.repeat(
+        np.concatenate([[0], np.cumsum(n_intervals)[:-1]]), n_intervals)
+    phases_per_path = np.maximum(n_intervals // per_phase, 1)
+    local_phase = np.minimum(interval_in_path // per_phase,
+                             phases_per_path[path_of_interval] - 1)
+    first_phase = np.concatenate([[0], np.cumsum(phases_per_path)[:-1]])
+    phase = first_phase[path_of_interval] + local_phase
+    return phase.astype(np.int64), int(phases_per_path.sum())
 
     def evaluate(self, coefficients: FloatArray, first: IntArray, u: FloatArray,
                  derivative: bool = False) -> FloatArray:
@@ -259,13 +282,19 @@ def add_measurement_blocks(band: FloatArray, first: IntArray, weights: FloatArra
                 band[3 * d + a - b, b::3] += summed[:, k]
 
 
-def add_motion_prior(band: FloatArray, layout: PathLayout, phase_scale: FloatArray) -> None:
+def add_motion_prior(band: FloatArray, layout: PathLayout, phase_scale: FloatArray,
+                     vertical_scale: FloatArray | None = None) -> None:
     """Add ``Omega / q`` (the white-acceleration prior) to the band, in place.
 
-    ``phase_scale`` (n_phases,): ``1 / q`` of every flight phase [s^3/m^2].
+    ``phase_scale`` (n_phases,): ``1 / q`` of every flight phase [s^3/m^2];
+    ``vertical_scale`` (n_vertical_phases,): the vertical axis's (the network frame's up)
+    by vertical phase, by default that of ``phase_scale``.
     """
     first = layout.interval_first
-    scale = phase_scale[layout.phase] / layout.spacing_s**3
+    horizontal = np.asarray(phase_scale, dtype=float)[layout.phase]
+    vertical = horizontal if vertical_scale is None else np.asarray(
+        vertical_scale, dtype=float)[layout.vertical_phase]
+    scale = np.column_stack([horizontal, horizontal, vertical]) / layout.spacing_s**3
     if path_kernels.enabled():
         path_kernels.compiled().motion_prior(band, _int64(first), _contiguous(scale),
                                              SECOND_DERIVATIVE_GRAM)
@@ -274,14 +303,17 @@ def add_motion_prior(band: FloatArray, layout: PathLayout, phase_scale: FloatArr
     gram = SECOND_DERIVATIVE_GRAM[_COEF_A[same_axis], _COEF_C[same_axis]]
     base = 3 * first
     for k, g in zip(same_axis, gram, strict=True):
-        band[_PAIR_A[k] - _PAIR_C[k], base + _PAIR_C[k]] += scale * g
+        band[_PAIR_A[k] - _PAIR_C[k], base + _PAIR_C[k]] += scale[:, _AXIS_A[k]] * g
 
 
-def motion_prior_energy(coefficients: FloatArray, layout: PathLayout) -> FloatArray:
-    """``int |x''|^2 dt`` of every interval ``(n_intervals_total,)`` [m^2/s^3]."""
+def motion_prior_energy(coefficients: FloatArray, layout: PathLayout,
+                        per_axis: bool = False) -> FloatArray:
+    """``int |x''|^2 dt`` of every interval ``(n_intervals_total,)`` [m^2/s^3]; with
+    ``per_axis``, of every interval and axis ``(n_intervals_total, 3)``."""
     first = layout.interval_first
     c = np.stack([coefficients[first + j] for j in range(4)], axis=1)  # (k, 4, 3)
-    return np.einsum("kai,ab,kbi->k", c, SECOND_DERIVATIVE_GRAM, c) / layout.spacing_s**3
+    energy = np.sum(c * (SECOND_DERIVATIVE_GRAM @ c), axis=1) / layout.spacing_s**3  # (k, 3)
+    return energy if per_axis else energy.sum(axis=1)
 
 
 def scatter_vectors(first: IntArray, weights: FloatArray, vectors: FloatArray,

@@ -13,14 +13,17 @@ path: a cubic B-spline in the network's frame with a white-acceleration prior
 
   with no interpolation, no Cartesian conversion of noisy plots, no pairs;
 * a 2-D radar's plot also carries its reported height (Mode C), a measurement of the
-  path's ellipsoidal height with 1-sigma :data:`ALTITUDE_SIGMA_M`, through the height
-  model ``h = (1 + k) p + d`` when the heights are pressure altitudes;
+  path's ellipsoidal height ``h`` with 1-sigma :data:`ALTITUDE_SIGMA_M`; a pressure
+  altitude is predicted from the path through the inverse height model,
+  ``p = (h - d) / (1 + k)``;
 * every ADS-B report is a measurement of the path at its own time, with its own
   sigma (``sigma_m`` horizontally, 1.5 times vertically); reports beyond a
   chi-square gate of the first fit are left out;
 * the process noise ``q`` of the motion prior is estimated per flight phase
   (:data:`PHASE_S` of one path) by maximising the marginal likelihood of the data
-  over :data:`PROCESS_NOISE_GRID_M2_S3`, so manoeuvres do not bias the biases.
+  over :data:`PROCESS_NOISE_GRID_M2_S3`, so manoeuvres do not bias the biases; the
+  heights have their own per vertical phase (:data:`VERTICAL_PHASE_S`), so that a
+  levelling-off is not smoothed into the height model.
 
 :class:`TrajectoryBlock` is one factor over the bias variables: at each value of the
 biases it eliminates the paths exactly (one banded Cholesky for all paths; the
@@ -87,6 +90,10 @@ PATH_SPLIT_GAP_S = 120.0
 ADSB_MARGIN_S = 30.0
 #: Length [s] of a flight phase: the process noise is estimated per phase.
 PHASE_S = 300.0
+#: Length [s] of a vertical phase: the heights' own process noise is estimated per
+#: vertical phase, shorter than a flight phase because an aircraft levels off or starts
+#: a climb within seconds (:meth:`TrajectoryBlock._estimate_vertical_process_noise`).
+VERTICAL_PHASE_S = 60.0
 #: The process noises [m^2/s^3] among which each phase's is chosen (a level airliner
 #: needs about 0.1, a turning one 10 or more).
 PROCESS_NOISE_GRID_M2_S3 = tuple(float(v) for v in 10.0 ** np.arange(-2.0, 3.01, 0.5))
@@ -228,6 +235,7 @@ class TrajectoryBlock:
     pressure: bool
     coefficients: FloatArray  # (n_coefficients, 3): the current paths
     phase_scale: FloatArray  # (n_phases,): 1 / q
+    vertical_scale: FloatArray  # (n_vertical_phases,): 1 / q of the heights
     n_aircraft: int
     target_of_path: NDArray[np.object_]
     fixed_values: dict[str, FloatArray] = field(default_factory=dict)
@@ -308,24 +316,29 @@ class TrajectoryBlock:
         lin = self._linearise_data(named, want_bias, c)
         if estimate_process_noise:
             self._estimate_process_noise(lin, c)
-        self._add_prior(lin, c, self.phase_scale)
+        self._add_prior(lin, c)
         return lin
 
-    def _add_prior(self, lin: _Linear, c: FloatArray, phase_scale: FloatArray) -> None:
+    def _add_prior(self, lin: _Linear, c: FloatArray) -> None:
         """Add the motion prior ``Omega / q`` to linearised data, in place."""
         cached = self._prior_cache
-        if cached is not None and np.array_equal(cached[0], phase_scale):
+        scales = np.concatenate([self.phase_scale, self.vertical_scale])
+        if cached is not None and np.array_equal(cached[0], scales):
             prior_band = cached[1]
         else:
             prior_band = band_zeros(self.layout.n_unknowns)
-            add_motion_prior(prior_band, self.layout, phase_scale)
-            self._prior_cache = (phase_scale.copy(), prior_band)
+            add_motion_prior(prior_band, self.layout, self.phase_scale, self.vertical_scale)
+            self._prior_cache = (scales, prior_band)
         flat = c.ravel()
         prior_gradient = band_matvec(prior_band, flat)
         lin.band += prior_band
         lin.band[0] += RIDGE * np.maximum(lin.band[0].max(initial=1.0), 1.0)
         lin.gradient += prior_gradient
         lin.cost += 0.5 * float(flat @ prior_gradient)
+
+    def _noise_key(self) -> bytes:
+        """The process noises as bytes (what a reduced system was formed with)."""
+        return self.phase_scale.tobytes() + self.vertical_scale.tobytes()
 
     def _linearise_data(self, named: dict[str, FloatArray], want_bias: bool,
                         c: FloatArray) -> _Linear:
@@ -464,13 +477,20 @@ class TrajectoryBlock:
         h, up = self.frame.heights_and_up(position[has])
         reported = radar.altitude_m[has]
         height_cols = np.zeros(0, dtype=np.int64)
+        # The reported altitude is predicted from the path in its own terms: a pressure
+        # altitude p = (h - d) / (1 + k) through the inverse height model.  (Written the
+        # other way round, h - ((1 + k) p + d), the noisy p would multiply k: its noise
+        # in both the residual and the Jacobian biases k, errors in variables.)
+        scale = 1.0
         if height is not None:
-            reported_h = (1.0 + height[1]) * reported + height[0]
+            scale = 1.0 + float(height[1])
+            predicted = (h - height[0]) / scale
             height_cols = columns[""]
         else:
-            reported_h = reported
-        e_h = ((h - reported_h) / ALTITUDE_SIGMA_M)[:, None]
-        hx_h = (up / ALTITUDE_SIGMA_M)[:, None, :]
+            predicted = h
+        per_metre = 1.0 / (scale * ALTITUDE_SIGMA_M)  # whitened error per metre of height
+        e_h = ((predicted - reported) / ALTITUDE_SIGMA_M)[:, None]
+        hx_h = (up * per_metre)[:, None, :]
         blocks = []
         if len(cols):
             hb_h = np.zeros((len(e_h), 1, len(cols)))
@@ -478,11 +498,11 @@ class TrajectoryBlock:
                 k = free_names.index("time_offset")
                 velocity = self._evaluate(c, first[has], _basis_rate(u[has],
                                                                      self.layout.spacing_s))
-                hb_h[:, 0, k] = -np.einsum("ni,ni->n", up, velocity) / ALTITUDE_SIGMA_M
+                hb_h[:, 0, k] = -np.einsum("ni,ni->n", up, velocity) * per_metre
             blocks.append((hb_h, cols))
         if len(height_cols):
-            hb_model = -np.stack([np.ones_like(reported), reported], axis=-1)[:, None, :]
-            blocks.append((hb_model / ALTITUDE_SIGMA_M, height_cols))
+            hb_model = -np.stack([np.ones_like(predicted), predicted], axis=-1)[:, None, :]
+            blocks.append((hb_model * per_metre, height_cols))
         hb_all = (np.concatenate([b for b, _ in blocks], axis=2) if blocks
                   else np.zeros((len(e_h), 1, 0)))
         cols_all = (np.concatenate([cc for _, cc in blocks]) if blocks
@@ -532,7 +552,7 @@ class TrajectoryBlock:
         """
         flat = np.concatenate([np.ravel(v) for v in values] or [np.zeros(0)]).astype(float)
         if (not estimate_process_noise and self._reduced_cache is not None
-                and self._reduced_cache[0] == (flat.tobytes(), self.phase_scale.tobytes())):
+                and self._reduced_cache[0] == (flat.tobytes(), self._noise_key())):
             return self._reduced_cache[1]
         self.n_calls += 1
         self._follow_biases(flat)
@@ -558,7 +578,7 @@ class TrajectoryBlock:
         self._record_weights(lin)
         out = (cost, gradient, 0.5 * (information + information.T))
         # Keyed by the noise the system was reduced with (estimate_process_noise sets it).
-        self._reduced_cache = ((flat.tobytes(), self.phase_scale.tobytes()), out)
+        self._reduced_cache = ((flat.tobytes(), self._noise_key()), out)
         return out
 
     def _follow_biases(self, flat: FloatArray) -> None:
@@ -640,52 +660,60 @@ class TrajectoryBlock:
 
     # ------------------------------------------------------------ process noise
     def _estimate_process_noise(self, lin: _Linear, coefficients: FloatArray) -> FloatArray:
-        """Each phase's process noise [m^2/s^3] by maximum marginal likelihood (grid).
+        """Each phase's process noise [m^2/s^3] by maximum marginal likelihood (grid),
+        then the heights' own (:meth:`_estimate_vertical_process_noise`).
 
         For each ``q`` of :data:`PROCESS_NOISE_GRID_M2_S3` the paths' Laplace
-        log-likelihood is split by phase: ``-(cost - |L^-1 g|^2 / 2) - sum log L_ii
-        - rank / 2 log q`` (the motion prior's rank is ``3 (K + 1)`` on a path of ``K``
-        intervals); every phase
-        takes the ``q`` that maximises its share.  Sets and returns the phases' ``q``.
+        log-likelihood is split by phase (:func:`_most_likely_process_noise`; the motion
+        prior's rank is ``3 (K + 1)`` on a path of ``K`` intervals); every phase takes the
+        ``q`` that maximises its share.  Sets both and returns the phases' ``q``.
 
         ``lin`` is the data's share of a linearisation at the paths ``coefficients``,
         before the motion prior is added (:meth:`_linearise`).
         """
         assert lin.phase_cost is not None
-        data_band, data_gradient, measurement_cost = lin.band, lin.gradient, lin.phase_cost
         layout = self.layout
-        unknown_phase = layout.unknown_phase()
-        best = np.full(layout.n_phases, -np.inf)
-        chosen = np.full(layout.n_phases, INITIAL_PROCESS_NOISE_M2_S3)
-        # The prior's rank: 3 (K + 1) for a path of K intervals (straight motion is free),
-        # three per interval and the path's three more counted in its first phase.
-        first_phase = layout.phase[np.concatenate([[0], np.cumsum(layout.n_intervals)[:-1]])]
-        rank = 3.0 * (np.bincount(layout.phase, minlength=layout.n_phases)
-                      + np.bincount(first_phase, minlength=layout.n_phases))
-        energy = np.bincount(layout.phase, motion_prior_energy(coefficients, layout),
-                             minlength=layout.n_phases)
-        measurement_cost = measurement_cost + self._adsb_phase_cost(coefficients)
+        energy_by_axis = motion_prior_energy(coefficients, layout, per_axis=True)
         # The prior of q = 1 (every phase alike on the grid), scaled for each q.
         unit_prior = band_zeros(layout.n_unknowns)
         add_motion_prior(unit_prior, layout, np.ones(layout.n_phases))
         unit_gradient = band_matvec(unit_prior, coefficients.ravel())
-        band = np.empty_like(data_band)
-        for q in PROCESS_NOISE_GRID_M2_S3:
-            np.multiply(unit_prior, 1.0 / q, out=band)
-            band += data_band
-            band[0] += RIDGE * np.maximum(band[0].max(initial=1.0), 1.0)
-            factor = BandFactor.of(band, overwrite=True)
-            z = factor.forward(data_gradient + unit_gradient / q)
-            reduction = np.bincount(unknown_phase, 0.5 * z * z, minlength=layout.n_phases)
-            log_det = np.bincount(unknown_phase, factor.log_diagonal(),
-                                  minlength=layout.n_phases)
-            log_lik = -(measurement_cost + 0.5 * energy / q - reduction) - log_det \
-                - 0.5 * rank * np.log(q)
-            better = log_lik > best
-            best = np.where(better, log_lik, best)
-            chosen = np.where(better, q, chosen)
+        chosen = _most_likely_process_noise(
+            lin.band, lin.gradient, unit_prior, unit_gradient, layout.phase, layout.n_phases,
+            layout, layout.unknown_phase(), energy_by_axis.sum(axis=1), 3.0,
+            lin.phase_cost + self._adsb_phase_cost(coefficients))
         self.phase_scale = 1.0 / chosen
+        self.vertical_scale = 1.0 / self._estimate_vertical_process_noise(
+            lin.band, lin.gradient, unit_prior, unit_gradient, energy_by_axis[:, 2])
         return chosen
+
+    def _estimate_vertical_process_noise(self, data_band: FloatArray, data_gradient: FloatArray,
+                                         unit_prior: FloatArray, unit_gradient: FloatArray,
+                                         vertical_energy: FloatArray) -> FloatArray:
+        """Each vertical phase's process noise of the heights [m^2/s^3] (grid, maximum
+        likelihood).
+
+        An aircraft levelling off or starting a climb changes its vertical rate in
+        seconds, while it turns for minutes: one ``q`` for all axes over five minutes
+        smooths the corners of its height profile, and the paths sit below the truth at
+        the tops of climbs and above it at their feet, a compression of heights that the
+        height model's scale then absorbs.  The heights get their own ``q`` per vertical
+        phase (:data:`VERTICAL_PHASE_S`), chosen as the others are on the vertical
+        unknowns alone (the horizontal held at their paths: the axes are nearly
+        uncoupled).  ``unit_prior`` and ``unit_gradient``: the prior of ``q = 1`` on every
+        axis and its gradient at the paths; ``vertical_energy``: the paths' vertical
+        ``int z''^2 dt`` by interval [m^2/s^3].
+        """
+        layout = self.layout
+        up = slice(2, None, 3)  # the vertical unknowns; their band is every third row
+        rows = slice(0, HALF_BANDWIDTH + 1, 3)
+        phase = layout.vertical_phase
+        assert phase is not None
+        return _most_likely_process_noise(
+            np.ascontiguousarray(data_band[rows, up]), data_gradient[up],
+            np.ascontiguousarray(unit_prior[rows, up]), unit_gradient[up], phase,
+            layout.n_vertical_phases, layout, layout.unknown_phase(vertical=True)[up],
+            vertical_energy, 1.0, np.zeros(layout.n_vertical_phases))
 
     def _adsb_phase_cost(self, c: FloatArray) -> FloatArray:
         """The ADS-B reports' cost ``chi2 / 2`` by flight phase, on paths ``c``."""
@@ -700,6 +728,7 @@ class TrajectoryBlock:
     # ------------------------------------------------------------ reporting
     def summary(self) -> dict:
         q = 1.0 / self.phase_scale
+        q_up = 1.0 / self.vertical_scale
         return {
             "formulation": "trajectory",
             "n_aircraft": self.n_aircraft,
@@ -710,6 +739,10 @@ class TrajectoryBlock:
             "process_noise_m2_s3": {
                 "median": float(np.median(q)), "p90": float(np.percentile(q, 90)),
                 "max": float(q.max()),
+            },
+            "vertical_process_noise_m2_s3": {
+                "median": float(np.median(q_up)), "p90": float(np.percentile(q_up, 90)),
+                "max": float(q_up.max()),
             },
             "n_adsb_reports": 0 if self.adsb is None else int(len(self.adsb.time_s)),
             "n_adsb_gated": self.n_adsb_gated,
@@ -737,6 +770,44 @@ class TrajectoryBlock:
         """Add the block to a :class:`~graphcal.solvers.gtsam_adapter.FactorGraph` (duck-typed)."""
         del variable, initial_free
         fg.add_custom(self.keys, self.n_bias + 1, self.error)
+
+
+def _most_likely_process_noise(data_band: FloatArray, data_gradient: FloatArray,
+                               unit_prior: FloatArray, unit_gradient: FloatArray,
+                               phase: IntArray, n_phases: int, layout: PathLayout,
+                               unknown_phase: IntArray, energy: FloatArray, axes: float,
+                               cost: FloatArray) -> FloatArray:
+    """The process noise [m^2/s^3] of :data:`PROCESS_NOISE_GRID_M2_S3` that maximises each
+    phase's share of the paths' Laplace log-likelihood.
+
+    For each ``q``, by phase: ``-(cost + E / (2 q) - |L^-1 g|^2 / 2) - sum log L_ii -
+    rank / 2 log q``, with ``L`` the factor of ``data_band + unit_prior / q``, ``g`` the
+    gradient ``data_gradient + unit_gradient / q`` and ``E`` the prior's ``int x''^2 dt``
+    (``energy`` by interval).  ``phase`` (by interval of ``layout``) and ``unknown_phase``
+    (by unknown of the band) are the phases; the prior's rank is ``axes (K + 1)`` on a
+    path of ``K`` intervals (straight motion is free: ``axes`` per interval, and ``axes``
+    more counted in the path's first phase); ``cost`` is the data's cost by phase.
+    """
+    first_phase = phase[np.concatenate([[0], np.cumsum(layout.n_intervals)[:-1]])]
+    rank = axes * (np.bincount(phase, minlength=n_phases)
+                   + np.bincount(first_phase, minlength=n_phases))
+    energy = np.bincount(phase, energy, minlength=n_phases)
+    best = np.full(n_phases, -np.inf)
+    chosen = np.full(n_phases, INITIAL_PROCESS_NOISE_M2_S3)
+    band = np.empty_like(data_band)
+    for q in PROCESS_NOISE_GRID_M2_S3:
+        np.multiply(unit_prior, 1.0 / q, out=band)
+        band += data_band
+        band[0] += RIDGE * np.maximum(band[0].max(initial=1.0), 1.0)
+        factor = BandFactor.of(band, overwrite=True)
+        z = factor.forward(data_gradient + unit_gradient / q)
+        reduction = np.bincount(unknown_phase, 0.5 * z * z, minlength=n_phases)
+        log_det = np.bincount(unknown_phase, factor.log_diagonal(), minlength=n_phases)
+        log_lik = -(cost + 0.5 * energy / q - reduction) - log_det - 0.5 * rank * np.log(q)
+        better = log_lik > best
+        best = np.where(better, log_lik, best)
+        chosen = np.where(better, q, chosen)
+    return chosen
 
 
 def _basis_rate(u: FloatArray, spacing_s: float) -> FloatArray:
@@ -836,7 +907,7 @@ def build_trajectory_block(
         adsb_t = tracks.time_s[adsb_rows]
         np.minimum.at(start, adsb_path, adsb_t)
         np.maximum.at(end, adsb_path, adsb_t)
-    layout = PathLayout.build(start - 1.0, end + 1.0, spacing_s, PHASE_S)
+    layout = PathLayout.build(start - 1.0, end + 1.0, spacing_s, PHASE_S, VERTICAL_PHASE_S)
     # Radars on paths.
     radars: list[RadarOnPaths] = []
     for r, rid in enumerate(names):
@@ -879,6 +950,7 @@ def build_trajectory_block(
         frame, layout, radars, adsb, kernel, variables, height_key if pressure else None,
         pressure, np.zeros((layout.n_coefficients, 3)),
         np.full(layout.n_phases, 1.0 / INITIAL_PROCESS_NOISE_M2_S3),
+        np.full(layout.n_vertical_phases, 1.0 / INITIAL_PROCESS_NOISE_M2_S3),
         n_aircraft=len(pd.unique(path_target)), target_of_path=path_target,
         fixed_values=fixed_values,
     )

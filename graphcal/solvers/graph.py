@@ -967,28 +967,7 @@ def _height_model_estimate(
             f"(1-sigma {prior[0]:g} m and {prior[1]:g}); {why}. ADS-B reports with baro_alt_m, "
             "or 2-D radars paired with 3-D radars, determine it"
         )
-    elif _paths_without_adsb(blocks.target_state):
-        notes.append(HEIGHT_MODEL_WITHOUT_ADSB_NOTE)
     return estimate, undetermined, notes
-
-
-def _paths_without_adsb(block: Any) -> bool:
-    """The trajectory formulation's paths hold 2-D plots' pressure altitudes and no ADS-B
-    report (neither positions nor heights)."""
-    return (hasattr(block, "n_pressure_plots") and block.adsb is None
-            and block.n_pressure_plots() > 0)
-
-
-#: The trajectory formulation's height model without ADS-B: measured biased
-#: (``benchmarks/v2_study.py`` and the study quoted on the atmosphere page).
-HEIGHT_MODEL_WITHOUT_ADSB_NOTE = (
-    "the height model (atmosphere height_offset_m and height_scale) comes from the 2-D "
-    "radars' pressure altitudes against the paths' heights, which without ADS-B only the "
-    "3-D radars' elevations and the slant ranges set: in simulation its error is then about "
-    "twice its sigma (30 seeds of scenarios/demo_v2.toml: 1.7 and 2.0 sigma on average), so "
-    "read its sigma as a lower bound; the radars' biases and sigmas are not affected. "
-    "ADS-B, with or without baro_alt_m, determines it"
-)
 
 
 def add_factor(fg: FactorGraph, factor: AdsbFactor | PairwiseFactor, variable: set[str]) -> None:

@@ -98,7 +98,7 @@ def test_compiled_motion_prior_equals_numpys(numpy_sums, monkeypatch) -> None:
     from graphcal.model.paths import PathLayout, add_motion_prior
 
     layout = PathLayout.build(np.array([0.0, 100.0]), np.array([400.0, 1300.0]), 10.0, 300.0)
-    scale = np.random.default_rng(5).uniform(0.1, 10.0, layout.n_phases)
+    scale = np.random.default_rng(5).uniform(0.1, 10.0, (layout.n_phases, 3))  # per axis
     expected = band_zeros(layout.n_unknowns)
     add_motion_prior(expected, layout, scale)
     compiled_sums(monkeypatch)

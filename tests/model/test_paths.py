@@ -89,7 +89,7 @@ def test_banded_assembly_matches_dense_assembly() -> None:
     info = np.swapaxes(h, 1, 2) @ h
     band = band_zeros(n)
     add_measurement_blocks(band, first, w, info)
-    scale = rng.uniform(0.5, 2.0, layout.n_phases)
+    scale = rng.uniform(0.5, 2.0, (layout.n_phases, 3))  # 1 / q per phase and axis
     add_motion_prior(band, layout, scale)
     dense = np.zeros((n, n))
     for i in range(40):
@@ -99,7 +99,7 @@ def test_banded_assembly_matches_dense_assembly() -> None:
     for k, f in enumerate(interval_first):
         rows = np.arange(3 * f, 3 * f + 12)
         dense[np.ix_(rows, rows)] += np.kron(
-            SECOND_DERIVATIVE_GRAM * scale[layout.phase[k]] / layout.spacing_s**3, np.eye(3))
+            SECOND_DERIVATIVE_GRAM / layout.spacing_s**3, np.diag(scale[layout.phase[k]]))
     assert np.allclose(dense_from_band(band), dense)
     x = rng.normal(size=n)
     assert np.allclose(band_matvec(band, x), dense @ x)
@@ -126,6 +126,15 @@ def test_motion_prior_energy_is_the_quadratic_form() -> None:
     add_motion_prior(band, layout, np.ones(layout.n_phases))
     assert motion_prior_energy(c, layout).sum() == pytest.approx(
         float(c.ravel() @ band_matvec(band, c.ravel())))
+    # Per axis: each axis's share is the quadratic form of that axis's prior alone.
+    per_axis = motion_prior_energy(c, layout, per_axis=True)
+    for axis in range(3):
+        only = np.zeros((layout.n_phases, 3))
+        only[:, axis] = 1.0
+        band = band_zeros(layout.n_unknowns)
+        add_motion_prior(band, layout, only)
+        assert per_axis[:, axis].sum() == pytest.approx(
+            float(c.ravel() @ band_matvec(band, c.ravel())))
 
 
 def test_band_factor_solves_like_numpy() -> None:

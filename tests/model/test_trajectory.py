@@ -77,6 +77,42 @@ def test_reduced_gradient_matches_finite_differences_of_the_reduced_cost(short_d
     block.settle(values, 6)
 
 
+def test_height_model_gradient_matches_finite_differences_of_the_reduced_cost() -> None:
+    """The reported pressure altitude's derivatives on the height model ``(d, k)``: the
+    reduced gradient against central differences of the reduced cost (10 minutes of
+    scenarios/demo_pressure.toml, without ADS-B, at the true biases)."""
+    scenario = dataclasses.replace(load_scenario(SCENARIOS / "demo_pressure.toml"),
+                                   duration_s=600.0)
+    sim = graphcal.simulate(scenario, np.random.default_rng(3))
+    dataset = sim.dataset
+    terms = {rid: radar_terms(dataset.sites[rid], {}, False) for rid in dataset.radar_ids}
+    keys = {rid: i for i, rid in enumerate(dataset.radar_ids)}
+    truth = {rid: terms_vector(sim.biases[rid])[terms[rid].positions]
+             for rid in dataset.radar_ids}
+    block = build_trajectory_block(dataset, terms, keys, list(dataset.radar_ids),
+                                   RobustKernel("none"), use_adsb=False, initial_biases=truth,
+                                   height_key=len(keys))
+    assert block is not None and block.pressure
+    truth[""] = scenario.height_model.as_vector()
+    values = block.values_of(truth)
+    block.settle(values, 6)
+    _, gradient, information = block.reduced(values, True)
+    sigma = np.sqrt(np.diag(np.linalg.inv(information)))
+    sizes = [len(v) for v in values]
+    x0 = np.concatenate(values)
+
+    def cost_at(x: np.ndarray) -> float:
+        block.settle(np.split(x, np.cumsum(sizes)[:-1]), 6)
+        cost, _, _ = block.reduced(np.split(x, np.cumsum(sizes)[:-1]), False)
+        return cost
+
+    for i in (len(x0) - 2, len(x0) - 1):  # height_offset_m, height_scale
+        step = np.zeros_like(x0)
+        step[i] = 0.5 * sigma[i]
+        numeric = (cost_at(x0 + step) - cost_at(x0 - step)) / (2 * step[i])
+        assert numeric * sigma[i] == pytest.approx(gradient[i] * sigma[i], abs=0.05)
+
+
 @pytest.mark.parametrize("cross", ["trajectory", "pairwise"])
 @pytest.mark.parametrize("use_adsb", [True, False])
 def test_radar_order_does_not_change_the_answer(short_demo, use_adsb: bool, cross: str) -> None:
