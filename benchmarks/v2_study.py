@@ -1,7 +1,8 @@
 """Monte-Carlo study of contract version 2 all at once: refraction, pressure altitudes and
 an eccentric antenna (``scenarios/demo_v2.toml``), with and without ADS-B.
 
-Usage: ``.venv/bin/python -m benchmarks.v2_study [--seeds 10] [--jobs 2]``.  Prints, per
+Usage: ``.venv/bin/python -m benchmarks.v2_study [--seeds 10] [--jobs 2] [--case cross]
+[--cross pairwise]``.  Prints, per
 case, the largest |z| over seeds and parameters (z = error / reported sigma), the share of
 parameters within 3 sigma, the normalised error variance (mean z^2) and, per parameter, RMSE
 over the square root of the mean Cramér-Rao variance; writes benchmarks/results/v2_study.json.
@@ -53,10 +54,11 @@ def _errors(cal, sim) -> dict[str, tuple[float, float, float]]:
     return out
 
 
-def _run(seed: int, use_adsb: bool) -> dict[str, tuple[float, float, float]]:
+def _run(seed: int, use_adsb: bool, cross: str) -> dict[str, tuple[float, float, float]]:
     sim = simulate(load_scenario(ROOT / "scenarios" / "demo_v2.toml"),
                    np.random.default_rng(1000 + seed))
-    return _errors(calibrate(sim.dataset, use_adsb=use_adsb, model_checks=False), sim)
+    return _errors(calibrate(sim.dataset, use_adsb=use_adsb, model_checks=False, cross=cross),
+                   sim)
 
 
 def main() -> None:
@@ -67,16 +69,20 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--case", choices=("both", "adsb", "cross"), default="both",
                         help="run one case only and update its entry in the JSON")
+    parser.add_argument("--cross", choices=("trajectory", "pairwise"), default="trajectory",
+                        help="the cross-radar formulation (pairwise: entries named so)")
     args = parser.parse_args()
     report = json.loads(RESULTS.read_text()) if args.case != "both" and RESULTS.exists() else {}
     cases = {"both": (True, False), "adsb": (True,), "cross": (False,)}[args.case]
     bound = float(np.sqrt(stats.chi2.ppf(0.99, args.seeds) / args.seeds))
     for use_adsb in cases:
-        case = "with ADS-B" if use_adsb else "without ADS-B"
+        case = ("with ADS-B" if use_adsb else "without ADS-B") + (
+            "" if args.cross == "trajectory" else f", {args.cross}")
         rows: dict[str, list[tuple[float, float, float]]] = {}
         start = time.perf_counter()
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-            runs = list(pool.map(_run, range(args.seeds), [use_adsb] * args.seeds))
+            runs = list(pool.map(_run, range(args.seeds), [use_adsb] * args.seeds,
+                                 [args.cross] * args.seeds))
         for errors in runs:
             for label, row in errors.items():
                 rows.setdefault(label, []).append(row)
