@@ -108,7 +108,7 @@ class PathLayout:
     n_phases : int
     vertical_phase : ndarray (n_intervals_total,) of int
         The same for the vertical axis's own process noise (shorter runs: an aircraft
-        levels off in seconds); ``phase`` when not given.
+        levels off in seconds).
     n_vertical_phases : int
     """
 
@@ -118,13 +118,8 @@ class PathLayout:
     first_coefficient: IntArray
     phase: IntArray
     n_phases: int
-    vertical_phase: IntArray | None = None
-    n_vertical_phases: int = 0
-
-    def __post_init__(self) -> None:
-        if self.vertical_phase is None:
-            object.__setattr__(self, "vertical_phase", self.phase)
-            object.__setattr__(self, "n_vertical_phases", self.n_phases)
+    vertical_phase: IntArray
+    n_vertical_phases: int
 
     @classmethod
     def build(cls, start_s: FloatArray, end_s: FloatArray, spacing_s: float,
@@ -194,8 +189,20 @@ class PathLayout:
         interval_offset = np.concatenate([[0], np.cumsum(self.n_intervals)[:-1]])
         interval = interval_offset[path] + np.clip(local - 2, 0, self.n_intervals[path] - 1)
         phase = self.vertical_phase if vertical else self.phase
-        assert phase is not None
         return np.repeat(phase[interval], 3)
+
+
+    def evaluate(self, coefficients: FloatArray, first: IntArray, u: FloatArray,
+                 derivative: bool = False) -> FloatArray:
+        """Positions (or velocities [m/s] with ``derivative``) ``(n, 3)`` of the paths.
+
+        ``coefficients``: ``(n_coefficients, 3)``; ``first`` and ``u`` from :meth:`locate`.
+        """
+        weights = (basis_derivative(u) / self.spacing_s) if derivative else basis(u)
+        out = np.zeros((len(first), 3))
+        for j in range(4):
+            out += weights[:, j, None] * coefficients[first + j]
+        return out
 
 
 def _phase_runs(n_intervals: IntArray, intervals_per_phase: float) -> tuple[IntArray, int]:
@@ -212,18 +219,6 @@ def _phase_runs(n_intervals: IntArray, intervals_per_phase: float) -> tuple[IntA
     first_phase = np.concatenate([[0], np.cumsum(phases_per_path)[:-1]])
     phase = first_phase[path_of_interval] + local_phase
     return phase.astype(np.int64), int(phases_per_path.sum())
-
-    def evaluate(self, coefficients: FloatArray, first: IntArray, u: FloatArray,
-                 derivative: bool = False) -> FloatArray:
-        """Positions (or velocities [m/s] with ``derivative``) ``(n, 3)`` of the paths.
-
-        ``coefficients``: ``(n_coefficients, 3)``; ``first`` and ``u`` from :meth:`locate`.
-        """
-        weights = (basis_derivative(u) / self.spacing_s) if derivative else basis(u)
-        out = np.zeros((len(first), 3))
-        for j in range(4):
-            out += weights[:, j, None] * coefficients[first + j]
-        return out
 
 
 # --------------------------------------------------------------------------- band assembly

@@ -679,9 +679,8 @@ class TrajectoryBlock:
         add_motion_prior(unit_prior, layout, np.ones(layout.n_phases))
         unit_gradient = band_matvec(unit_prior, coefficients.ravel())
         chosen = _most_likely_process_noise(
-            lin.band, lin.gradient, unit_prior, unit_gradient, layout.phase, layout.n_phases,
-            layout, layout.unknown_phase(), energy_by_axis.sum(axis=1), 3.0,
-            lin.phase_cost + self._adsb_phase_cost(coefficients))
+            lin.band, lin.gradient, unit_prior, unit_gradient, layout,
+            energy_by_axis.sum(axis=1), lin.phase_cost + self._adsb_phase_cost(coefficients))
         self.phase_scale = 1.0 / chosen
         self.vertical_scale = 1.0 / self._estimate_vertical_process_noise(
             lin.band, lin.gradient, unit_prior, unit_gradient, energy_by_axis[:, 2])
@@ -704,16 +703,12 @@ class TrajectoryBlock:
         axis and its gradient at the paths; ``vertical_energy``: the paths' vertical
         ``int z''^2 dt`` by interval [m^2/s^3].
         """
-        layout = self.layout
         up = slice(2, None, 3)  # the vertical unknowns; their band is every third row
         rows = slice(0, HALF_BANDWIDTH + 1, 3)
-        phase = layout.vertical_phase
-        assert phase is not None
         return _most_likely_process_noise(
             np.ascontiguousarray(data_band[rows, up]), data_gradient[up],
-            np.ascontiguousarray(unit_prior[rows, up]), unit_gradient[up], phase,
-            layout.n_vertical_phases, layout, layout.unknown_phase(vertical=True)[up],
-            vertical_energy, 1.0, np.zeros(layout.n_vertical_phases))
+            np.ascontiguousarray(unit_prior[rows, up]), unit_gradient[up], self.layout,
+            vertical_energy, None, vertical=True)
 
     def _adsb_phase_cost(self, c: FloatArray) -> FloatArray:
         """The ADS-B reports' cost ``chi2 / 2`` by flight phase, on paths ``c``."""
@@ -774,20 +769,27 @@ class TrajectoryBlock:
 
 def _most_likely_process_noise(data_band: FloatArray, data_gradient: FloatArray,
                                unit_prior: FloatArray, unit_gradient: FloatArray,
-                               phase: IntArray, n_phases: int, layout: PathLayout,
-                               unknown_phase: IntArray, energy: FloatArray, axes: float,
-                               cost: FloatArray) -> FloatArray:
+                               layout: PathLayout, energy: FloatArray,
+                               cost: FloatArray | None, vertical: bool = False) -> FloatArray:
     """The process noise [m^2/s^3] of :data:`PROCESS_NOISE_GRID_M2_S3` that maximises each
     phase's share of the paths' Laplace log-likelihood.
 
     For each ``q``, by phase: ``-(cost + E / (2 q) - |L^-1 g|^2 / 2) - sum log L_ii -
     rank / 2 log q``, with ``L`` the factor of ``data_band + unit_prior / q``, ``g`` the
     gradient ``data_gradient + unit_gradient / q`` and ``E`` the prior's ``int x''^2 dt``
-    (``energy`` by interval).  ``phase`` (by interval of ``layout``) and ``unknown_phase``
-    (by unknown of the band) are the phases; the prior's rank is ``axes (K + 1)`` on a
-    path of ``K`` intervals (straight motion is free: ``axes`` per interval, and ``axes``
-    more counted in the path's first phase); ``cost`` is the data's cost by phase.
+    (``energy`` by interval).  The phases are ``layout``'s flight phases over the three
+    axes, or with ``vertical`` its vertical phases over the vertical unknowns alone (the
+    band's every third unknown); the prior's rank is ``axes (K + 1)`` on a path of ``K``
+    intervals (straight motion is free: ``axes`` per interval, and ``axes`` more counted in
+    the path's first phase); ``cost`` is the data's cost by phase (``None``: constant).
     """
+    if vertical:
+        phase, n_phases, axes = layout.vertical_phase, layout.n_vertical_phases, 1.0
+        unknown_phase = layout.unknown_phase(vertical=True)[2::3]
+    else:
+        phase, n_phases, axes = layout.phase, layout.n_phases, 3.0
+        unknown_phase = layout.unknown_phase()
+    cost = np.zeros(n_phases) if cost is None else cost
     first_phase = phase[np.concatenate([[0], np.cumsum(layout.n_intervals)[:-1]])]
     rank = axes * (np.bincount(phase, minlength=n_phases)
                    + np.bincount(first_phase, minlength=n_phases))
