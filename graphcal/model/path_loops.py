@@ -128,6 +128,57 @@ def accumulate(band, gradient, cross, bias_information, bias_gradient, first, we
                 bias_information[columns[b2], columns[b]] += bias_info[b, b2]
 
 
+@numba.njit(inline="always")
+def _cholesky_column(band, j, width):  # pragma: no cover - compiled
+    """Column ``j`` of the banded Cholesky factor, in place: scale the ``width``
+    entries below the diagonal by its root and take their outer product from the
+    next ``width`` columns.  ``False`` when the pivot is not positive."""
+    pivot = band[0, j]
+    if not pivot > 0.0:
+        return False
+    root = np.sqrt(pivot)
+    band[0, j] = root
+    inverse = 1.0 / root
+    for d in range(1, width + 1):
+        band[d, j] *= inverse
+    for dq in range(1, width + 1):
+        below = band[dq, j]
+        column = j + dq
+        for dp in range(dq, width + 1):
+            band[dp - dq, column] -= band[dp, j] * below
+    return True
+
+
+@_jit
+def band_cholesky(band):  # pragma: no cover - compiled
+    """``band <- L`` in place, the lower Cholesky factor of the symmetric band matrix
+    ``band[d, i] = A[i + d, i]`` (LAPACK's ``dpbtrf`` storage, Fortran order).
+
+    Returns 0, or ``j + 1`` when the leading minor of order ``j + 1`` is not positive
+    (as LAPACK's ``info``).  The half-bandwidths of the paths' bands (11; 3 for the
+    heights alone) are unrolled as constants, two to three times faster than LAPACK's
+    unblocked loop of level-2 calls for so narrow a band."""
+    width = band.shape[0] - 1
+    n = band.shape[1]
+    body = max(n - width, 0)  # the columns with a full band below them
+    if width == 11:
+        for j in range(body):
+            if not _cholesky_column(band, j, 11):
+                return j + 1
+    elif width == 3:
+        for j in range(body):
+            if not _cholesky_column(band, j, 3):
+                return j + 1
+    else:
+        for j in range(body):
+            if not _cholesky_column(band, j, width):
+                return j + 1
+    for j in range(body, n):
+        if not _cholesky_column(band, j, n - 1 - j):
+            return j + 1
+    return 0
+
+
 @_jit
 def band_forward(lower, rhs):  # pragma: no cover - compiled
     """``rhs <- L^-1 rhs`` in place (``rhs`` (n, k), C order), ``L`` lower triangular in band

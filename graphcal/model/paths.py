@@ -380,9 +380,19 @@ class BandFactor:
     @classmethod
     def of(cls, band: FloatArray, overwrite: bool = False) -> BandFactor:
         """Factorise (in ``band``'s memory with ``overwrite``);
-        :class:`numpy.linalg.LinAlgError` when not positive definite."""
-        return cls(scipy.linalg.cholesky_banded(band, overwrite_ab=overwrite, lower=True,
-                                                check_finite=False))
+        :class:`numpy.linalg.LinAlgError` when not positive definite.  With the
+        compiled loops (:mod:`~graphcal.model.path_kernels`) by their banded Cholesky,
+        else by LAPACK's (``dpbtrf``): the same factor, to rounding."""
+        if not path_kernels.enabled():
+            return cls(scipy.linalg.cholesky_banded(band, overwrite_ab=overwrite, lower=True,
+                                                    check_finite=False))
+        in_place = overwrite and band.flags.f_contiguous and band.dtype == np.float64
+        lower = band if in_place else np.array(band, dtype=np.float64, order="F")
+        info = path_kernels.compiled().band_cholesky(lower)
+        if info != 0:
+            raise np.linalg.LinAlgError(
+                f"{info}-th leading minor not positive definite")
+        return cls(lower, lower)
 
     def forward(self, rhs: FloatArray, overwrite: bool = False) -> FloatArray:
         """``L^-1 rhs`` (rhs (n,) or (n, k); in ``rhs``'s memory where it can with

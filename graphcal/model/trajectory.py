@@ -920,10 +920,14 @@ def build_trajectory_block(
         mine = plots[rid]
         # In an order set by the values (path, time, range, azimuth), not by the rows:
         # the same plots in another file order give the same sums, bit for bit.
+        # The rows are already in (path, time) order (sorted by aircraft and time
+        # above): only plots of one path at the same time need sorting further.
         k = k_all[mine_rows]
         path_of = path_id[mine_rows]
-        order = np.lexsort((mine.azimuth_rad[k], mine.range_m[k], mine.time_s[k], path_of))
-        k, path_of = k[order], path_of[order]
+        t = mine.time_s[k]
+        if np.any((np.diff(path_of) == 0) & (np.diff(t) == 0.0)):
+            order = np.lexsort((mine.azimuth_rad[k], mine.range_m[k], t, path_of))
+            k, path_of = k[order], path_of[order]
         a, c = frame.radar_map(site)
         measured = np.stack([mine.range_m[k], mine.azimuth_rad[k],
                              mine.elevation_rad[k] if site.is_3d else np.full(len(k), np.nan)],
@@ -960,12 +964,13 @@ def build_trajectory_block(
                     if name else np.zeros(2) for _, name, size in variables]
     if progress is not None:
         progress("aircraft paths", 0, 1)
-    block.coefficients = _initial_coefficients(block, block._split(start_values))
+    plot_system = _initial_plot_system(block, block._split(start_values))
+    block.coefficients = _initial_coefficients(block, plot_system)
     if block.adsb is not None:
         before = block.n_adsb_gated
         _gate_adsb(block, block._split(start_values))
         if block.n_adsb_gated != before:  # the first fit again, without those reports
-            block.coefficients = _initial_coefficients(block, block._split(start_values))
+            block.coefficients = _initial_coefficients(block, plot_system)
     if progress is not None:
         progress("aircraft paths", 1, 1)
     return block
@@ -1085,21 +1090,37 @@ def _gate_adsb(block: TrajectoryBlock, named: dict[str, FloatArray]) -> None:
     block.adsb = _reweighted(block.layout, a, good.astype(float))
 
 
-def _initial_coefficients(block: TrajectoryBlock, named: dict[str, FloatArray]) -> FloatArray:
-    """Paths fitted to the ADS-B reports and the plots converted at the initial biases.
+def _initial_coefficients(block: TrajectoryBlock, plot_system: tuple[FloatArray, FloatArray]
+                          ) -> FloatArray:
+    """Paths fitted to the ADS-B reports (those :attr:`TrajectoryBlock.adsb` holds now)
+    and the plots converted at the initial biases (``plot_system``,
+    :func:`_initial_plot_system`).  Only a start for the Gauss-Newton steps of the paths.
+    """
+    band, rhs = plot_system
+    band, rhs = band.copy(order="F"), rhs.copy()
+    if block.adsb is not None:
+        band += block.adsb.band
+        rhs += block.adsb.rhs
+    band[0] += RIDGE * np.maximum(band[0].max(initial=1.0), 1.0) + 1e-12
+    factor = BandFactor.of(band, overwrite=True)
+    return factor.solve(rhs).reshape(-1, 3)
+
+
+def _initial_plot_system(block: TrajectoryBlock, named: dict[str, FloatArray]
+                         ) -> tuple[FloatArray, FloatArray]:
+    """The normal matrix (band) and right-hand side of the first fit's plots and prior.
 
     A linear least-squares spline fit with isotropic weights per plot (its larger
     polar sigma at its range); 2-D plots at their reported heights, those without one
-    left out.  Only a start for the Gauss-Newton steps of the paths.
+    left out; the motion prior of :data:`INITIAL_PROCESS_NOISE_M2_S3`.  Kept apart from
+    the ADS-B reports', so that the fit is made again without the reports the gate
+    leaves out (:func:`_gate_adsb`) without summing the plots again.
     """
     layout = block.layout
     n = layout.n_unknowns
     band = band_zeros(n)
     add_motion_prior(band, layout, np.full(layout.n_phases, 1.0 / INITIAL_PROCESS_NOISE_M2_S3))
     rhs = np.zeros(n)
-    if block.adsb is not None:
-        band += block.adsb.band
-        rhs += block.adsb.rhs
     for radar in block.radars:
         terms = radar.terms
         full = terms.full_terms(named.get(radar.radar_id, np.zeros(0)))
@@ -1128,9 +1149,7 @@ def _initial_coefficients(block: TrajectoryBlock, named: dict[str, FloatArray]) 
         info = weight[:, None, None] * np.eye(3)[None]
         add_measurement_blocks(band, first[ok], weights[ok], info[ok])
         rhs += scatter_vectors(first[ok], weights[ok], weight[ok, None] * local[ok], n)
-    band[0] += RIDGE * np.maximum(band[0].max(initial=1.0), 1.0) + 1e-12
-    factor = BandFactor.of(band)
-    return factor.solve(rhs).reshape(-1, 3)
+    return band, rhs
 
 
 __all__ = ["HALF_BANDWIDTH", "KNOT_SPACING_S", "NetworkFrame", "PROCESS_NOISE_GRID_M2_S3",

@@ -106,3 +106,30 @@ def test_compiled_motion_prior_equals_numpys(numpy_sums, monkeypatch) -> None:
     add_motion_prior(got, layout, scale)
     assert np.abs(got - expected).max() <= 1e-14 * np.abs(expected).max()
 
+
+
+@pytest.mark.parametrize("width", [11, 3, 5])
+def test_compiled_cholesky_equals_lapacks(width, monkeypatch) -> None:
+    """The compiled banded Cholesky against LAPACK's ``dpbtrf``, for the unrolled
+    half-bandwidths (11, 3) and another, over the full band and its last columns."""
+    import scipy.linalg
+
+    from graphcal.model.paths import BandFactor
+
+    rng = np.random.default_rng(width)
+    n = 400
+    root = rng.normal(size=(n + width, n)) * (np.abs(
+        np.arange(n + width)[:, None] - np.arange(n)[None, :]) <= width // 2)
+    dense = root.T @ root + np.diag(rng.random(n))  # positive definite, banded
+    band = np.zeros((width + 1, n), order="F")
+    for d in range(width + 1):
+        band[d, : n - d] = np.diagonal(dense, -d)
+    expected = scipy.linalg.cholesky_banded(band, lower=True)
+    compiled_sums(monkeypatch)
+    factor = BandFactor.of(band)
+    assert np.abs(factor.lower - expected).max() <= 1e-12 * np.abs(expected).max()
+    assert np.array_equal(band[0], np.diagonal(dense))  # not overwritten unless asked
+    singular = band.copy(order="F")
+    singular[0, 7] = -1.0
+    with pytest.raises(np.linalg.LinAlgError, match="8-th leading minor"):
+        BandFactor.of(singular)
