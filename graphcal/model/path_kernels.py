@@ -98,6 +98,8 @@ def _warm(kernels: Any) -> None:
     kernels.evaluate(np.zeros((4, 3)), first, weights)
     kernels.band_forward(np.ones((12, 4), order="F"), np.ones((4, 2)))
     kernels.band_cholesky(np.ones((12, 4), order="F"))
+    kernels.weighted_squares(np.zeros((4, 3)), first, weights, np.ones((1, 3)),
+                             np.eye(3)[None])
     position, information = kernels.adsb_reports(np.ones((1, 3)), np.ones(1), np.zeros(3),
                                                  np.eye(3), 1.5, np.ones(3))
     kernels.adsb_sums(band, np.zeros(12), first, weights, position, information)

@@ -128,6 +128,32 @@ def accumulate(band, gradient, cross, bias_information, bias_gradient, first, we
                 bias_information[columns[b2], columns[b]] += bias_info[b, b2]
 
 
+@_jit
+def weighted_squares(coefficients, first, weights, position, information
+                     ):  # pragma: no cover - compiled
+    """``r_i^T M_i r_i`` ``(n,)`` of the residuals ``r_i = sum_j weights_ij
+    c_(first_i + j) - position_i`` (``information`` (n, 3, 3) the ``M_i``)."""
+    n = first.shape[0]
+    out = np.empty(n)
+    r = np.empty(3)
+    for i in range(n):
+        for x in range(3):
+            r[x] = -position[i, x]
+        for j in range(4):
+            wj = weights[i, j]
+            row = first[i] + j
+            for x in range(3):
+                r[x] += wj * coefficients[row, x]
+        total = 0.0
+        for x in range(3):
+            mr = 0.0
+            for y in range(3):
+                mr += information[i, x, y] * r[y]
+            total += r[x] * mr
+        out[i] = total
+    return out
+
+
 @numba.njit(inline="always")
 def _cholesky_column(band, j, width):  # pragma: no cover - compiled
     """Column ``j`` of the banded Cholesky factor, in place: scale the ``width``

@@ -351,6 +351,19 @@ def evaluate_paths(coefficients: FloatArray, first: IntArray, weights: FloatArra
     return out
 
 
+def weighted_squares(coefficients: FloatArray, first: IntArray, weights: FloatArray,
+                     position: FloatArray, information: FloatArray) -> FloatArray:
+    """``r_i^T M_i r_i`` ``(n,)`` of the paths' residuals at measured positions,
+    ``r_i`` = :func:`evaluate_paths` ``- position_i`` (``information`` (n, 3, 3) the
+    ``M_i``): each measurement's chi-square on the paths."""
+    if path_kernels.enabled():
+        return path_kernels.compiled().weighted_squares(
+            _contiguous(coefficients), _int64(first), _contiguous(weights),
+            _contiguous(position), _contiguous(information))
+    residual = evaluate_paths(coefficients, first, weights) - position
+    return np.einsum("ni,nij,nj->n", residual, information, residual)
+
+
 def _contiguous(array: FloatArray) -> FloatArray:
     """``array`` as C-contiguous float64 (the type the compiled loops are made for)."""
     return np.ascontiguousarray(array, dtype=np.float64)

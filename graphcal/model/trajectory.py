@@ -72,6 +72,7 @@ from graphcal.model.paths import (
     motion_prior_energy,
     scatter_columns,
     scatter_vectors,
+    weighted_squares,
 )
 from graphcal.model.robust import RobustKernel
 
@@ -716,8 +717,7 @@ class TrajectoryBlock:
         if self.adsb is None:
             return np.zeros(layout.n_phases)
         a = self.adsb
-        residual = self._evaluate(c, a.first, a.weights) - a.position
-        chi2 = np.einsum("ni,nij,nj->n", residual, a.information, residual)
+        chi2 = weighted_squares(c, a.first, a.weights, a.position, a.information)
         return np.bincount(layout.phase[a.interval], 0.5 * chi2, minlength=layout.n_phases)
 
     # ------------------------------------------------------------ reporting
@@ -1074,8 +1074,8 @@ def _gate_adsb(block: TrajectoryBlock, named: dict[str, FloatArray]) -> None:
     assert a is not None
 
     def whitened_residual() -> FloatArray:
-        residual = block._evaluate(block.coefficients, a.first, a.weights) - a.position
-        return np.sqrt(np.einsum("ni,nij,nj->n", residual, a.information, residual))
+        return np.sqrt(weighted_squares(block.coefficients, a.first, a.weights, a.position,
+                                        a.information))
 
     s = whitened_residual()
     for _ in range(ADSB_GATE_ITERATIONS):

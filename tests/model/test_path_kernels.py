@@ -12,6 +12,7 @@ from graphcal.model.paths import (
     basis,
     evaluate_paths,
     scatter_vectors,
+    weighted_squares,
 )
 from tests.model.test_trajectory import short_demo, truth_block  # noqa: F401 - fixture
 
@@ -46,6 +47,9 @@ def test_compiled_sums_equal_numpys(numpy_sums, monkeypatch) -> None:
     add_measurement_blocks(expected_band, first, weights, info)
     expected_vector = scatter_vectors(first, weights, vectors, 900)
     expected_paths = evaluate_paths(coefficients, first, weights)
+    expected_squares = weighted_squares(coefficients, first, weights, vectors, info)
+    residual = expected_paths - vectors  # a third way: one measurement at a time
+    assert np.isclose(expected_squares[5], residual[5] @ info[5] @ residual[5])
     compiled_sums(monkeypatch)
     band = band_zeros(900)
     add_measurement_blocks(band, first, weights, info)
@@ -55,6 +59,8 @@ def test_compiled_sums_equal_numpys(numpy_sums, monkeypatch) -> None:
                        rtol=0, atol=1e-12)
     assert np.allclose(evaluate_paths(coefficients, first, weights), expected_paths,
                        rtol=0, atol=1e-12)
+    assert np.allclose(weighted_squares(coefficients, first, weights, vectors, info),
+                       expected_squares, rtol=1e-12, atol=0)
 
 
 def test_compiled_linearisation_equals_numpys(short_demo, numpy_sums, monkeypatch) -> None:  # noqa: F811
