@@ -498,47 +498,85 @@ def resolve_auto(prefetch: bool) -> str:
     return "synchronous"
 
 
+#: Items the forked copy of :func:`map_forked` holds at most: the one it calibrates and
+#: the next, waiting, so that it never waits for this process between two items.
+HELPER_ITEMS = 2
+
+
 def map_forked(function: Callable[..., Any], items: Iterable[Any], *,
                args: tuple[Any, ...] = (), progress: Progress | None = None,
                total: int | None = None, stage: str = "windows",
                prepare: Callable[[int], None] | None = None,
                helper: ForkedHelper | None = None) -> Iterator[Any]:
     """``function(item, *args)`` for every item, in item order, in two processes: this one
-    and a copy of it forked now, taking the items in turn (odd items in the copy).
+    and a copy of it forked now, each taking the next item when it is free.
 
-    The copy receives each of its items pickled over a pipe while this process works on
-    the item before it, and sends back the result and the warnings it raised (raised
-    again here, in order); an exception is raised here at its item.  ``prepare(number)``
-    runs in the process that takes item ``number``, before it.  The copy is forked
-    before the first item is asked for (this process's threads, if any, are not in
-    it), or given as ``helper`` (made for the same ``function``, ``args`` and
-    ``prepare``), and stopped when the iterator is closed, collected, or exhausted.
+    The copy is kept :data:`HELPER_ITEMS` items ahead: it receives each of its items
+    pickled over a pipe (a thread of the copy reads them as they come), and this
+    process takes an item itself whenever the copy already holds that many.  Neither
+    waits for the other, whatever their items' times; at the end this process takes
+    back the item the copy has not started (``steal``) and calibrates it.  The copy
+    sends back each result with the warnings it raised; results, warnings and
+    exceptions come out here in item order (an exception is raised at its item,
+    after the results before it).  ``prepare(number)`` runs in the process that takes
+    item ``number``, before it.  The copy is forked before the first item is asked
+    for (this process's threads, if any, are not in it), or given as ``helper``
+    (made for the same ``function``, ``args`` and ``prepare``), and stopped when the
+    iterator is closed, collected, or exhausted.
     """
     helper = ForkedHelper(function, args, prepare) if helper is None else helper
+    sent: dict[int, Any] = {}  # items at the copy, by number, until their result is back
+    finished: dict[int, tuple[str, Any, list]] = {}
+    state = {"next": 0}
+
+    def run_here(number: int, item: Any) -> None:
+        if prepare is not None:
+            prepare(number)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                message: tuple[str, Any] = ("result", function(item, *args))
+            except Exception as exc:  # noqa: BLE001 - raised at its item, in order
+                message = ("error", exc)
+        finished[number] = (*message, [(str(w.message), w.category, w.filename, w.lineno)
+                                       for w in caught])
+
+    def take(message: tuple[str, int, Any, list]) -> None:
+        kind, number, payload, notes = message
+        item = sent.pop(number)
+        if kind == "stolen":
+            run_here(number, item)
+        else:
+            finished[number] = (kind, payload, notes)
+
+    def ready_in_order() -> Iterator[Any]:
+        while state["next"] in finished:
+            kind, payload, notes = finished.pop(state["next"])
+            state["next"] += 1
+            for message, category, filename, lineno in notes:
+                warnings.warn_explicit(message, category, filename, lineno)
+            if kind == "error":
+                raise payload
+            if progress is not None:
+                progress(stage, state["next"], total or state["next"])
+            yield payload
+
     try:
-        done = 0
-        iterator = iter(items)
-        while True:
-            mine = next(iterator, _END)
-            if mine is _END:
-                break
-            theirs = next(iterator, _END)
-            if theirs is not _END:
-                helper.send(done + 1, theirs)
-            if prepare is not None:
-                prepare(done)
-            result = function(mine, *args)
-            done += 1
-            if progress is not None:
-                progress(stage, done, total or done)
-            yield result
-            if theirs is _END:
-                break
-            result = helper.receive()
-            done += 1
-            if progress is not None:
-                progress(stage, done, total or done)
-            yield result
+        number = 0
+        for number, item in enumerate(items):
+            while sent and helper.ready():
+                take(helper.receive())
+            if len(sent) < HELPER_ITEMS:
+                helper.send(number, item)
+                sent[number] = item
+            else:
+                run_here(number, item)
+            yield from ready_in_order()
+        if len(sent) >= 2:
+            helper.steal()  # the one it has not started, done here meanwhile
+        while sent:
+            take(helper.receive())
+            yield from ready_in_order()
     finally:
         helper.stop()
 
@@ -571,26 +609,37 @@ class ForkedHelper:
         in_writer.close()
 
     def send(self, number: int, item: Any) -> None:
+        """Give the copy item ``number`` (it queues it behind those it holds)."""
         import pickle
 
-        self._out_writer.send_bytes(pickle.dumps((number, item),
+        self._out_writer.send_bytes(pickle.dumps(("item", number, item),
                                                  protocol=pickle.HIGHEST_PROTOCOL))
 
-    def receive(self) -> Any:
+    def steal(self) -> None:
+        """Ask for the last item the copy holds and has not started: it answers
+        ``("stolen", number, None, [])`` (this process then calibrates it), or nothing
+        when it has started them all."""
+        import pickle
+
+        self._out_writer.send_bytes(pickle.dumps(("steal", -1, None),
+                                                 protocol=pickle.HIGHEST_PROTOCOL))
+
+    def ready(self) -> bool:
+        """Whether a message of the copy is waiting (:meth:`receive` would not wait)."""
+        return bool(self._in_reader.poll())
+
+    def receive(self) -> tuple[str, int, Any, list]:
+        """The copy's next message: ``(kind, number, payload, warnings)``, ``kind``
+        ``"result"``, ``"error"`` (``payload`` the exception) or ``"stolen"``."""
         import pickle
 
         try:
-            kind, payload, caught = pickle.loads(self._in_reader.recv_bytes())
+            return pickle.loads(self._in_reader.recv_bytes())
         except EOFError:
             self._process.join(timeout=5.0)
             raise RuntimeError(
                 f"the helper process stopped (exit code {self._process.exitcode}) before "
                 "its window was done; out of memory?") from None
-        for message, category, filename, lineno in caught:
-            warnings.warn_explicit(message, category, filename, lineno)
-        if kind == "error":
-            raise payload
-        return payload
 
     def stop(self) -> None:
         self._out_writer.close()  # end of file there: the helper returns
@@ -604,8 +653,10 @@ class ForkedHelper:
 def _serve(function: Callable[..., Any], args: tuple[Any, ...],
            prepare: Callable[[int], None] | None, reader: Any, writer: Any,
            *parents_ends: Any) -> None:
-    """:class:`_Helper`'s process: each item received, its result (or error) and warnings
-    sent back, until the end of the pipe."""
+    """:class:`ForkedHelper`'s process: each item received, its result (or error) and
+    warnings sent back, until the end of the pipe.  A thread receives the items as they
+    come (the parent never waits to hand one over) and answers ``steal``."""
+    import collections
     import pickle
     import sys
 
@@ -615,11 +666,40 @@ def _serve(function: Callable[..., Any], args: tuple[Any, ...],
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and stops us
     sys.stdout = open(os.dup(1), "w", closefd=True)  # noqa: SIM115 - for the child's life
     sys.stderr = open(os.dup(2), "w", closefd=True)  # noqa: SIM115
-    while True:
+    held: collections.deque[Any] = collections.deque()
+    changed = threading.Condition()
+    sending = threading.Lock()
+
+    def send(message: tuple[str, int, Any, list]) -> None:
+        with sending:
+            writer.send_bytes(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+
+    def receive() -> None:
         try:
-            number, item = pickle.loads(reader.recv_bytes())
+            while True:
+                kind, number, item = pickle.loads(reader.recv_bytes())
+                with changed:
+                    if kind == "item":
+                        held.append((number, item))
+                        changed.notify()
+                        continue
+                    stolen = held.pop()[0] if held else None
+                if stolen is not None:
+                    send(("stolen", stolen, None, []))
         except (EOFError, OSError):
-            return
+            pass
+        with changed:
+            held.append(_END)
+            changed.notify()
+
+    threading.Thread(target=receive, name="graphcal-helper-inbox", daemon=True).start()
+    while True:
+        with changed:
+            while not held:
+                changed.wait()
+            if held[0] is _END:
+                return
+            number, item = held.popleft()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
@@ -630,8 +710,7 @@ def _serve(function: Callable[..., Any], args: tuple[Any, ...],
                 message = ("error", _travelling(exc))
         notes = [(str(w.message), w.category, w.filename, w.lineno) for w in caught]
         try:
-            writer.send_bytes(pickle.dumps((*message, notes),
-                                           protocol=pickle.HIGHEST_PROTOCOL))
+            send((message[0], number, message[1], notes))
         except OSError:
             return
 

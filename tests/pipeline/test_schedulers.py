@@ -165,10 +165,35 @@ def test_map_forked_keeps_the_order_and_shares_the_items_between_two_processes()
     results = list(map_forked(_square_then_trouble, range(9), args=(None, None),
                               prepare=prepared.append))
     assert [r["square"] for r in results] == [i * i for i in range(9)]
-    # Even items here, odd ones in the forked copy (prepare runs where the item is done).
-    assert {r["pid"] for r in results[0::2]} == {os.getpid()}
-    assert len({r["pid"] for r in results[1::2]} - {os.getpid()}) == 1
-    assert prepared == [0, 2, 4, 6, 8]
+    # The copy takes the first two items (it is kept two ahead); prepare runs where
+    # the item is done.
+    here = [i for i, r in enumerate(results) if r["pid"] == os.getpid()]
+    assert {r["pid"] for r in results[:2]} - {os.getpid()}
+    assert len({r["pid"] for r in results} - {os.getpid()}) == 1
+    assert here and sorted(prepared) == here
+
+
+def _slow_in_the_copy(item: int, parent_pid: int) -> int:
+    """Instant here, 0.3 s in the forked copy."""
+    import os
+    import time
+
+    if os.getpid() != parent_pid:
+        time.sleep(0.3)
+    return os.getpid()
+
+
+@needs_fork
+def test_map_forked_gives_the_free_process_the_next_item_and_steals_at_the_end() -> None:
+    """A slow copy holds two items at most: this process takes the others, and at the end
+    takes back the one the copy has not started (lock-step would give each four)."""
+    import os
+
+    from graphcal.pipeline.schedulers import map_forked
+
+    pids = list(map_forked(_slow_in_the_copy, range(8), args=(os.getpid(),)))
+    here = [i for i, pid in enumerate(pids) if pid == os.getpid()]
+    assert here == list(range(1, 8))  # item 1 stolen back; the copy did item 0 only
 
 
 @needs_fork
