@@ -98,6 +98,9 @@ def _warm(kernels: Any) -> None:
     kernels.evaluate(np.zeros((4, 3)), first, weights)
     kernels.band_forward(np.ones((12, 4), order="F"), np.ones((4, 2)))
     kernels.band_cholesky(np.ones((12, 4), order="F"))
+    kernels.noise_likelihood_terms(np.eye(12, 4, order="F"), np.eye(12, 4, order="F"), 1.0,
+                                   np.ones(4), np.ones(4), 1e-12, np.zeros(4, dtype=np.int64), 1,
+                                   np.zeros((12, 4), order="F"))
     kernels.weighted_squares(np.zeros((4, 3)), first, weights, np.ones((1, 3)),
                              np.eye(3)[None])
     position, information = kernels.adsb_reports(np.ones((1, 3)), np.ones(1), np.zeros(3),

@@ -206,6 +206,46 @@ def band_cholesky(band):  # pragma: no cover - compiled
 
 
 @_jit
+def noise_likelihood_terms(data_band, unit_prior, scale, data_gradient, unit_gradient,
+                           ridge, unknown_phase, n_phases, work):  # pragma: no cover
+    """One process noise's terms of the paths' Laplace likelihood, by phase: the band
+    ``A = data_band + scale unit_prior`` (its diagonal raised by ``ridge`` times its
+    largest entry, at least 1) factorised as ``L L^T`` in ``work`` (Fortran order, the
+    band's shape), ``z = L^-1 (data_gradient + scale unit_gradient)``, and per phase
+    ``sum z^2 / 2`` and ``sum log L_ii`` over its unknowns (``unknown_phase``).
+
+    Returns ``(info, reduction, log_det)``, ``info`` as :func:`band_cholesky`'s."""
+    width1, n = data_band.shape
+    largest = 1.0
+    for j in range(n):
+        for d in range(width1):
+            work[d, j] = data_band[d, j] + scale * unit_prior[d, j]
+        if work[0, j] > largest:
+            largest = work[0, j]
+    shift = ridge * largest
+    for j in range(n):
+        work[0, j] += shift
+    reduction = np.zeros(n_phases)
+    log_det = np.zeros(n_phases)
+    info = band_cholesky(work)
+    if info != 0:
+        return info, reduction, log_det
+    z = np.empty(n)
+    for j in range(n):
+        z[j] = data_gradient[j] + scale * unit_gradient[j]
+    width = width1 - 1
+    for j in range(n):
+        z[j] /= work[0, j]
+        for d in range(1, min(width, n - 1 - j) + 1):
+            z[j + d] -= work[d, j] * z[j]
+    for j in range(n):
+        phase = unknown_phase[j]
+        reduction[phase] += 0.5 * z[j] * z[j]
+        log_det[phase] += np.log(work[0, j])
+    return 0, reduction, log_det
+
+
+@_jit
 def band_forward(lower, rhs):  # pragma: no cover - compiled
     """``rhs <- L^-1 rhs`` in place (``rhs`` (n, k), C order), ``L`` lower triangular in band
     storage ``lower[d, i] = L[i + d, i]``: forward substitution, row by row, all the

@@ -796,20 +796,38 @@ def _most_likely_process_noise(data_band: FloatArray, data_gradient: FloatArray,
     energy = np.bincount(phase, energy, minlength=n_phases)
     best = np.full(n_phases, -np.inf)
     chosen = np.full(n_phases, INITIAL_PROCESS_NOISE_M2_S3)
-    band = np.empty_like(data_band)
     for q in PROCESS_NOISE_GRID_M2_S3:
-        np.multiply(unit_prior, 1.0 / q, out=band)
-        band += data_band
-        band[0] += RIDGE * np.maximum(band[0].max(initial=1.0), 1.0)
-        factor = BandFactor.of(band, overwrite=True)
-        z = factor.forward(data_gradient + unit_gradient / q)
-        reduction = np.bincount(unknown_phase, 0.5 * z * z, minlength=n_phases)
-        log_det = np.bincount(unknown_phase, factor.log_diagonal(), minlength=n_phases)
+        reduction, log_det = _likelihood_terms(data_band, data_gradient, unit_prior,
+                                               unit_gradient, 1.0 / q, unknown_phase, n_phases)
         log_lik = -(cost + 0.5 * energy / q - reduction) - log_det - 0.5 * rank * np.log(q)
         better = log_lik > best
         best = np.where(better, log_lik, best)
         chosen = np.where(better, q, chosen)
     return chosen
+
+
+def _likelihood_terms(data_band: FloatArray, data_gradient: FloatArray,
+                      unit_prior: FloatArray, unit_gradient: FloatArray, scale: float,
+                      unknown_phase: IntArray, n_phases: int) -> tuple[FloatArray, FloatArray]:
+    """Per phase, ``|L^-1 g|^2 / 2`` and ``sum log L_ii`` of the band ``data_band + scale
+    unit_prior`` (raised by :data:`RIDGE` on its diagonal) and the gradient
+    ``data_gradient + scale unit_gradient`` (:func:`_most_likely_process_noise`): in one
+    compiled pass when the compiled loops are used, else by LAPACK."""
+    if path_kernels.enabled():
+        work = np.empty(data_band.shape, order="F")
+        info, reduction, log_det = path_kernels.compiled().noise_likelihood_terms(
+            np.asfortranarray(data_band), np.asfortranarray(unit_prior), float(scale),
+            np.ascontiguousarray(data_gradient), np.ascontiguousarray(unit_gradient), RIDGE,
+            np.ascontiguousarray(unknown_phase, dtype=np.int64), n_phases, work)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"{info}-th leading minor not positive definite")
+        return reduction, log_det
+    band = unit_prior * scale + data_band
+    band[0] += RIDGE * np.maximum(band[0].max(initial=1.0), 1.0)
+    factor = BandFactor.of(band, overwrite=True)
+    z = factor.forward(data_gradient + unit_gradient * scale)
+    return (np.bincount(unknown_phase, 0.5 * z * z, minlength=n_phases),
+            np.bincount(unknown_phase, factor.log_diagonal(), minlength=n_phases))
 
 
 def _basis_rate(u: FloatArray, spacing_s: float) -> FloatArray:
