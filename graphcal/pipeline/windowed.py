@@ -305,6 +305,13 @@ def _first_pass(dataset: Dataset | str | os.PathLike[str], window_s: float, clea
         # reads the first windows); the copy forked now, before the folder's span is
         # measured in a thread.
         path_kernels.enable()
+        # The solvers too (imported at the first window otherwise), so that the copy
+        # has them: imported once, not twice.
+        import graphcal.model.trajectory  # noqa: F401
+        import graphcal.solvers.adsb_reference  # noqa: F401
+        import graphcal.solvers.graph  # noqa: F401
+        import graphcal.solvers.registry  # noqa: F401
+
         helper = ForkedHelper(summarise_associated, (options,), prepare)
     try:
         source = (_memory_source(dataset, window_s) if isinstance(dataset, Dataset)
