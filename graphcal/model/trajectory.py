@@ -1074,8 +1074,11 @@ def _reweighted(layout: PathLayout, a: AdsbOnPaths, weight: FloatArray) -> AdsbO
     band, rhs, constant = _adsb_sums(layout, a.first[changed],
                                      a.weights[changed], a.position[changed], delta)
     keep = weight > 0.0
-    return AdsbOnPaths(a.path[keep], a.time_s[keep], a.position[keep],
-                       a.information[keep] * weight[keep, None, None], a.first[keep],
+    information = a.information[keep]
+    if np.any(weight[changed] > 0.0):  # else (the gate's 0 or 1) the kept are as they were
+        information *= weight[keep, None, None]
+    return AdsbOnPaths(a.path[keep], a.time_s[keep], a.position[keep], information,
+                       a.first[keep],
                        a.weights[keep], a.interval[keep], a.band + band, a.rhs + rhs,
                        a.constant + constant)
 

@@ -52,6 +52,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
@@ -170,12 +171,16 @@ def thinned_for_initial_values(
     The alignments with ADS-B the problem already holds are cut for the thinned one
     (:meth:`~graphcal.model.problem.Problem.thinned`), not made again.
     """
-    by_radar = problem.dataset.plots.groupby("radar_id", sort=False)["radar_id"]
-    count = by_radar.transform("size").to_numpy(dtype=np.int64)
-    if count.max(initial=0) <= max_plots_per_radar:
+    radar, _ = pd.factorize(problem.dataset.plots["radar_id"], use_na_sentinel=False)
+    sizes = np.bincount(radar[radar >= 0])
+    if sizes.max(initial=0) <= max_plots_per_radar:
         return problem
-    stride = -(-count // max_plots_per_radar)  # ceil, per row: its radar's stride
-    keep = by_radar.cumcount().to_numpy() % stride == 0
+    # Each row's rank among its radar's rows, in table order.
+    order = np.argsort(radar, kind="stable")
+    rank = np.empty(len(radar), dtype=np.int64)
+    rank[order] = np.arange(len(radar)) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+    stride = -(-sizes[radar] // max_plots_per_radar)  # ceil, per row: its radar's stride
+    keep = rank % stride == 0
     return problem.thinned(keep)
 
 
