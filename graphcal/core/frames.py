@@ -134,7 +134,7 @@ def ecef_to_height_and_normal(ecef_m: ArrayLike) -> tuple[Array, Array]:
     sin_lat, cos_lat = north / length, out / length
     n = WGS84_A_M / np.sqrt(1.0 - WGS84_E2 * sin_lat**2)
     height = p * cos_lat + z * sin_lat - WGS84_A_M**2 / n
-    normal = np.stack([cos_lat * x / p, cos_lat * y / p, sin_lat], axis=-1)
+    normal = _vectors([cos_lat * x / p, cos_lat * y / p, sin_lat])
     return height, normal
 
 
@@ -156,7 +156,25 @@ def ecef_to_enu_rotation(lat_rad: ArrayLike, lon_rad: ArrayLike) -> Array:
         [-sl * co, -sl * so, cl + zero],
         [cl * co, cl * so, sl + zero],
     ]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    return _matrices(rows)
+
+
+def _matrices(rows: list[list[ArrayLike]]) -> Array:
+    """The matrices whose entry ``(i, j)`` is ``rows[i][j]`` (arrays broadcast against
+    each other), shape ``(..., len(rows), len(rows[0]))``: each entry written once into
+    the result, as ``np.stack`` of the rows' stacks gives it without their copies."""
+    shape = np.broadcast_shapes(*(np.shape(x) for row in rows for x in row))
+    out = np.empty(shape + (len(rows), len(rows[0])))
+    for i, row in enumerate(rows):
+        for j, x in enumerate(row):
+            out[..., i, j] = x
+    return out
+
+
+def _vectors(components: list[ArrayLike]) -> Array:
+    """The vectors of these components (broadcast against each other) in the last
+    axis, as ``np.stack(np.broadcast_arrays(*components), axis=-1)``, written once."""
+    return _matrices([components])[..., 0, :]
 
 
 def rotate(vectors: ArrayLike, matrix: ArrayLike) -> Array:
@@ -235,9 +253,7 @@ def polar_to_enu(range_m: ArrayLike, azimuth_rad: ArrayLike, elevation_rad: Arra
     az = np.asarray(azimuth_rad, dtype=float)
     el = np.asarray(elevation_rad, dtype=float)
     ground = r * np.cos(el)
-    return np.stack(
-        np.broadcast_arrays(ground * np.sin(az), ground * np.cos(az), r * np.sin(el)), axis=-1
-    )
+    return _vectors([ground * np.sin(az), ground * np.cos(az), r * np.sin(el)])
 
 
 def polar_to_enu_and_jacobian(
@@ -253,14 +269,14 @@ def polar_to_enu_and_jacobian(
     sa, ca = np.sin(az), np.cos(az)
     se, ce = np.sin(el), np.cos(el)
     ground = r * ce
-    enu = np.stack([ground * sa, ground * ca, r * se], axis=-1)
+    enu = _vectors([ground * sa, ground * ca, r * se])
     zero = np.zeros_like(r)
     rows = [
         [ce * sa, ground * ca, -r * se * sa],
         [ce * ca, -r * ce * sa, -r * se * ca],
         [se, zero, ground],
     ]
-    return enu, np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+    return enu, _matrices(rows)
 
 
 def polar_to_enu_jacobian(
@@ -286,7 +302,7 @@ def polar_to_enu_jacobian(
         [ce * ca, -r * ce * sa, -r * se * ca],
         [se, zero, r * ce],
     ]
-    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+    return _matrices(rows)
 
 
 def enu_to_polar_jacobian(enu_m: ArrayLike) -> Array:
@@ -317,7 +333,7 @@ def enu_to_polar_jacobian(enu_m: ArrayLike) -> Array:
         [n / g2, -e / g2, zero],
         [-e * u / (r2 * g), -n * u / (r2 * g), g / r2],
     ]
-    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
+    return _matrices(rows)
 
 
 def ecef_to_polar(
