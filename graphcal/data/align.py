@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from graphcal.core import frames
 from graphcal.core.grouped import group_order
 from graphcal.core.refraction import refracted_polar_jacobian
+from graphcal.core.rows import take_rows
 from graphcal.core.solve_options import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.dataset import Dataset, Site
 
@@ -472,7 +473,7 @@ def _align_adsb(
     j, w = j[matched], w[matched]
     lo, hi = tracks.start[code[matched]], tracks.start[code[matched] + 1]
     t, ecef, sigma = tracks.time_s, tracks.ecef_m, tracks.sigma_m
-    ref = (1.0 - w)[:, None] * ecef[j] + w[:, None] * ecef[j + 1]
+    ref = (1.0 - w)[:, None] * take_rows(ecef, j) + w[:, None] * take_rows(ecef, j + 1)
     # Velocity from the reports around the bracketing pair, not from the pair itself:
     # the pair's noise is in the interpolated position, and a velocity sharing it
     # would correlate the time-offset Jacobian with the residual.
@@ -481,7 +482,7 @@ def _align_adsb(
     outer = (after - before >= 3) & (t[after] - t[before] <= 3.0 * max_gap_s)
     before = np.where(outer, before, j)
     after = np.where(outer, after, j + 1)
-    vel = (ecef[after] - ecef[before]) / (t[after] - t[before])[:, None]
+    vel = (take_rows(ecef, after) - take_rows(ecef, before)) / (t[after] - t[before])[:, None]
     # Independent reports: the interpolated variance is w0^2 s0^2 + w1^2 s1^2.
     var_h = (1.0 - w) ** 2 * sigma[j] ** 2 + w**2 * sigma[j + 1] ** 2
     plots = plots.subset(matched)

@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 
 from graphcal.core import frames
 from graphcal.core.grouped import group_medians, group_order, group_rows
+from graphcal.core.rows import take_rows
 
 if TYPE_CHECKING:
     from graphcal.data.dataset import Dataset, Site
@@ -186,14 +187,6 @@ def _keep(table: pd.DataFrame, keep: BoolArray) -> pd.DataFrame:
     if keep.all():
         return table.reset_index(drop=True)
     return table.loc[keep].reset_index(drop=True)
-
-
-def _rows(array: NDArray, rows: NDArray) -> NDArray:
-    """``array[rows]`` along the first axis (indices or a boolean mask): the same rows,
-    several times faster than fancy indexing for an ``(n, 3)`` array."""
-    if rows.dtype == bool:
-        return np.compress(rows, array, axis=0)
-    return np.take(array, rows, axis=0)
 
 
 def _column(table: pd.DataFrame, name: str) -> FloatArray:
@@ -770,13 +763,13 @@ def _gate_keep(
     flight = np.cumsum(gap) - 1
     size = np.bincount(flight)
     judged = size[flight] >= min_track_reports
-    ecef = _rows(ecef_all, order)
+    ecef = take_rows(ecef_all, order)
     sigma = _sigma(adsb)[order]
     wild = judged & _isolated_outliers(flight, time_s, ecef, sigma, max_speed_mps,
                                        max_accel_mps2, gate_sigmas)
     if wild.any():
         rest = np.flatnonzero(~wild)
-        jump, _ = _jumps(flight[rest], time_s[rest], _rows(ecef, rest), sigma[rest],
+        jump, _ = _jumps(flight[rest], time_s[rest], take_rows(ecef, rest), sigma[rest],
                          max_speed_mps, gate_sigmas)
         jump &= judged[rest][1:]
     else:  # the same, without copying every array
@@ -796,7 +789,7 @@ def _gate_keep(
         short = (seg_size <= max_wild_run) & (longest[seg_flight] > max_wild_run)
         wild[rest[short[segment]]] = True
         kept = np.flatnonzero(~wild)
-        jump2, distance2 = _jumps(flight[kept], time_s[kept], _rows(ecef, kept), sigma[kept],
+        jump2, distance2 = _jumps(flight[kept], time_s[kept], take_rows(ecef, kept), sigma[kept],
                                   max_speed_mps, gate_sigmas)
         jump2 &= judged[kept][1:]
         bad_flights = np.unique(flight[kept][:-1][jump2])
@@ -858,8 +851,8 @@ def _interpolate_adsb(
         w = (time_s - a_time_s[j]) / dt
     ok = valid & same & (dt > 0) & (dt <= max_gap_s) & (w >= 0.0) & (w <= 1.0)
     w = np.where(ok, w, 0.0)
-    ref = ((1.0 - w)[:, None] * _rows(ecef_all, order[j])
-           + w[:, None] * _rows(ecef_all, order[j + 1]))
+    ref = ((1.0 - w)[:, None] * take_rows(ecef_all, order[j])
+           + w[:, None] * take_rows(ecef_all, order[j + 1]))
     ref[~ok] = np.nan
     return ref, ok
 
@@ -996,7 +989,7 @@ def _check_identities(
         rows = np.flatnonzero(ok & mine)
         if len(rows) == 0:
             continue
-        r_ref, az_ref, _ = site.polar_from_ecef(_rows(ref, rows))
+        r_ref, az_ref, _ = site.polar_from_ecef(take_rows(ref, rows))
         d_range = range_m[rows] - r_ref
         d_az = frames.wrap_to_pi(azimuth[rows] - az_ref)
         codes, counts, (dr, da, r) = group_medians(target[rows], [d_range, d_az, r_ref])
@@ -1375,7 +1368,7 @@ def _clean_adsb(adsb: pd.DataFrame, report: CleaningReport, max_speed_mps: float
     ecef = _ecef(adsb)
     keep, step = _gate_keep(adsb, tracks, ecef, max_speed_mps, max_accel_mps2, gate_sigmas,
                             max_wild_run, DEFAULT_MIN_TRACK_REPORTS, DEFAULT_FLIGHT_GAP_S)
-    (adsb, tracks), ecef = _keep_tracks(adsb, tracks, keep), _rows(ecef, keep)
+    (adsb, tracks), ecef = _keep_tracks(adsb, tracks, keep), take_rows(ecef, keep)
     report.merge(step)
     return adsb, tracks, ecef
 

@@ -45,6 +45,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.rows import take_rows
 from graphcal.data.align import (
     ADSB_VERTICAL_SIGMA_RATIO,
     AdsbTrackTable,
@@ -475,7 +476,7 @@ class TrajectoryBlock:
         if not np.any(has):
             return groups
         # The reported height: a measurement of the path's ellipsoidal height.
-        h, up = self.frame.heights_and_up(position[has])
+        h, up = self.frame.heights_and_up(take_rows(position, has))
         reported = radar.altitude_m[has]
         height_cols = np.zeros(0, dtype=np.int64)
         # The reported altitude is predicted from the path in its own terms: a pressure
@@ -508,7 +509,7 @@ class TrajectoryBlock:
                   else np.zeros((len(e_h), 1, 0)))
         cols_all = (np.concatenate([cc for _, cc in blocks]) if blocks
                     else np.zeros(0, dtype=np.int64))
-        groups.append(_Group(radar.radar_id, "heights", first[has], weights[has],
+        groups.append(_Group(radar.radar_id, "heights", first[has], take_rows(weights, has),
                              interval[has], hx_h, hb_all, cols_all, e_h))
         return groups
 
@@ -1008,7 +1009,7 @@ def _target_codes(targets: NDArray[np.object_]) -> tuple[IntArray, NDArray[np.ob
 
 def _adsb_on_paths(layout: PathLayout, frame: NetworkFrame, tracks, rows: IntArray,
                    path: IntArray) -> AdsbOnPaths:
-    ecef = tracks.ecef_m[rows]
+    ecef = take_rows(tracks.ecef_m, rows)
     sigma = tracks.sigma_m[rows]
     # Horizontal sigma, 1.5 x vertically, about the report's own vertical: the
     # ellipsoid's normal, the gradient of x^2/a^2 + y^2/a^2 + z^2/b^2 (at a few km above
@@ -1074,12 +1075,12 @@ def _reweighted(layout: PathLayout, a: AdsbOnPaths, weight: FloatArray) -> AdsbO
     band, rhs, constant = _adsb_sums(layout, a.first[changed],
                                      a.weights[changed], a.position[changed], delta)
     keep = weight > 0.0
-    information = a.information[keep]
+    information = take_rows(a.information, keep)
     if np.any(weight[changed] > 0.0):  # else (the gate's 0 or 1) the kept are as they were
         information *= weight[keep, None, None]
-    return AdsbOnPaths(a.path[keep], a.time_s[keep], a.position[keep], information,
-                       a.first[keep],
-                       a.weights[keep], a.interval[keep], a.band + band, a.rhs + rhs,
+    return AdsbOnPaths(a.path[keep], a.time_s[keep], take_rows(a.position, keep), information,
+                       a.first[keep], take_rows(a.weights, keep), a.interval[keep],
+                       a.band + band, a.rhs + rhs,
                        a.constant + constant)
 
 
@@ -1168,8 +1169,10 @@ def _initial_plot_system(block: TrajectoryBlock, named: dict[str, FloatArray]
         first, u = layout.locate(radar.path, radar.time_s - full[4])
         weights = basis(u)
         info = weight[:, None, None] * np.eye(3)[None]
-        add_measurement_blocks(band, first[ok], weights[ok], info[ok])
-        rhs += scatter_vectors(first[ok], weights[ok], weight[ok, None] * local[ok], n)
+        kept_weights = take_rows(weights, ok)
+        add_measurement_blocks(band, first[ok], kept_weights, take_rows(info, ok))
+        rhs += scatter_vectors(first[ok], kept_weights, weight[ok, None] * take_rows(local, ok),
+                               n)
     return band, rhs
 
 
