@@ -5,7 +5,11 @@ of small blocks spread over four spline coefficients: ``(B B^T) kron M`` into th
 band, ``B kron g`` into the gradient, ``B kron K`` into the bias columns.  NumPy forms
 them with sparse products (a few arrays of the measurements' size per sum, about
 10 ms for 30,000 plots); the loops here form them in one pass, ten times faster,
-with the same sums in another order (equal to rounding, tested).
+with the same sums in another order (equal to rounding, tested).  The band's
+Cholesky factor too (its half-bandwidth unrolled: three times LAPACK's ``dpbtrf``,
+whose unblocked loop of level-2 calls is slow for so narrow a band), each grid point
+of the process-noise search in one pass, and the ADS-B reports' chi-square on the
+paths.
 
 Compiling costs about 0.6 s in each process that uses them (loading Numba and its
 cached machine code; the first run on a machine also compiles, a few seconds, and

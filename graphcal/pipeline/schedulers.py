@@ -4,9 +4,9 @@ Each window's summary (:func:`graphcal.solvers.windows.summarise_window`) is
 independent work.  :func:`map_windows` runs it over the windows as they are read:
 
 * ``synchronous``: one after the other, in this process (no Dask).
-* ``forked``: this process and a copy of it forked at the start (Linux), taking the
-  windows in turn (:func:`map_forked`): two cores calibrate while a forked reader
-  reads ahead.
+* ``forked``: this process and a copy of it forked at the start (Linux), each taking
+  the next window when it is free (:func:`map_forked`): two cores calibrate while a
+  forked reader reads ahead.
 * ``auto`` (the default, ``None``): ``forked`` where the windows come from a forked
   reader (a large folder, :mod:`graphcal.pipeline.window_feed`) on two or more
   cores, else ``synchronous``.

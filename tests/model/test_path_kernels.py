@@ -144,7 +144,7 @@ def test_compiled_cholesky_equals_lapacks(width, monkeypatch) -> None:
 def test_compiled_likelihood_terms_equal_lapacks(numpy_sums, monkeypatch) -> None:
     """The process-noise grid's terms by phase (band, ridge, factor, forward solve, sums)
     in one compiled pass against LAPACK's factor and solve and NumPy's sums."""
-    from graphcal.model.trajectory import _likelihood_terms
+    from graphcal.model.trajectory import noise_likelihood_terms
 
     first, weights, info, vectors, _ = random_measurements(600, 100, seed=5)
     data = band_zeros(300)
@@ -154,8 +154,8 @@ def test_compiled_likelihood_terms_equal_lapacks(numpy_sums, monkeypatch) -> Non
     rng = np.random.default_rng(6)
     g_data, g_prior = rng.normal(size=300), rng.normal(size=300)
     phase = np.repeat(np.arange(6), 50)
-    expected = _likelihood_terms(data, g_data, prior, g_prior, 0.3, phase, 6)
+    expected = noise_likelihood_terms(data, g_data, prior, g_prior, 0.3, phase, 6)
     compiled_sums(monkeypatch)
-    reduction, log_det = _likelihood_terms(data, g_data, prior, g_prior, 0.3, phase, 6)
+    reduction, log_det = noise_likelihood_terms(data, g_data, prior, g_prior, 0.3, phase, 6)
     assert np.allclose(reduction, expected[0], rtol=1e-10, atol=0)
     assert np.allclose(log_det, expected[1], rtol=1e-12, atol=1e-12)
