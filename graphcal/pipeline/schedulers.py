@@ -528,6 +528,9 @@ def map_forked(function: Callable[..., Any], items: Iterable[Any], *,
     sent: dict[int, Any] = {}  # items at the copy, by number, until their result is back
     finished: dict[int, tuple[str, Any, list]] = {}
     state = {"next": 0}
+    # One registry for the map's warnings, whichever process raised them: a warning the
+    # filters show once per place is shown once, not once per window.
+    registry: dict[Any, Any] = {}
 
     def run_here(number: int, item: Any) -> None:
         if prepare is not None:
@@ -554,7 +557,7 @@ def map_forked(function: Callable[..., Any], items: Iterable[Any], *,
             kind, payload, notes = finished.pop(state["next"])
             state["next"] += 1
             for message, category, filename, lineno in notes:
-                warnings.warn_explicit(message, category, filename, lineno)
+                warnings.warn_explicit(message, category, filename, lineno, registry=registry)
             if kind == "error":
                 raise payload
             if progress is not None:

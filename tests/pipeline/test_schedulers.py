@@ -210,3 +210,30 @@ def test_map_forked_raises_the_copys_warnings_and_errors_here_and_stops_it() -> 
     assert seen == [0, 1, 4, 9, 16]
     assert (caught.value.row, caught.value.field) == (7, "range_m")
     assert not [p for p in multiprocessing.active_children() if p.name == "graphcal-helper"]
+
+
+def _warn_every_time(item: int) -> int:
+    import warnings
+
+    warnings.warn("the same every window", UserWarning, stacklevel=1)
+    return item
+
+
+@needs_fork
+def test_map_forked_shows_a_repeated_warning_once_under_the_default_filter() -> None:
+    """Either process's windows raise it: it is raised here once per place, as the
+    default filter does, not once per window."""
+    import warnings
+
+    from graphcal.pipeline.schedulers import map_forked
+
+    shown = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        original = warnings.showwarning
+        warnings.showwarning = lambda message, *args, **kwargs: shown.append(str(message))
+        try:
+            assert list(map_forked(_warn_every_time, range(8))) == list(range(8))
+        finally:
+            warnings.showwarning = original
+    assert shown == ["the same every window"]
