@@ -799,7 +799,8 @@ def _most_likely_process_noise(data_band: FloatArray, data_gradient: FloatArray,
     chosen = np.full(n_phases, INITIAL_PROCESS_NOISE_M2_S3)
     for q in PROCESS_NOISE_GRID_M2_S3:
         reduction, log_det = noise_likelihood_terms(data_band, data_gradient, unit_prior,
-                                               unit_gradient, 1.0 / q, unknown_phase, n_phases)
+                                                    unit_gradient, 1.0 / q, unknown_phase,
+                                                    n_phases)
         log_lik = -(cost + 0.5 * energy / q - reduction) - log_det - 0.5 * rank * np.log(q)
         better = log_lik > best
         best = np.where(better, log_lik, best)
@@ -808,8 +809,9 @@ def _most_likely_process_noise(data_band: FloatArray, data_gradient: FloatArray,
 
 
 def noise_likelihood_terms(data_band: FloatArray, data_gradient: FloatArray,
-                      unit_prior: FloatArray, unit_gradient: FloatArray, scale: float,
-                      unknown_phase: IntArray, n_phases: int) -> tuple[FloatArray, FloatArray]:
+                           unit_prior: FloatArray, unit_gradient: FloatArray, scale: float,
+                           unknown_phase: IntArray, n_phases: int
+                           ) -> tuple[FloatArray, FloatArray]:
     """Per phase, ``|L^-1 g|^2 / 2`` and ``sum log L_ii`` of the band ``data_band + scale
     unit_prior`` (raised by :data:`RIDGE` on its diagonal) and the gradient
     ``data_gradient + scale unit_gradient`` (:func:`_most_likely_process_noise`): in one

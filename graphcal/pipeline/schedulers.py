@@ -565,7 +565,6 @@ def map_forked(function: Callable[..., Any], items: Iterable[Any], *,
             yield payload
 
     try:
-        number = 0
         for number, item in enumerate(items):
             while sent and helper.ready():
                 take(helper.receive())
@@ -575,8 +574,8 @@ def map_forked(function: Callable[..., Any], items: Iterable[Any], *,
             else:
                 run_here(number, item)
             yield from ready_in_order()
-        if len(sent) >= 2:
-            helper.steal()  # the one it has not started, done here meanwhile
+        if len(sent) >= 2:  # one it calibrates and one waiting: the waiting one here
+            helper.steal()
         while sent:
             take(helper.receive())
             yield from ready_in_order()
