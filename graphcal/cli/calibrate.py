@@ -249,7 +249,6 @@ def calibrate_command(
         start_reading(dataset_dir, CONSTANT_BATCH_WINDOW_S, clean=clean, force=force)
     from graphcal.io.folder import SITES_FILE, load_dataset, load_epoch_utc, load_sites
     from graphcal.pipeline.calibrate import calibrate as run_calibration
-    from graphcal.reporting.tables import calibration_tables, sigma_footnote
 
     with errors_to_exit():
         truth_path = truth if truth is not None else dataset_dir / "truth.json"
@@ -354,6 +353,9 @@ def calibrate_command(
             truth_data = truth_over_windows(truth_data, spans)
         if cal.series is not None:
             _print_windows(cal)
+        # Imported here: a run with --out prints no table.
+        from graphcal.reporting.tables import calibration_tables, sigma_footnote
+
         for table in calibration_tables(cal, truth_data, console.width):
             console.print(table)
         footnote = sigma_footnote(cal)
