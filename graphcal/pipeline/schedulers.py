@@ -516,9 +516,9 @@ def map_forked(function: Callable[..., Any], items: Iterable[Any], *,
     process takes an item itself whenever the copy already holds that many.  Neither
     waits for the other, whatever their items' times; at the end this process takes
     back the item the copy has not started (``steal``) and calibrates it.  The copy
-    sends back each result with the warnings it raised; results, warnings and
-    exceptions come out here in item order (an exception is raised at its item,
-    after the results before it).  ``prepare(number)`` runs in the process that takes
+    sends back each result with the warnings it raised, raised again here with its
+    result; results and exceptions come out in item order (an exception is raised at
+    its item, after the results before it).  ``prepare(number)`` runs in the process that takes
     item ``number``, before it.  The copy is forked before the first item is asked
     for (this process's threads, if any, are not in it), or given as ``helper``
     (made for the same ``function``, ``args`` and ``prepare``), and stopped when the
@@ -528,21 +528,18 @@ def map_forked(function: Callable[..., Any], items: Iterable[Any], *,
     sent: dict[int, Any] = {}  # items at the copy, by number, until their result is back
     finished: dict[int, tuple[str, Any, list]] = {}
     state = {"next": 0}
-    # One registry for the map's warnings, whichever process raised them: a warning the
-    # filters show once per place is shown once, not once per window.
+    # The registry of the copy's warnings raised again here: one that the filters show
+    # once per place is shown once, not once per window.  (This process's own warnings
+    # are raised as they come, under the filters' own registries.)
     registry: dict[Any, Any] = {}
 
     def run_here(number: int, item: Any) -> None:
         if prepare is not None:
             prepare(number)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            try:
-                message: tuple[str, Any] = ("result", function(item, *args))
-            except Exception as exc:  # noqa: BLE001 - raised at its item, in order
-                message = ("error", exc)
-        finished[number] = (*message, [(str(w.message), w.category, w.filename, w.lineno)
-                                       for w in caught])
+        try:
+            finished[number] = ("result", function(item, *args), [])
+        except Exception as exc:  # noqa: BLE001 - raised at its item, in order
+            finished[number] = ("error", exc, [])
 
     def take(message: tuple[str, int, Any, list]) -> None:
         kind, number, payload, notes = message

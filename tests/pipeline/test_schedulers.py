@@ -212,17 +212,24 @@ def test_map_forked_raises_the_copys_warnings_and_errors_here_and_stops_it() -> 
     assert not [p for p in multiprocessing.active_children() if p.name == "graphcal-helper"]
 
 
-def _warn_every_time(item: int) -> int:
+def _warn_every_time(item: int, parent_pid: int) -> int:
+    """Warns each time; slow here, so that the forked copy takes most items."""
+    import os
+    import time
     import warnings
 
+    if os.getpid() == parent_pid:
+        time.sleep(0.2)
     warnings.warn("the same every window", UserWarning, stacklevel=1)
     return item
 
 
 @needs_fork
-def test_map_forked_shows_a_repeated_warning_once_under_the_default_filter() -> None:
-    """Either process's windows raise it: it is raised here once per place, as the
-    default filter does, not once per window."""
+def test_map_forked_shows_a_repeated_warning_once_per_process_under_the_default_filter(
+) -> None:
+    """Both processes' windows raise it: under the default filter it is shown at most
+    once for each process, not once per window."""
+    import os
     import warnings
 
     from graphcal.pipeline.schedulers import map_forked
@@ -233,7 +240,8 @@ def test_map_forked_shows_a_repeated_warning_once_under_the_default_filter() -> 
         original = warnings.showwarning
         warnings.showwarning = lambda message, *args, **kwargs: shown.append(str(message))
         try:
-            assert list(map_forked(_warn_every_time, range(8))) == list(range(8))
+            assert list(map_forked(_warn_every_time, range(8),
+                                   args=(os.getpid(),))) == list(range(8))
         finally:
             warnings.showwarning = original
-    assert shown == ["the same every window"]
+    assert 1 <= len(shown) <= 2 and set(shown) == {"the same every window"}
