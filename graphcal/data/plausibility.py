@@ -81,6 +81,7 @@ from numpy.typing import NDArray
 
 from graphcal.core.errors import ImplausibleDataError
 from graphcal.core.grouped import group_medians
+from graphcal.core.rows import take_rows
 from graphcal.data.dataset import Site
 
 #: Fewest plots (or reports) a heuristic judges a radar (or a column) on.
@@ -595,8 +596,9 @@ def _geometry_one(site: Site, time_s: NDArray[np.float64], range_m: NDArray[np.f
         j, w = j[ok], w[ok]
         ecef = tracks.ecef_m  # type: ignore[attr-defined]
         t = tracks.time_s  # type: ignore[attr-defined]
-        ref = (1.0 - w)[:, None] * ecef[j] + w[:, None] * ecef[j + 1]
-        vel = (ecef[j + 1] - ecef[j]) / (t[j + 1] - t[j])[:, None]
+        before, after = take_rows(ecef, j), take_rows(ecef, j + 1)
+        ref = (1.0 - w)[:, None] * before + w[:, None] * after
+        vel = (after - before) / (t[j + 1] - t[j])[:, None]
         enu = site.enu_from_ecef(ref)
         v_enu = frames.rotate(vel, site.ecef_to_enu)
         ground = np.hypot(enu[:, 0], enu[:, 1])
@@ -647,7 +649,7 @@ def _geometry_one(site: Site, time_s: NDArray[np.float64], range_m: NDArray[np.f
             use &= keep
         if use.sum() < a_mat.shape[1] * 5:
             return None
-        aw = a_mat[use] * wts[use, None]
+        aw = take_rows(a_mat, use) * wts[use, None]
         bw = b_vec[use] * wts[use]
         # Normal equations on unit-norm columns (an SVD of the tall matrix costs 10x).
         norm = np.sqrt(np.sum(aw**2, axis=0))
