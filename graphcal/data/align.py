@@ -450,15 +450,15 @@ def align_adsb_thinned(
     plots = full.plots.subset(mine)
     plots.index = new_row[rows[mine]]
     optional = {
-        name: None if (value := getattr(full, name)) is None else value[mine]
+        name: None if (value := getattr(full, name)) is None else take_rows(value, mine)
         for name in ("reference_velocity_ecef_m_s", "reference_polar_jacobian",
                      "target_code")
     }
     n_radar_plots = int(np.count_nonzero(keep[position(radar_plots.index)]))
     return AdsbAlignment(
-        full.radar_id, plots, full.reference_ecef_m[mine], full.reference_polar[mine],
-        full.reference_enu_cov_m2[mine], n_radar_plots - len(plots),
-        time_offset_s=0.0, **optional,
+        full.radar_id, plots, take_rows(full.reference_ecef_m, mine),
+        take_rows(full.reference_polar, mine), take_rows(full.reference_enu_cov_m2, mine),
+        n_radar_plots - len(plots), time_offset_s=0.0, **optional,
     )
 
 
