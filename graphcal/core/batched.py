@@ -86,4 +86,34 @@ def sum_of_products(a: FloatArray, middle: FloatArray | None, b: FloatArray) -> 
     return a.reshape(-1, p).T @ b.reshape(-1, q)
 
 
-__all__ = ["cholesky_inverse", "sum_of_products"]
+def congruent_diagonal(jac: FloatArray, diagonal: FloatArray) -> FloatArray:
+    """``J_n diag(d_n) J_n^T`` for every matrix of a stack: a diagonal covariance mapped
+    through a Jacobian.
+
+    Parameters
+    ----------
+    jac : ndarray (..., m, k)
+    diagonal : ndarray (..., k) or (k,)
+        The diagonal ``d_n`` (one for all when 1-D).
+
+    Returns
+    -------
+    ndarray (..., m, m)
+        Symmetric; the same sums as ``(jac * diagonal[..., None, :]) @ jac^T``, term by
+        term over ``k`` (numpy's stacked matrix product goes matrix by matrix).
+    """
+    jac = np.asarray(jac, dtype=float)
+    scaled = jac * np.asarray(diagonal, dtype=float)[..., None, :]
+    m, k = jac.shape[-2], jac.shape[-1]
+    out = np.empty(jac.shape[:-1] + (m,))
+    for a in range(m):
+        for b in range(a, m):
+            value = scaled[..., a, 0] * jac[..., b, 0]
+            for c in range(1, k):
+                value = value + scaled[..., a, c] * jac[..., b, c]
+            out[..., a, b] = value
+            out[..., b, a] = value
+    return out
+
+
+__all__ = ["cholesky_inverse", "congruent_diagonal", "sum_of_products"]

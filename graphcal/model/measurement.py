@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core import frames
+from graphcal.core.batched import congruent_diagonal
 from graphcal.core.refraction import refracted_polar, refracted_polar_jacobian
 from graphcal.data.align import AdsbAlignment
 from graphcal.data.bias import (
@@ -373,7 +374,7 @@ def _reference_polar_covariance(al: AdsbAlignment, site: Site | None) -> FloatAr
             cov[:, [0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]]):
         # Diagonal (as align_adsb makes it): jac @ cov is jac with its columns scaled,
         # exactly, so one product is spared.
-        return (jac * np.diagonal(cov, axis1=1, axis2=2)[:, None, :]) @ np.swapaxes(jac, -1, -2)
+        return congruent_diagonal(jac, np.diagonal(cov, axis1=1, axis2=2))
     return jac @ cov @ np.swapaxes(jac, -1, -2)
 
 

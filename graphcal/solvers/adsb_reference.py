@@ -47,7 +47,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
-from graphcal.core.batched import sum_of_products
+from graphcal.core.batched import congruent_diagonal, sum_of_products
 from graphcal.core.errors import EstimationError
 from graphcal.data.align import AdsbAlignment
 from graphcal.data.bias import PARAMETER_NAMES
@@ -140,7 +140,7 @@ def ls_radar(
         ref_cov[:, 2, :] = 0.0
         ref_cov[:, :, 2] = 0.0
     variances = np.diagonal(measurement_model(site).covar(1)[0])
-    sigma = (jac_r * variances) @ np.swapaxes(jac_r, 1, 2)
+    sigma = congruent_diagonal(jac_r, variances)
     sigma += jac_a @ ref_cov @ np.swapaxes(jac_a, 1, 2)
     information = sum_of_products(h, None, h)
     rhs = h.reshape(-1, h.shape[-1]).T @ z.reshape(-1)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graphcal.core.batched import cholesky_inverse, sum_of_products
+from graphcal.core.batched import cholesky_inverse, congruent_diagonal, sum_of_products
 
 
 @pytest.mark.parametrize("m", [1, 2, 3, 4])
@@ -42,3 +42,18 @@ def test_sum_of_products_is_the_einsum() -> None:
                                np.einsum("nip,nij,njq->pq", a, middle, b), rtol=1e-12)
     np.testing.assert_allclose(sum_of_products(a, None, a), np.einsum("nip,niq->pq", a, a),
                                rtol=1e-12)
+
+
+@pytest.mark.parametrize("shape", [(50, 3, 3), (50, 2, 3), (4, 5, 3, 2)])
+def test_congruent_diagonal_is_the_matrix_product(shape) -> None:
+    rng = np.random.default_rng(len(shape) + shape[-2])
+    jac = rng.normal(size=shape)
+    diagonal = rng.uniform(0.5, 2.0, size=shape[:-2] + shape[-1:])
+    expected = (jac * diagonal[..., None, :]) @ np.swapaxes(jac, -1, -2)
+    got = congruent_diagonal(jac, diagonal)
+    np.testing.assert_allclose(got, expected, rtol=1e-13, atol=1e-13)
+    assert np.array_equal(got, np.swapaxes(got, -1, -2))
+    # One diagonal for the whole stack.
+    one = diagonal.reshape(-1, shape[-1])[0]
+    np.testing.assert_allclose(congruent_diagonal(jac, one),
+                               (jac * one) @ np.swapaxes(jac, -1, -2), rtol=1e-13, atol=1e-13)
