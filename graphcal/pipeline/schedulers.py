@@ -518,11 +518,11 @@ def map_forked(function: Callable[..., Any], items: Iterable[Any], *,
     back the item the copy has not started (``steal``) and calibrates it.  The copy
     sends back each result with the warnings it raised, raised again here with its
     result; results and exceptions come out in item order (an exception is raised at
-    its item, after the results before it).  ``prepare(number)`` runs in the process that takes
-    item ``number``, before it.  The copy is forked before the first item is asked
-    for (this process's threads, if any, are not in it), or given as ``helper``
-    (made for the same ``function``, ``args`` and ``prepare``), and stopped when the
-    iterator is closed, collected, or exhausted.
+    its item, after the results before it).  ``prepare(number)`` runs in the process
+    that takes item ``number``, before it.  The copy is forked before the first item
+    is asked for (this process's threads, if any, are not in it), or given as
+    ``helper`` (made for the same ``function``, ``args`` and ``prepare``), and stopped
+    when the iterator is closed, collected, or exhausted.
     """
     helper = ForkedHelper(function, args, prepare) if helper is None else helper
     sent: dict[int, Any] = {}  # items at the copy, by number, until their result is back
