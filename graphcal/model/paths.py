@@ -383,6 +383,14 @@ def band_matvec(band: FloatArray, x: FloatArray) -> FloatArray:
     return y
 
 
+def check_factorised(info: int) -> None:
+    """Raise :class:`numpy.linalg.LinAlgError` for a banded Cholesky's ``info`` other
+    than 0 (the order of the first leading minor that is not positive, as LAPACK's and
+    :func:`scipy.linalg.cholesky_banded`'s message says)."""
+    if info != 0:
+        raise np.linalg.LinAlgError(f"{info}-th leading minor not positive definite")
+
+
 @dataclass
 class BandFactor:
     """The banded Cholesky factor ``L`` (lower) of a path normal matrix."""
@@ -401,10 +409,7 @@ class BandFactor:
                                                     check_finite=False))
         in_place = overwrite and band.flags.f_contiguous and band.dtype == np.float64
         lower = band if in_place else np.array(band, dtype=np.float64, order="F")
-        info = path_kernels.compiled().band_cholesky(lower)
-        if info != 0:
-            raise np.linalg.LinAlgError(
-                f"{info}-th leading minor not positive definite")
+        check_factorised(path_kernels.compiled().band_cholesky(lower))
         return cls(lower, lower)
 
     def forward(self, rhs: FloatArray, overwrite: bool = False) -> FloatArray:

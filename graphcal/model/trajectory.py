@@ -69,6 +69,7 @@ from graphcal.model.paths import (
     band_zeros,
     basis,
     basis_derivative,
+    check_factorised,
     evaluate_paths,
     motion_prior_energy,
     scatter_columns,
@@ -822,8 +823,7 @@ def noise_likelihood_terms(data_band: FloatArray, data_gradient: FloatArray,
             np.asfortranarray(data_band), np.asfortranarray(unit_prior), float(scale),
             np.ascontiguousarray(data_gradient), np.ascontiguousarray(unit_gradient), RIDGE,
             np.ascontiguousarray(unknown_phase, dtype=np.int64), n_phases, work)
-        if info != 0:
-            raise np.linalg.LinAlgError(f"{info}-th leading minor not positive definite")
+        check_factorised(info)
         return reduction, log_det
     band = unit_prior * scale + data_band
     band[0] += RIDGE * np.maximum(band[0].max(initial=1.0), 1.0)

@@ -57,6 +57,7 @@ from numpy.typing import NDArray
 
 from graphcal.core import frames
 from graphcal.core.errors import EstimationError
+from graphcal.core.grouped import group_rows
 from graphcal.data.align import DEFAULT_ADSB_MAX_GAP_S
 from graphcal.data.bias import CONTRACT_KEYS, ECCENTRICITY, RadarBias
 from graphcal.data.calibration import Calibration
@@ -172,11 +173,11 @@ def thinned_for_initial_values(
     (:meth:`~graphcal.model.problem.Problem.thinned`), not made again.
     """
     radar, _ = pd.factorize(problem.dataset.plots["radar_id"], use_na_sentinel=False)
-    sizes = np.bincount(radar[radar >= 0])
+    sizes = np.bincount(radar)
     if sizes.max(initial=0) <= max_plots_per_radar:
         return problem
     # Each row's rank among its radar's rows, in table order.
-    order = np.argsort(radar, kind="stable")
+    order = group_rows(radar)
     rank = np.empty(len(radar), dtype=np.int64)
     rank[order] = np.arange(len(radar)) - np.repeat(np.cumsum(sizes) - sizes, sizes)
     stride = -(-sizes[radar] // max_plots_per_radar)  # ceil, per row: its radar's stride
