@@ -37,6 +37,10 @@ IntArray = NDArray[np.int64]
 #: Environment variable: ``numpy`` keeps the NumPy sums, ``numba`` uses the compiled
 #: loops wherever possible (also for small problems).
 KERNELS_ENV = "GRAPHCAL_KERNELS"
+#: Kinds of a free bias term's column in ``path_loops.plot_linearisation``: a unit
+#: entry on the term's row, the true range (the range gain), or the time offset's
+#: ``-(d h / d p) v``.
+TERM_ADDITIVE, TERM_RANGE_GAIN, TERM_TIME_OFFSET = 0, 1, 2
 
 _state: dict[str, Any] = {"enabled": False, "module": None}
 
@@ -114,10 +118,16 @@ def _warm(kernels: Any) -> None:
     kernels.accumulate(band, np.zeros(12), np.zeros((12, 1)), np.zeros((1, 1)), np.zeros(1),
                        first, weights, np.ones((1, 2, 3)), np.ones((1, 2, 1)), np.ones((1, 2)),
                        np.ones(1), np.zeros(1, dtype=np.int64))
+    for ndim, rates in ((3, np.zeros((0, 4))), (2, weights)):
+        kernels.plot_linearisation(np.ones((4, 3)), first, weights, rates, np.eye(3),
+                                   np.ones(3), np.zeros((1, 3)), ndim, np.zeros(4), np.ones(ndim),
+                                   np.zeros(2, dtype=np.int64), np.array([0, 2]))
+    kernels.heights_and_up(np.ones((1, 3)), np.eye(3), np.full(3, 6.4e6))
     # The bias columns as a view of a wider array (the trajectory's stacked right side).
     kernels.accumulate(band, np.zeros(12), np.zeros((12, 2))[:, :1], np.zeros((1, 1)),
                        np.zeros(1), first, weights, np.ones((1, 2, 3)), np.ones((1, 2, 1)),
                        np.ones((1, 2)), np.ones(1), np.zeros(1, dtype=np.int64))
 
 
-__all__ = ["KERNELS_ENV", "available", "compiled", "enable", "enabled", "forced"]
+__all__ = ["KERNELS_ENV", "TERM_ADDITIVE", "TERM_RANGE_GAIN", "TERM_TIME_OFFSET", "available",
+           "compiled", "enable", "enabled", "forced"]

@@ -12,6 +12,11 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from graphcal.core.frames import WGS84_A_M as _A
+from graphcal.core.frames import WGS84_B_M as _B
+from graphcal.core.frames import WGS84_E2 as _E2
+from graphcal.model.path_kernels import TERM_ADDITIVE, TERM_RANGE_GAIN
+
 _jit = numba.njit(cache=True, nogil=True)
 
 
@@ -334,5 +339,154 @@ def motion_prior(band, first, scale, gram):  # pragma: no cover - compiled
                     band[3 * (high - low), base + 3 * low + x] += scale[k, x] * g
 
 
+_TWO_PI = 2.0 * np.pi
+
+
+@numba.njit(inline="always")
+def _wrap_to_2pi(angle):  # pragma: no cover - compiled
+    """:func:`graphcal.core.frames.wrap_to_2pi` of one angle [rad]."""
+    wrapped = angle - _TWO_PI * np.floor(angle / _TWO_PI)
+    if wrapped < 0.0 or wrapped >= _TWO_PI:
+        return 0.0
+    return wrapped
+
+
+@_jit
+def plot_linearisation(coefficients, first, weights, rates, map_a, map_c, measured, ndim,
+                       bias, whiten, term_row, term_kind):  # pragma: no cover - compiled
+    """One radar's plots linearised on the paths, without refraction or eccentricity:
+    what :meth:`graphcal.model.trajectory.TrajectoryBlock._radar_groups` forms with
+    NumPy (the path's position ``p``, the radar's ENU ``A p + c``, the polar coordinates
+    and their Jacobian, the bias model
+    :func:`graphcal.model.measurement.biased_polar`), plot by plot.
+
+    ``bias``: range offset [m], range gain, azimuth and elevation biases [rad];
+    ``whiten`` (ndim,) the inverse sigmas; per free term ``k`` its column's kind
+    (:data:`~graphcal.model.path_kernels.TERM_ADDITIVE` on row ``term_row[k]``,
+    ``TERM_RANGE_GAIN``, or ``TERM_TIME_OFFSET``: ``-(d h / d p) v``, ``v`` the path's
+    velocity from the basis ``rates`` (n, 4), given when the time offset is free).
+
+    Returns the whitened ``e`` (n, ndim), ``hx`` (n, ndim, 3) and ``hb`` (n, ndim, k),
+    the positions (n, 3), the velocities (n, 3; zero without ``rates``) and the number
+    of plots at the zenith (zero ground range, where the azimuth's Jacobian is
+    undefined: their rows are left NaN).
+    """
+    n = first.shape[0]
+    k = term_kind.shape[0]
+    e = np.empty((n, ndim))
+    hx = np.empty((n, ndim, 3))
+    hb = np.zeros((n, ndim, k))
+    position = np.zeros((n, 3))
+    velocity = np.zeros((n, 3))
+    with_rates = rates.shape[0] == n
+    offset, gain, az_bias, el_bias = bias[0], bias[1], bias[2], bias[3]
+    enu = np.empty(3)
+    jac = np.empty((3, 3))
+    residual = np.empty(3)
+    zenith = 0
+    for i in range(n):
+        for j in range(4):
+            wj = weights[i, j]
+            row = first[i] + j
+            for x in range(3):
+                position[i, x] += wj * coefficients[row, x]
+        if with_rates:
+            for j in range(4):
+                rj = rates[i, j]
+                row = first[i] + j
+                for x in range(3):
+                    velocity[i, x] += rj * coefficients[row, x]
+        for x in range(3):
+            enu[x] = (position[i, 0] * map_a[x, 0] + position[i, 1] * map_a[x, 1]
+                      + position[i, 2] * map_a[x, 2]) + map_c[x]
+        east, north, up = enu[0], enu[1], enu[2]
+        g2 = east * east + north * north
+        if g2 == 0.0:
+            zenith += 1
+            for r in range(ndim):
+                e[i, r] = np.nan
+                for x in range(3):
+                    hx[i, r, x] = np.nan
+            continue
+        ground = np.hypot(east, north)
+        range_m = np.sqrt(ground * ground + up * up)
+        azimuth = _wrap_to_2pi(np.arctan2(east, north))
+        elevation = np.arctan2(up, ground)
+        g = np.sqrt(g2)
+        r2 = g2 + up * up
+        r = np.sqrt(r2)
+        slope0 = 1.0 + gain
+        jac[0, 0] = slope0 * (east / r)
+        jac[0, 1] = slope0 * (north / r)
+        jac[0, 2] = slope0 * (up / r)
+        jac[1, 0] = north / g2
+        jac[1, 1] = -east / g2
+        jac[1, 2] = 0.0
+        jac[2, 0] = -east * up / (r2 * g)
+        jac[2, 1] = -north * up / (r2 * g)
+        jac[2, 2] = g / r2
+        residual[0] = (range_m * slope0 + offset) - measured[i, 0]
+        residual[1] = _wrap_to_2pi((azimuth + az_bias) - measured[i, 1] + np.pi) - np.pi
+        residual[2] = (elevation + el_bias) - measured[i, 2]
+        for row in range(ndim):
+            for x in range(3):
+                hx[i, row, x] = (jac[row, 0] * map_a[0, x] + jac[row, 1] * map_a[1, x]
+                                 + jac[row, 2] * map_a[2, x])
+        for b in range(k):
+            kind = term_kind[b]
+            if kind == TERM_ADDITIVE:
+                if term_row[b] < ndim:
+                    hb[i, term_row[b], b] = 1.0
+            elif kind == TERM_RANGE_GAIN:
+                hb[i, 0, b] = range_m
+            else:
+                for row in range(ndim):
+                    hb[i, row, b] = -(hx[i, row, 0] * velocity[i, 0]
+                                      + hx[i, row, 1] * velocity[i, 1]
+                                      + hx[i, row, 2] * velocity[i, 2])
+        for row in range(ndim):
+            scale = whiten[row]
+            e[i, row] = residual[row] * scale
+            for x in range(3):
+                hx[i, row, x] *= scale
+            for b in range(k):
+                hb[i, row, b] *= scale
+    return e, hx, hb, position, velocity, zenith
+
+
+@_jit
+def heights_and_up(enu, rotation, origin):  # pragma: no cover - compiled
+    """Ellipsoidal heights [m] (n,) and local verticals (n, 3) of points ``enu`` (n, 3) of a
+    frame whose ECEF is ``rotation^T p + origin``: :func:`graphcal.core.frames.
+    ecef_to_height_and_normal` (Bowring's latitude in one step), the normal rotated into
+    the frame, point by point."""
+    n = enu.shape[0]
+    height = np.empty(n)
+    up = np.empty((n, 3))
+    ep2 = _E2 / (1.0 - _E2)
+    for i in range(n):
+        x = enu[i, 0] * rotation[0, 0] + enu[i, 1] * rotation[1, 0] + enu[i, 2] * rotation[2, 0]
+        y = enu[i, 0] * rotation[0, 1] + enu[i, 1] * rotation[1, 1] + enu[i, 2] * rotation[2, 1]
+        z = enu[i, 0] * rotation[0, 2] + enu[i, 1] * rotation[1, 2] + enu[i, 2] * rotation[2, 2]
+        x += origin[0]
+        y += origin[1]
+        z += origin[2]
+        p = np.hypot(x, y)
+        za, pb = z * _A, p * _B
+        radius = np.hypot(za, pb)
+        sin_t, cos_t = za / radius, pb / radius
+        north = z + ep2 * _B * (sin_t * sin_t * sin_t)
+        out = p - _E2 * _A * (cos_t * cos_t * cos_t)
+        length = np.hypot(north, out)
+        sin_lat, cos_lat = north / length, out / length
+        radius_n = _A / np.sqrt(1.0 - _E2 * sin_lat * sin_lat)
+        height[i] = p * cos_lat + z * sin_lat - _A * _A / radius_n
+        n0, n1, n2 = cos_lat * x / p, cos_lat * y / p, sin_lat
+        for a in range(3):
+            up[i, a] = n0 * rotation[a, 0] + n1 * rotation[a, 1] + n2 * rotation[a, 2]
+    return height, up
+
+
 __all__ = ["accumulate", "add_block", "add_blocks", "adsb_reports", "adsb_sums", "band_forward",
-           "evaluate", "motion_prior", "scatter_vectors"]
+           "evaluate", "heights_and_up", "motion_prior", "plot_linearisation",
+           "scatter_vectors"]

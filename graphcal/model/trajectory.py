@@ -144,7 +144,11 @@ class NetworkFrame:
         return frames.rotate(enu_m, self.rotation.T) + self.origin_ecef_m
 
     def heights_and_up(self, enu_m: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Ellipsoidal heights [m] and local verticals (unit, this frame) of points."""
+        """Ellipsoidal heights [m] and local verticals (unit, this frame) of points (in
+        one compiled pass when the compiled loops are used: the same values)."""
+        if path_kernels.enabled():
+            return path_kernels.compiled().heights_and_up(
+                np.ascontiguousarray(enu_m, dtype=float), self.rotation, self.origin_ecef_m)
         h, up_ecef = frames.ecef_to_height_and_normal(self.to_ecef(enu_m))
         return h, frames.rotate(up_ecef, self.rotation)
 
@@ -450,23 +454,12 @@ class TrajectoryBlock:
         tau = full[4]
         first, u, interval = self._locate(radar.path, radar.time_s - tau)
         weights = basis(u)
-        position = self._evaluate(c, first, weights)
-        enu = frames.rotate(position, radar.map_a) + radar.map_c
         free_names = terms.free
-        predicted, d_enu, hb = measurement_model(radar.site).measure(enu, full, free_names)
-        e = predicted - radar.measured
-        e[:, 1] = frames.wrap_to_pi(e[:, 1])
-        m = radar.ndim
-        hx = d_enu[:, :m] @ radar.map_a
-        hb = np.ascontiguousarray(hb[:, :m])
-        if "time_offset" in free_names:
-            k = free_names.index("time_offset")
-            velocity = self._evaluate(c, first, _basis_rate(u, self.layout.spacing_s))
-            hb[:, :, k] = -np.einsum("nmi,ni->nm", hx, velocity)
-        whiten = 1.0 / radar.site.measurement_sigmas()[:m]
-        hx *= whiten[None, :, None]
-        hb *= whiten[None, :, None]
-        e = e[:, :m] * whiten[None, :]
+        rates = (_basis_rate(u, self.layout.spacing_s) if "time_offset" in free_names
+                 else None)
+        linearise = (_plots_compiled if path_kernels.enabled() and _compiled_model(radar, full)
+                     else _plots_numpy)
+        e, hx, hb, position, velocity = linearise(radar, c, first, weights, rates, full)
         cols = columns.get(radar.radar_id, np.zeros(0, dtype=np.int64))
         if len(cols) == 0:
             hb = hb[:, :, :0]
@@ -497,11 +490,9 @@ class TrajectoryBlock:
         blocks = []
         if len(cols):
             hb_h = np.zeros((len(e_h), 1, len(cols)))
-            if "time_offset" in free_names:
+            if velocity is not None:
                 k = free_names.index("time_offset")
-                velocity = self._evaluate(c, first[has], _basis_rate(u[has],
-                                                                     self.layout.spacing_s))
-                hb_h[:, 0, k] = -np.einsum("ni,ni->n", up, velocity) * per_metre
+                hb_h[:, 0, k] = -np.einsum("ni,ni->n", up, take_rows(velocity, has)) * per_metre
             blocks.append((hb_h, cols))
         if len(height_cols):
             hb_model = -np.stack([np.ones_like(predicted), predicted], axis=-1)[:, None, :]
@@ -519,10 +510,6 @@ class TrajectoryBlock:
         interval_offset = np.concatenate([[0], np.cumsum(self.layout.n_intervals)[:-1]])
         interval = interval_offset[path] + (first - self.layout.first_coefficient[path])
         return first, u, interval
-
-    @staticmethod
-    def _evaluate(c: FloatArray, first: IntArray, weights: FloatArray) -> FloatArray:
-        return evaluate_paths(c, first, weights)
 
     # ------------------------------------------------------------ elimination
     def _settle_paths(self, named: dict[str, FloatArray], max_steps: int) -> None:
@@ -831,6 +818,73 @@ def noise_likelihood_terms(data_band: FloatArray, data_gradient: FloatArray,
     z = factor.forward(data_gradient + unit_gradient * scale)
     return (np.bincount(unknown_phase, 0.5 * z * z, minlength=n_phases),
             np.bincount(unknown_phase, factor.log_diagonal(), minlength=n_phases))
+
+
+def _plots_numpy(radar: RadarOnPaths, c: FloatArray, first: IntArray, weights: FloatArray,
+                 rates: FloatArray | None, full: FloatArray
+                 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray | None]:
+    """A radar's plots linearised on the paths ``c``: the whitened residuals ``e``
+    (n, m), ``hx`` (n, m, 3) and ``hb`` (n, m, free terms), the paths' positions (n, 3)
+    and, with ``rates`` (the basis' rates, given when the time offset is free), their
+    velocities (n, 3).  ``first``, ``weights``: where the plots fall on the paths;
+    ``full``: every term of the radar's bias model."""
+    free_names = radar.terms.free
+    position = evaluate_paths(c, first, weights)
+    enu = frames.rotate(position, radar.map_a) + radar.map_c
+    predicted, d_enu, hb = measurement_model(radar.site).measure(enu, full, free_names)
+    e = predicted - radar.measured
+    e[:, 1] = frames.wrap_to_pi(e[:, 1])
+    m = radar.ndim
+    hx = d_enu[:, :m] @ radar.map_a
+    hb = np.ascontiguousarray(hb[:, :m])
+    velocity = None
+    if rates is not None:
+        k = free_names.index("time_offset")
+        velocity = evaluate_paths(c, first, rates)
+        hb[:, :, k] = -np.einsum("nmi,ni->nm", hx, velocity)
+    whiten = 1.0 / radar.site.measurement_sigmas()[:m]
+    hx *= whiten[None, :, None]
+    hb *= whiten[None, :, None]
+    return e[:, :m] * whiten[None, :], hx, hb, position, velocity
+
+
+def _compiled_model(radar: RadarOnPaths, full: FloatArray) -> bool:
+    """Whether :func:`_plots_compiled` forms this radar's model: no refraction, and no
+    azimuth eccentricity (neither its value nor its terms free)."""
+    return (radar.site.atmosphere is None and full[5] == 0.0 and full[6] == 0.0
+            and all(name in _COMPILED_TERM_KINDS for name in radar.terms.free))
+
+
+def _plots_compiled(radar: RadarOnPaths, c: FloatArray, first: IntArray, weights: FloatArray,
+                    rates: FloatArray | None, full: FloatArray
+                    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray | None]:
+    """:func:`_plots_numpy` in one compiled pass (:func:`graphcal.model.path_loops.
+    plot_linearisation`), for a radar :func:`_compiled_model` accepts: the same values."""
+    free_names = radar.terms.free
+    kinds = np.array([_COMPILED_TERM_KINDS[name][0] for name in free_names], dtype=np.int64)
+    rows = np.array([_COMPILED_TERM_KINDS[name][1] for name in free_names], dtype=np.int64)
+    m = radar.ndim
+    e, hx, hb, position, velocity, zenith = path_kernels.compiled().plot_linearisation(
+        np.ascontiguousarray(c), np.ascontiguousarray(first, dtype=np.int64),
+        np.ascontiguousarray(weights),
+        np.ascontiguousarray(rates) if rates is not None else np.zeros((0, 4)),
+        np.ascontiguousarray(radar.map_a), np.ascontiguousarray(radar.map_c),
+        np.ascontiguousarray(radar.measured), m, np.ascontiguousarray(full[:4], dtype=float),
+        1.0 / radar.site.measurement_sigmas()[:m], rows, kinds)
+    if zenith:
+        raise ValueError("azimuth Jacobian is undefined at the zenith (zero ground range)")
+    return e, hx, hb, position, velocity if rates is not None else None
+
+
+#: The free terms :func:`_plots_compiled` forms: the kind of their column in
+#: :func:`graphcal.model.path_loops.plot_linearisation` and their row.
+_COMPILED_TERM_KINDS: dict[str, tuple[int, int]] = {
+    "range_offset": (path_kernels.TERM_ADDITIVE, 0),
+    "range_gain": (path_kernels.TERM_RANGE_GAIN, 0),
+    "azimuth_bias": (path_kernels.TERM_ADDITIVE, 1),
+    "elevation_bias": (path_kernels.TERM_ADDITIVE, 2),
+    "time_offset": (path_kernels.TERM_TIME_OFFSET, 0),
+}
 
 
 def _basis_rate(u: FloatArray, spacing_s: float) -> FloatArray:

@@ -159,3 +159,94 @@ def test_compiled_likelihood_terms_equal_lapacks(numpy_sums, monkeypatch) -> Non
     reduction, log_det = noise_likelihood_terms(data, g_data, prior, g_prior, 0.3, phase, 6)
     assert np.allclose(reduction, expected[0], rtol=1e-10, atol=0)
     assert np.allclose(log_det, expected[1], rtol=1e-12, atol=1e-12)
+
+
+def time_offset_block(dataset):
+    """The demo's paths with every radar's time offset free too, off the truth."""
+    from graphcal.model.parameters import radar_terms
+    from graphcal.model.robust import RobustKernel
+    from graphcal.model.trajectory import build_trajectory_block
+
+    terms = {rid: radar_terms(dataset.sites[rid], {}, True) for rid in dataset.radar_ids}
+    keys = {rid: i for i, rid in enumerate(dataset.radar_ids)}
+    start = {rid: np.full(len(terms[rid].free), 1e-4) for rid in dataset.radar_ids}
+    block = build_trajectory_block(dataset, terms, keys, list(dataset.radar_ids),
+                                   RobustKernel("huber"), use_adsb=True, initial_biases=start)
+    assert block is not None
+    return block, {rid: start[rid] * 3.0 for rid in dataset.radar_ids}
+
+
+def test_compiled_plot_linearisation_equals_numpys(short_demo, monkeypatch) -> None:  # noqa: F811
+    """Each radar's plots on the paths (2-D and 3-D, time offsets free): the whitened
+    residuals, both Jacobians, the positions and velocities, formed plot by plot
+    against the measurement model's NumPy form."""
+    from graphcal.model.paths import basis, basis_derivative
+    from graphcal.model.trajectory import _compiled_model, _plots_compiled, _plots_numpy
+
+    compiled_sums(monkeypatch)
+    block, named = time_offset_block(short_demo)
+    c = block.coefficients
+    kinds = set()
+    for radar in block.radars:
+        full = radar.terms.full_terms(named[radar.radar_id])
+        assert _compiled_model(radar, full)
+        first, u = block.layout.locate(radar.path, radar.time_s - full[4])
+        rates = basis_derivative(u) / block.layout.spacing_s
+        expected = _plots_numpy(radar, c, first, basis(u), rates, full)
+        got = _plots_compiled(radar, c, first, basis(u), rates, full)
+        for name, a, b in zip(("e", "hx", "hb", "position", "velocity"), expected, got,
+                              strict=True):
+            assert a.shape == b.shape, name
+            assert np.abs(a - b).max() <= 1e-10 * max(np.abs(a).max(), 1.0), name
+        assert np.abs(expected[2][:, :, -1]).max() > 0  # the time offset's column
+        kinds.add(radar.ndim)
+        without = _plots_compiled(radar, c, first, basis(u), None, full)
+        assert without[4] is None
+        assert np.array_equal(without[0], got[0])
+    assert kinds == {2, 3}
+
+
+def test_radars_the_compiled_plots_leave_to_numpy(short_demo, monkeypatch) -> None:  # noqa: F811
+    """Refraction and azimuth eccentricity are left to the measurement model's NumPy
+    form; a plot at a radar's zenith is refused as it is there."""
+    import dataclasses
+
+    from graphcal.model.paths import basis
+    from graphcal.model.trajectory import _compiled_model, _plots_compiled
+
+    compiled_sums(monkeypatch)
+    block, named = time_offset_block(short_demo)
+    radar = block.radars[0]
+    full = radar.terms.full_terms(named[radar.radar_id])
+    assert _compiled_model(radar, full)
+    eccentric = full.copy()
+    eccentric[5] = 1e-4
+    assert not _compiled_model(radar, eccentric)
+    refracted = dataclasses.replace(
+        radar, site=dataclasses.replace(radar.site, refraction="exponential"))
+    assert not _compiled_model(refracted, full)
+    # A path straight above the radar: its azimuth has no derivative.
+    above = dataclasses.replace(radar, map_a=np.zeros((3, 3)), map_c=np.array([0.0, 0.0, 9e3]))
+    first, u = block.layout.locate(radar.path, radar.time_s)
+    with pytest.raises(ValueError, match="zenith"):
+        _plots_compiled(above, block.coefficients, first, basis(u), None, full)
+
+
+def test_compiled_heights_equal_numpys(monkeypatch) -> None:
+    """Ellipsoidal heights and verticals of points in a network frame, against
+    :func:`graphcal.core.frames.ecef_to_height_and_normal` (checked against pymap3d in
+    the frames' tests)."""
+    from graphcal.core import frames
+    from graphcal.model.trajectory import NetworkFrame
+
+    frame = NetworkFrame(np.deg2rad(48.5), np.deg2rad(2.3))
+    rng = np.random.default_rng(9)
+    enu = rng.uniform(-400e3, 400e3, (5000, 3))
+    enu[:, 2] = rng.uniform(-500.0, 15e3, 5000)
+    height, normal = frames.ecef_to_height_and_normal(frame.to_ecef(enu))
+    up = frames.rotate(normal, frame.rotation)
+    compiled_sums(monkeypatch)
+    got_height, got_up = frame.heights_and_up(enu)
+    assert np.abs(got_height - height).max() <= 1e-7  # metres
+    assert np.abs(got_up - up).max() <= 1e-14
+    assert np.allclose(np.linalg.norm(got_up, axis=1), 1.0, rtol=0, atol=1e-14)
