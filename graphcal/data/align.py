@@ -24,7 +24,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from graphcal.core import frames
-from graphcal.core.grouped import group_order
+from graphcal.core.grouped import group_order, group_rows
 from graphcal.core.refraction import refracted_polar_jacobian
 from graphcal.core.rows import take_rows
 from graphcal.core.solve_options import DEFAULT_ADSB_MAX_GAP_S
@@ -342,9 +342,14 @@ def bracket_in_blocks(
     ``key`` is ``block number + 1j * time_s`` (sorted, as numpy orders complex
     numbers by real then imaginary part).  Query ``i`` is bracketed in block
     ``code[i]``, rows ``lo[i]:hi[i]``, exactly as :func:`bracket` would on that
-    block alone; the returned ``j`` are global rows.
+    block alone; the returned ``j`` are global rows.  The queries are searched
+    block by block (:func:`~graphcal.core.grouped.group_rows`): close keys keep the
+    search's memory accesses close, a fifth of the time of the plots' time order.
     """
-    position = np.searchsorted(key, code + 1j * query_time_s, side="right")
+    order = group_rows(code)
+    position = np.empty(len(code), dtype=np.intp)
+    position[order] = np.searchsorted(key, code[order] + 1j * query_time_s[order],
+                                      side="right")
     j = np.clip(position - 1, lo, np.maximum(hi - 2, lo))
     last = max(len(time_s) - 1, 0)
     t0, t1 = time_s[j], time_s[np.minimum(j + 1, last)]

@@ -487,6 +487,23 @@ def heights_and_up(enu, rotation, origin):  # pragma: no cover - compiled
     return height, up
 
 
+@_jit
+def band_matvec(band, x):  # pragma: no cover - compiled
+    """``A x`` for the symmetric matrix whose lower band is ``band`` (``band[d, i] =
+    A[i + d, i]``), ``x`` (n,)."""
+    width1, n = band.shape
+    y = np.zeros(n)
+    for i in range(n):
+        xi = x[i]
+        yi = band[0, i] * xi
+        for d in range(1, min(width1, n - i)):
+            a = band[d, i]
+            yi += a * x[i + d]
+            y[i + d] += a * xi
+        y[i] += yi
+    return y
+
+
 __all__ = ["accumulate", "add_block", "add_blocks", "adsb_reports", "adsb_sums", "band_forward",
-           "evaluate", "heights_and_up", "motion_prior", "plot_linearisation",
+           "band_matvec", "evaluate", "heights_and_up", "motion_prior", "plot_linearisation",
            "scatter_vectors"]

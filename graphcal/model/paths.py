@@ -374,7 +374,11 @@ def _int64(array: IntArray) -> IntArray:
 
 
 def band_matvec(band: FloatArray, x: FloatArray) -> FloatArray:
-    """``A x`` for the symmetric matrix whose lower band is ``band`` (x: (n,) or (n, k))."""
+    """``A x`` for the symmetric matrix whose lower band is ``band`` (x: (n,) or (n, k));
+    for a vector in one compiled pass when the compiled loops are used."""
+    if path_kernels.enabled() and x.ndim == 1:
+        return path_kernels.compiled().band_matvec(np.asfortranarray(band, dtype=np.float64),
+                                                   _contiguous(x))
     y = band[0].reshape((-1,) + (1,) * (x.ndim - 1)) * x
     for d in range(1, band.shape[0]):
         diagonal = band[d, :-d].reshape((-1,) + (1,) * (x.ndim - 1))

@@ -250,3 +250,23 @@ def test_compiled_heights_equal_numpys(monkeypatch) -> None:
     assert np.abs(got_height - height).max() <= 1e-7  # metres
     assert np.abs(got_up - up).max() <= 1e-14
     assert np.allclose(np.linalg.norm(got_up, axis=1), 1.0, rtol=0, atol=1e-14)
+
+
+def test_compiled_band_product_equals_numpys(numpy_sums, monkeypatch) -> None:
+    """``A x`` of a symmetric band (half-bandwidth 11) against NumPy's diagonal-by-diagonal
+    sums and the dense product."""
+    from graphcal.model.paths import band_matvec
+
+    first, weights, info, vectors, _ = random_measurements(500, 80, seed=8)
+    band = band_zeros(240)
+    add_measurement_blocks(band, first, weights, info)
+    x = np.random.default_rng(8).normal(size=240)
+    expected = band_matvec(band, x)
+    dense = np.zeros((240, 240))
+    for d in range(band.shape[0]):
+        dense += np.diag(band[d, : 240 - d], -d) + (np.diag(band[d, : 240 - d], d) if d else 0)
+    assert np.allclose(dense @ x, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    compiled_sums(monkeypatch)
+    got = band_matvec(band, x)
+    assert np.abs(got - expected).max() <= 1e-13 * np.abs(expected).max()
+    assert np.array_equal(band_matvec(band, np.stack([x, x], axis=1))[:, 1], expected)
