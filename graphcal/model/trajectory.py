@@ -488,12 +488,11 @@ class TrajectoryBlock:
         e_h = ((predicted - reported) / ALTITUDE_SIGMA_M)[:, None]
         hx_h = (up * per_metre)[:, None, :]
         blocks = []
-        if len(cols):
-            hb_h = np.zeros((len(e_h), 1, len(cols)))
-            if velocity is not None:
-                k = free_names.index("time_offset")
-                hb_h[:, 0, k] = -np.einsum("ni,ni->n", up, take_rows(velocity, has)) * per_metre
-            blocks.append((hb_h, cols))
+        if len(cols) and velocity is not None:
+            # Of the radar's terms only the time offset moves the reported height.
+            k = free_names.index("time_offset")
+            hb_tau = -np.einsum("ni,ni->n", up, take_rows(velocity, has)) * per_metre
+            blocks.append((hb_tau[:, None, None], cols[k:k + 1]))
         if len(height_cols):
             hb_model = -np.stack([np.ones_like(predicted), predicted], axis=-1)[:, None, :]
             blocks.append((hb_model * per_metre, height_cols))
