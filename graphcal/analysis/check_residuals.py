@@ -8,7 +8,7 @@ regressors the checks fit out, :func:`graphcal.analysis.binned_test.fit_terms`).
   interpolated to the plot's true time (:func:`graphcal.data.align.align_adsb`,
   as :func:`graphcal.model.measurement.residual_stats` does); variance the
   radar's plus the ADS-B covariance mapped to polar
-  (:func:`graphcal.model.measurement.reference_polar_covariance`).  Regressors:
+  (:func:`graphcal.model.measurement.polar_noise_variances`).  Regressors:
   range ``1, r`` (``r`` when the radar's model has a range gain) and the range
   rate (time offset); azimuth and elevation ``1`` and their rates.  A 2-D radar's
   reported (Mode C) altitude is a residual too: altitude minus the ADS-B height,
@@ -60,7 +60,7 @@ from graphcal.model.factor_set import polar_rate
 from graphcal.model.measurement import (
     measured_polar,
     measurement_model,
-    reference_polar_covariance,
+    polar_noise_variances,
 )
 from graphcal.model.problem import Problem, as_problem
 
@@ -182,7 +182,7 @@ def adsb_radar_residuals(
     model = measurement_model(site)
     corrected = model.inverse_function(measured_polar(al), bias)
     ref = al.reference_polar
-    noise = model.covar(len(al)) + reference_polar_covariance(al, site)
+    noise = polar_noise_variances(al, site)
     rate = polar_rate(site, al)
     ones = np.ones(len(al))
     range_terms = [ones, rate[:, 0]]
@@ -195,7 +195,7 @@ def adsb_radar_residuals(
         "range": corrected[:, 0] - ref[:, 0],
         "azimuth": frames.wrap_to_pi(corrected[:, 1] - ref[:, 1]),
     }
-    variances = {"range": noise[:, 0, 0], "azimuth": noise[:, 1, 1]}
+    variances = {"range": noise[:, 0], "azimuth": noise[:, 1]}
     regressors = {
         "range": np.stack(range_terms, axis=1),
         "azimuth": np.stack(azimuth_terms, axis=1),
@@ -205,7 +205,7 @@ def adsb_radar_residuals(
     variables["time"] = al.plots.time_s
     if site.is_3d:
         residuals["elevation"] = corrected[:, 2] - ref[:, 2]
-        variances["elevation"] = noise[:, 2, 2]
+        variances["elevation"] = noise[:, 2]
         regressors["elevation"] = np.stack([ones, rate[:, 2]], axis=1)
     elif np.any(np.isfinite(al.plots.altitude_m)):
         reported = al.plots.altitude_m

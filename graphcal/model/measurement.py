@@ -361,21 +361,59 @@ def reference_polar_covariance(al: AdsbAlignment, site: Site | None = None) -> F
     return al.derived[key]
 
 
-def _reference_polar_covariance(al: AdsbAlignment, site: Site | None) -> FloatArray:
+def _reference_polar_jacobian(al: AdsbAlignment, site: Site | None) -> FloatArray:
+    """``d polar / d enu`` ``(n, 3, 3)`` at the ADS-B references (along refracted rays
+    when ``site`` has an atmosphere)."""
     if site is not None and site.atmosphere is not None:
         jac = al.reference_polar_jacobian
         if jac is None:
             _, jac = measurement_model(site).enu_jacobian(site.enu_from_ecef(al.reference_ecef_m))
-    else:
-        enu = frames.polar_to_enu(*al.reference_polar.T)
-        jac = frames.enu_to_polar_jacobian(enu)
+        return jac
+    return frames.enu_to_polar_jacobian(frames.polar_to_enu(*al.reference_polar.T))
+
+
+def _diagonal_enu_covariance(al: AdsbAlignment) -> FloatArray | None:
+    """The ADS-B positions' ENU variances ``(n, 3)`` when their covariances are diagonal
+    (as :func:`~graphcal.data.align.align_adsb` makes them), else ``None``."""
     cov = al.reference_enu_cov_m2
     if cov.ndim == 3 and cov.shape[1:] == (3, 3) and not np.any(
             cov[:, [0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]]):
-        # Diagonal (as align_adsb makes it): jac @ cov is jac with its columns scaled,
-        # exactly, so one product is spared.
-        return congruent_diagonal(jac, np.diagonal(cov, axis1=1, axis2=2))
+        return np.diagonal(cov, axis1=1, axis2=2)
+    return None
+
+
+def _reference_polar_covariance(al: AdsbAlignment, site: Site | None) -> FloatArray:
+    jac = _reference_polar_jacobian(al, site)
+    diagonal = _diagonal_enu_covariance(al)
+    if diagonal is not None:
+        # jac @ cov is jac with its columns scaled, exactly, so one product is spared.
+        return congruent_diagonal(jac, diagonal)
+    cov = al.reference_enu_cov_m2
     return jac @ cov @ np.swapaxes(jac, -1, -2)
+
+
+def polar_noise_variances(al: AdsbAlignment, site: Site) -> FloatArray:
+    """The variances ``(n, 3)`` [m², rad²] of the aligned plots' residuals against ADS-B,
+    coordinate by coordinate: the radar's own (:meth:`RadarMeasurementModel.covar`'s
+    diagonal, 0 for a 2-D radar's elevation) plus the ADS-B position's in polar
+    coordinates (the diagonal of :func:`reference_polar_covariance`, the same values;
+    formed without its other entries when it has not been computed)."""
+    refracted = site.atmosphere is not None
+    key = "reference_polar_covariance" + (" refracted" if refracted else "")
+    own = np.diagonal(measurement_model(site).covar(1)[0])
+    cached = al.derived.get(key)
+    diagonal = _diagonal_enu_covariance(al) if cached is None else None
+    if cached is not None or diagonal is None:
+        return own + np.diagonal(reference_polar_covariance(al, site), axis1=1, axis2=2)
+    jac = _reference_polar_jacobian(al, site if refracted else None)
+    scaled = jac * diagonal[:, None, :]
+    variances = np.empty((len(jac), 3))
+    for a in range(3):  # the diagonal of congruent_diagonal, term by term in the same order
+        value = scaled[:, a, 0] * jac[:, a, 0]
+        for c in range(1, jac.shape[-1]):
+            value = value + scaled[:, a, c] * jac[:, a, c]
+        variances[:, a] = own[a] + value
+    return variances
 
 
 def residual_stats(site: Site, al: AdsbAlignment, bias: RadarBias) -> ResidualStats:
@@ -388,7 +426,7 @@ def residual_stats(site: Site, al: AdsbAlignment, bias: RadarBias) -> ResidualSt
     model = measurement_model(site)
     measured = measured_polar(al)
     ref = al.reference_polar
-    noise = model.covar(len(al)) + reference_polar_covariance(al, site)
+    variances = polar_noise_variances(al, site)
 
     def stats(b: RadarBias) -> tuple[dict[str, dict[str, float]], float]:
         corrected = model.inverse_function(measured, b)
@@ -405,7 +443,7 @@ def residual_stats(site: Site, al: AdsbAlignment, bias: RadarBias) -> ResidualSt
                 "mean_abs": float(np.mean(np.abs(res)) * unit),
                 "rms": float(np.sqrt(np.mean(res**2)) * unit),
             }
-            chi2 += float(np.sum(res**2 / noise[:, k, k]))
+            chi2 += float(np.sum(res**2 / variances[:, k]))
         return out, chi2
 
     before, _ = stats(RadarBias())

@@ -45,7 +45,7 @@ from graphcal.model.factor_set import polar_rate
 from graphcal.model.measurement import (
     measured_polar,
     measurement_model,
-    reference_polar_covariance,
+    polar_noise_variances,
 )
 from graphcal.model.problem import Problem
 
@@ -150,13 +150,13 @@ def _adsb_sums(problem: Problem, rid: str, bias: Any, max_gap_s: float
     reference = al.reference_polar
     if abs(tau) > NEGLIGIBLE_TIME_OFFSET_S and not exact:
         reference = reference - polar_rate(site, al) * tau
-    noise = model.covar(len(al)) + reference_polar_covariance(al, site)
+    noise = polar_noise_variances(al, site)
     residuals = {"range": corrected[:, 0] - reference[:, 0],
                  "azimuth": frames.wrap_to_pi(corrected[:, 1] - reference[:, 1])}
-    variances = {"range": noise[:, 0, 0], "azimuth": noise[:, 1, 1]}
+    variances = {"range": noise[:, 0], "azimuth": noise[:, 1]}
     if site.is_3d:
         residuals["elevation"] = corrected[:, 2] - reference[:, 2]
-        variances["elevation"] = noise[:, 2, 2]
+        variances["elevation"] = noise[:, 2]
     with np.errstate(invalid="ignore", divide="ignore"):
         z = {c: residuals[c] / np.sqrt(variances[c]) for c in residuals}
     keep = ~outlier_rows(z.values())

@@ -521,3 +521,24 @@ def test_adsb_factor_jacobian_is_minus_w_d_terms(dataset, radar: str) -> None:
     np.testing.assert_allclose(np.einsum("nij,nj->ni", w, res), e, rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(w @ jac_all[:, :, [TERM_NAMES.index(n) for n in free]], jac,
                                rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("refraction", ["none", "exponential"])
+def test_polar_noise_variances_are_the_noise_covariances_diagonal(dataset, refraction) -> None:
+    """A radar's plus the ADS-B's variances, coordinate by coordinate, formed alone and
+    after the ADS-B covariance has been computed: the diagonal of ``covar + J C J^T``."""
+    import dataclasses
+
+    from graphcal.model.measurement import measurement_model, polar_noise_variances
+
+    for radar in ("A", "B"):
+        site = dataclasses.replace(dataset.sites[radar], refraction=refraction)
+        data = dataclasses.replace(dataset, sites={**dataset.sites, radar: site})
+        al = align_adsb(data, radar)
+        alone = polar_noise_variances(al, site)
+        full = measurement_model(site).covar(len(al)) + reference_polar_covariance(al, site)
+        expected = np.diagonal(full, axis1=1, axis2=2)
+        assert np.abs(alone - expected).max() <= 1e-15 * np.abs(expected).max()
+        assert np.array_equal(polar_noise_variances(al, site), expected)  # computed now
+        reference = np.diagonal(reference_polar_covariance(al, site), axis1=1, axis2=2)
+        assert np.array_equal(alone[:, 2] == reference[:, 2], np.full(len(al), not site.is_3d))
