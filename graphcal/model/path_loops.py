@@ -80,11 +80,12 @@ def accumulate(band, gradient, cross, bias_information, bias_gradient, first, we
     weights ``w`` into the normal equations: ``(B B^T) kron (Hx^T w Hx)`` into ``band``,
     ``B kron (Hx^T w e)`` into ``gradient``, ``B kron (Hx^T w Hb)`` into the bias
     ``columns`` of ``cross``, and ``Hb^T w Hb``, ``Hb^T w e`` into the bias information and
-    gradient.  ``hx`` (n, m, 3), ``hb`` (n, m, k), ``e`` (n, m), ``w`` (n,)."""
+    gradient.  ``hx`` (n, m, 3), ``hb`` (n, m, k), ``e`` (n, m), ``w`` (n,).  A measurement's
+    sums over its ``m`` rows are kept in scalars, and the zero entries of ``Hb`` (a bias
+    term moves one coordinate) are skipped: the same sums."""
     n, m = e.shape[0], e.shape[1]
     k = columns.shape[0]
     info = np.zeros((3, 3))
-    g = np.zeros(3)
     kx = np.zeros((3, k))
     bias_info = np.zeros((k, k))
     bias_grad = np.zeros(k)
@@ -92,39 +93,50 @@ def accumulate(band, gradient, cross, bias_information, bias_gradient, first, we
         wi = w[i]
         if wi == 0.0:
             continue
+        i00 = i01 = i02 = i11 = i12 = i22 = 0.0
+        g0 = g1 = g2 = 0.0
         for x in range(3):
-            g[x] = 0.0
-            for y in range(3):
-                info[x, y] = 0.0
             for b in range(k):
                 kx[x, b] = 0.0
         for r in range(m):
+            h0, h1, h2 = hx[i, r, 0], hx[i, r, 1], hx[i, r, 2]
             er = wi * e[i, r]
-            for x in range(3):
-                hrx = hx[i, r, x]
-                whrx = wi * hrx
-                g[x] += hrx * er
-                for y in range(x, 3):
-                    info[x, y] += whrx * hx[i, r, y]
-                for b in range(k):
-                    kx[x, b] += whrx * hb[i, r, b]
+            g0 += h0 * er
+            g1 += h1 * er
+            g2 += h2 * er
+            w0, w1, w2 = wi * h0, wi * h1, wi * h2
+            i00 += w0 * h0
+            i01 += w0 * h1
+            i02 += w0 * h2
+            i11 += w1 * h1
+            i12 += w1 * h2
+            i22 += w2 * h2
             for b in range(k):
-                whrb = wi * hb[i, r, b]
-                bias_grad[b] += hb[i, r, b] * er
+                hrb = hb[i, r, b]
+                if hrb == 0.0:
+                    continue
+                kx[0, b] += w0 * hrb
+                kx[1, b] += w1 * hrb
+                kx[2, b] += w2 * hrb
+                whrb = wi * hrb
+                bias_grad[b] += hrb * er
                 for b2 in range(b, k):
                     bias_info[b, b2] += whrb * hb[i, r, b2]
-        info[1, 0] = info[0, 1]
-        info[2, 0] = info[0, 2]
-        info[2, 1] = info[1, 2]
+        info[0, 0], info[1, 1], info[2, 2] = i00, i11, i22
+        info[1, 0] = info[0, 1] = i01
+        info[2, 0] = info[0, 2] = i02
+        info[2, 1] = info[1, 2] = i12
         base = 3 * first[i]
         add_block(band, base, weights[i], info)
         for a in range(4):
             wa = weights[i, a]
+            row = base + 3 * a
+            gradient[row] += wa * g0
+            gradient[row + 1] += wa * g1
+            gradient[row + 2] += wa * g2
             for x in range(3):
-                row = base + 3 * a + x
-                gradient[row] += wa * g[x]
                 for b in range(k):
-                    cross[row, columns[b]] += wa * kx[x, b]
+                    cross[row + x, columns[b]] += wa * kx[x, b]
     for b in range(k):
         bias_gradient[columns[b]] += bias_grad[b]
         for b2 in range(b, k):
