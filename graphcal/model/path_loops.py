@@ -516,6 +516,33 @@ def band_matvec(band, x):  # pragma: no cover - compiled
     return y
 
 
-__all__ = ["accumulate", "add_block", "add_blocks", "adsb_reports", "adsb_sums", "band_forward",
-           "band_matvec", "evaluate", "heights_and_up", "motion_prior", "plot_linearisation",
-           "scatter_vectors"]
+@_jit
+def add_plot_positions(band, rhs, first, weights, range_m, azimuth, elevation, weight, map_a,
+                       map_c):  # pragma: no cover - compiled
+    """The first fit's plots into its normal equations: each plot's position (its polar
+    coordinates to the radar's ENU, then to the frame of the paths, ``p = A^T (enu - c)``)
+    with the isotropic information ``weight`` [1/m^2]: ``(B B^T) kron (weight I)`` into
+    ``band`` (only the blocks' diagonals), ``B kron (weight p)`` into ``rhs``.  Plots of zero
+    weight are skipped."""
+    for i in range(first.shape[0]):
+        wi = weight[i]
+        if wi == 0.0:
+            continue
+        ground = range_m[i] * np.cos(elevation[i])
+        e0 = ground * np.sin(azimuth[i]) - map_c[0]
+        e1 = ground * np.cos(azimuth[i]) - map_c[1]
+        e2 = range_m[i] * np.sin(elevation[i]) - map_c[2]
+        base = 3 * first[i]
+        for x in range(3):
+            local = e0 * map_a[0, x] + e1 * map_a[1, x] + e2 * map_a[2, x]
+            scaled = wi * local
+            for a in range(4):
+                wa = weights[i, a]
+                rhs[base + 3 * a + x] += wa * scaled
+                for c in range(a, 4):
+                    band[3 * (c - a), base + 3 * a + x] += (wa * weights[i, c]) * wi
+
+
+__all__ = ["accumulate", "add_block", "add_blocks", "add_plot_positions", "adsb_reports",
+           "adsb_sums", "band_forward", "band_matvec", "evaluate", "heights_and_up",
+           "motion_prior", "plot_linearisation", "scatter_vectors"]

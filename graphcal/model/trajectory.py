@@ -1217,12 +1217,21 @@ def _initial_plot_system(block: TrajectoryBlock, named: dict[str, FloatArray]
         ok &= np.isfinite(r) & (r > 0.0)  # a range no correction makes positive: left out
         r = np.where(ok, r, 1.0)
         el = np.where(ok, el, 0.0)
-        enu = frames.polar_to_enu(r, az, el)
-        local = frames.rotate(enu - radar.map_c, radar.map_a.T)  # radar ENU = A p + c
         sigma = np.maximum(site.sigma_range_m, r * site.sigma_azimuth_rad)
         weight = np.where(ok, 1.0 / sigma**2, 0.0)
         first, u = layout.locate(radar.path, radar.time_s - full[4])
         weights = basis(u)
+        if path_kernels.enabled():  # the same sums in one compiled pass
+            plots_rhs = np.zeros(n)
+            path_kernels.compiled().add_plot_positions(
+                band, plots_rhs, np.ascontiguousarray(first, dtype=np.int64), weights,
+                np.ascontiguousarray(r), np.ascontiguousarray(az, dtype=float),
+                np.ascontiguousarray(el, dtype=float), weight,
+                np.ascontiguousarray(radar.map_a), np.ascontiguousarray(radar.map_c))
+            rhs += plots_rhs
+            continue
+        enu = frames.polar_to_enu(r, az, el)
+        local = frames.rotate(enu - radar.map_c, radar.map_a.T)  # radar ENU = A p + c
         info = weight[:, None, None] * np.eye(3)[None]
         kept_weights = take_rows(weights, ok)
         add_measurement_blocks(band, first[ok], kept_weights, take_rows(info, ok))

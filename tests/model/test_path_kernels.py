@@ -270,3 +270,17 @@ def test_compiled_band_product_equals_numpys(numpy_sums, monkeypatch) -> None:
     got = band_matvec(band, x)
     assert np.abs(got - expected).max() <= 1e-13 * np.abs(expected).max()
     assert np.array_equal(band_matvec(band, np.stack([x, x], axis=1))[:, 1], expected)
+
+
+def test_compiled_first_fit_equals_numpys(short_demo, numpy_sums, monkeypatch) -> None:  # noqa: F811
+    """The first fit's plots (converted at the initial biases, 2-D at their heights) in
+    its normal equations, summed with isotropic blocks in one compiled pass."""
+    from graphcal.model.trajectory import _initial_plot_system
+
+    block, values = truth_block(short_demo, use_adsb=True)
+    named = block._split([v + 1e-4 for v in values])
+    expected_band, expected_rhs = _initial_plot_system(block, named)
+    compiled_sums(monkeypatch)
+    band, rhs = _initial_plot_system(block, named)
+    assert np.abs(band - expected_band).max() <= 1e-13 * np.abs(expected_band).max()
+    assert np.abs(rhs - expected_rhs).max() <= 1e-12 * np.abs(expected_rhs).max()
