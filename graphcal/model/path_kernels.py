@@ -124,6 +124,7 @@ def _warm(kernels: Any) -> None:
                                    np.zeros(2, dtype=np.int64), np.array([0, 2]))
     kernels.heights_and_up(np.ones((1, 3)), np.eye(3), np.full(3, 6.4e6))
     kernels.band_matvec(band, np.ones(12))
+    kernels.basis(np.full(2, 0.5))
     kernels.add_plot_positions(band, np.zeros(12), first, weights, np.ones(1), np.zeros(1),
                                np.zeros(1), np.ones(1), np.eye(3), np.zeros(3))
     # The bias columns as a view of a wider array (the trajectory's stacked right side).

@@ -543,6 +543,24 @@ def add_plot_positions(band, rhs, first, weights, range_m, azimuth, elevation, w
                     band[3 * (c - a), base + 3 * a + x] += (wa * weights[i, c]) * wi
 
 
+@_jit
+def basis(u):  # pragma: no cover - compiled
+    """:func:`graphcal.model.paths.basis`, value by value: the uniform cubic B-spline
+    weights ``(n, 4)`` at the interval fractions ``u``."""
+    n = u.shape[0]
+    out = np.empty((n, 4))
+    for i in range(n):
+        x = u[i]
+        x2 = x * x
+        x3 = x2 * x
+        v = 1.0 - x
+        out[i, 0] = (v * v * v) / 6.0
+        out[i, 1] = (3.0 * x3 - 6.0 * x2 + 4.0) / 6.0
+        out[i, 2] = (-3.0 * x3 + 3.0 * x2 + 3.0 * x + 1.0) / 6.0
+        out[i, 3] = x3 / 6.0
+    return out
+
+
 __all__ = ["accumulate", "add_block", "add_blocks", "add_plot_positions", "adsb_reports",
-           "adsb_sums", "band_forward", "band_matvec", "evaluate", "heights_and_up",
+           "adsb_sums", "band_forward", "band_matvec", "basis", "evaluate", "heights_and_up",
            "motion_prior", "plot_linearisation", "scatter_vectors"]

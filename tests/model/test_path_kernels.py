@@ -48,6 +48,7 @@ def test_compiled_sums_equal_numpys(numpy_sums, monkeypatch) -> None:
     expected_vector = scatter_vectors(first, weights, vectors, 900)
     expected_paths = evaluate_paths(coefficients, first, weights)
     expected_squares = weighted_squares(coefficients, first, weights, vectors, info)
+    expected_basis = basis(np.random.default_rng(3).uniform(-0.2, 1.2, 500))
     residual = expected_paths - vectors  # a third way: one measurement at a time
     assert np.isclose(expected_squares[5], residual[5] @ info[5] @ residual[5])
     compiled_sums(monkeypatch)
@@ -59,6 +60,9 @@ def test_compiled_sums_equal_numpys(numpy_sums, monkeypatch) -> None:
                        rtol=0, atol=1e-12)
     assert np.allclose(evaluate_paths(coefficients, first, weights), expected_paths,
                        rtol=0, atol=1e-12)
+    u = np.random.default_rng(3).uniform(-0.2, 1.2, 500)  # extrapolated a little too
+    assert np.allclose(basis(u), expected_basis, rtol=0, atol=1e-15)
+    assert np.allclose(basis(u).sum(axis=1), 1.0, rtol=0, atol=1e-15)
     assert np.allclose(weighted_squares(coefficients, first, weights, vectors, info),
                        expected_squares, rtol=1e-12, atol=0)
 
