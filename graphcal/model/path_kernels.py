@@ -9,7 +9,10 @@ with the same sums in another order (equal to rounding, tested).  The band's
 Cholesky factor too (its half-bandwidth unrolled: three times LAPACK's ``dpbtrf``,
 whose unblocked loop of level-2 calls is slow for so narrow a band), each grid point
 of the process-noise search in one pass, and the ADS-B reports' chi-square on the
-paths.
+paths.  And the measurements themselves: each radar's plots linearised on the paths
+(positions, polar coordinates and Jacobians, the bias model, for a radar without
+refraction or azimuth eccentricity), the reported heights' verticals, the first fit's
+plots, the B-spline basis and the band's product with a vector.
 
 Compiling costs about 0.6 s in each process that uses them (loading Numba and its
 cached machine code; the first run on a machine also compiles, a few seconds, and
@@ -31,16 +34,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from graphcal.model.kernel_codes import TERM_ADDITIVE, TERM_RANGE_GAIN, TERM_TIME_OFFSET
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 #: Environment variable: ``numpy`` keeps the NumPy sums, ``numba`` uses the compiled
 #: loops wherever possible (also for small problems).
 KERNELS_ENV = "GRAPHCAL_KERNELS"
-#: Kinds of a free bias term's column in ``path_loops.plot_linearisation``: a unit
-#: entry on the term's row, the true range (the range gain), or the time offset's
-#: ``-(d h / d p) v``.
-TERM_ADDITIVE, TERM_RANGE_GAIN, TERM_TIME_OFFSET = 0, 1, 2
 
 _state: dict[str, Any] = {"enabled": False, "module": None}
 

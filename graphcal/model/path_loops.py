@@ -15,7 +15,7 @@ import numpy as np
 from graphcal.core.frames import WGS84_A_M as _A
 from graphcal.core.frames import WGS84_B_M as _B
 from graphcal.core.frames import WGS84_E2 as _E2
-from graphcal.model.path_kernels import TERM_ADDITIVE, TERM_RANGE_GAIN
+from graphcal.model.kernel_codes import TERM_ADDITIVE, TERM_RANGE_GAIN
 
 _jit = numba.njit(cache=True, nogil=True)
 
@@ -374,7 +374,7 @@ def plot_linearisation(coefficients, first, weights, rates, map_a, map_c, measur
 
     ``bias``: range offset [m], range gain, azimuth and elevation biases [rad];
     ``whiten`` (ndim,) the inverse sigmas; per free term ``k`` its column's kind
-    (:data:`~graphcal.model.path_kernels.TERM_ADDITIVE` on row ``term_row[k]``,
+    (:data:`~graphcal.model.kernel_codes.TERM_ADDITIVE` on row ``term_row[k]``,
     ``TERM_RANGE_GAIN``, or ``TERM_TIME_OFFSET``: ``-(d h / d p) v``, ``v`` the path's
     velocity from the basis ``rates`` (n, 4), given when the time offset is free).
 

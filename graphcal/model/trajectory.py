@@ -457,8 +457,8 @@ class TrajectoryBlock:
         free_names = terms.free
         rates = (_basis_rate(u, self.layout.spacing_s) if "time_offset" in free_names
                  else None)
-        linearise = (_plots_compiled if path_kernels.enabled() and _compiled_model(radar, full)
-                     else _plots_numpy)
+        compiled = path_kernels.enabled() and compiled_plot_model(radar, full)
+        linearise = plots_on_paths_compiled if compiled else plots_on_paths
         e, hx, hb, position, velocity = linearise(radar, c, first, weights, rates, full)
         cols = columns.get(radar.radar_id, np.zeros(0, dtype=np.int64))
         if len(cols) == 0:
@@ -819,7 +819,7 @@ def noise_likelihood_terms(data_band: FloatArray, data_gradient: FloatArray,
             np.bincount(unknown_phase, factor.log_diagonal(), minlength=n_phases))
 
 
-def _plots_numpy(radar: RadarOnPaths, c: FloatArray, first: IntArray, weights: FloatArray,
+def plots_on_paths(radar: RadarOnPaths, c: FloatArray, first: IntArray, weights: FloatArray,
                  rates: FloatArray | None, full: FloatArray
                  ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray | None]:
     """A radar's plots linearised on the paths ``c``: the whitened residuals ``e``
@@ -847,18 +847,19 @@ def _plots_numpy(radar: RadarOnPaths, c: FloatArray, first: IntArray, weights: F
     return e[:, :m] * whiten[None, :], hx, hb, position, velocity
 
 
-def _compiled_model(radar: RadarOnPaths, full: FloatArray) -> bool:
-    """Whether :func:`_plots_compiled` forms this radar's model: no refraction, and no
-    azimuth eccentricity (neither its value nor its terms free)."""
+def compiled_plot_model(radar: RadarOnPaths, full: FloatArray) -> bool:
+    """Whether :func:`plots_on_paths_compiled` forms this radar's model: no refraction,
+    and no azimuth eccentricity (neither its value nor its terms free)."""
     return (radar.site.atmosphere is None and full[5] == 0.0 and full[6] == 0.0
             and all(name in _COMPILED_TERM_KINDS for name in radar.terms.free))
 
 
-def _plots_compiled(radar: RadarOnPaths, c: FloatArray, first: IntArray, weights: FloatArray,
-                    rates: FloatArray | None, full: FloatArray
-                    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray | None]:
-    """:func:`_plots_numpy` in one compiled pass (:func:`graphcal.model.path_loops.
-    plot_linearisation`), for a radar :func:`_compiled_model` accepts: the same values."""
+def plots_on_paths_compiled(radar: RadarOnPaths, c: FloatArray, first: IntArray,
+                            weights: FloatArray, rates: FloatArray | None, full: FloatArray
+                            ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray,
+                                       FloatArray | None]:
+    """:func:`plots_on_paths` in one compiled pass (:func:`graphcal.model.path_loops.
+    plot_linearisation`), for a radar :func:`compiled_plot_model` accepts: the same values."""
     free_names = radar.terms.free
     kinds = np.array([_COMPILED_TERM_KINDS[name][0] for name in free_names], dtype=np.int64)
     rows = np.array([_COMPILED_TERM_KINDS[name][1] for name in free_names], dtype=np.int64)
@@ -875,7 +876,7 @@ def _plots_compiled(radar: RadarOnPaths, c: FloatArray, first: IntArray, weights
     return e, hx, hb, position, velocity if rates is not None else None
 
 
-#: The free terms :func:`_plots_compiled` forms: the kind of their column in
+#: The free terms :func:`plots_on_paths_compiled` forms: the kind of their column in
 #: :func:`graphcal.model.path_loops.plot_linearisation` and their row.
 _COMPILED_TERM_KINDS: dict[str, tuple[int, int]] = {
     "range_offset": (path_kernels.TERM_ADDITIVE, 0),
@@ -1038,7 +1039,7 @@ def build_trajectory_block(
                     if name else np.zeros(2) for _, name, size in variables]
     if progress is not None:
         progress("aircraft paths", 0, 1)
-    plot_system = _initial_plot_system(block, block._split(start_values))
+    plot_system = initial_plot_system(block, block._split(start_values))
     block.coefficients = _initial_coefficients(block, plot_system)
     if block.adsb is not None:
         before = block.n_adsb_gated
@@ -1171,7 +1172,7 @@ def _initial_coefficients(block: TrajectoryBlock, plot_system: tuple[FloatArray,
                           ) -> FloatArray:
     """Paths fitted to the ADS-B reports (those :attr:`TrajectoryBlock.adsb` holds now)
     and the plots converted at the initial biases (``plot_system``,
-    :func:`_initial_plot_system`).  Only a start for the Gauss-Newton steps of the paths.
+    :func:`initial_plot_system`).  Only a start for the Gauss-Newton steps of the paths.
     """
     band, rhs = plot_system
     band, rhs = band.copy(order="F"), rhs.copy()
@@ -1183,7 +1184,7 @@ def _initial_coefficients(block: TrajectoryBlock, plot_system: tuple[FloatArray,
     return factor.solve(rhs).reshape(-1, 3)
 
 
-def _initial_plot_system(block: TrajectoryBlock, named: dict[str, FloatArray]
+def initial_plot_system(block: TrajectoryBlock, named: dict[str, FloatArray]
                          ) -> tuple[FloatArray, FloatArray]:
     """The normal matrix (band) and right-hand side of the first fit's plots and prior.
 
@@ -1241,4 +1242,5 @@ def _initial_plot_system(block: TrajectoryBlock, named: dict[str, FloatArray]
 
 
 __all__ = ["HALF_BANDWIDTH", "KNOT_SPACING_S", "NetworkFrame", "PROCESS_NOISE_GRID_M2_S3",
-           "TERM_NAMES", "TrajectoryBlock", "build_trajectory_block"]
+           "TERM_NAMES", "TrajectoryBlock", "build_trajectory_block", "compiled_plot_model",
+           "initial_plot_system", "plots_on_paths", "plots_on_paths_compiled"]

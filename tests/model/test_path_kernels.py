@@ -185,7 +185,11 @@ def test_compiled_plot_linearisation_equals_numpys(short_demo, monkeypatch) -> N
     residuals, both Jacobians, the positions and velocities, formed plot by plot
     against the measurement model's NumPy form."""
     from graphcal.model.paths import basis, basis_derivative
-    from graphcal.model.trajectory import _compiled_model, _plots_compiled, _plots_numpy
+    from graphcal.model.trajectory import (
+        compiled_plot_model,
+        plots_on_paths,
+        plots_on_paths_compiled,
+    )
 
     compiled_sums(monkeypatch)
     block, named = time_offset_block(short_demo)
@@ -193,18 +197,18 @@ def test_compiled_plot_linearisation_equals_numpys(short_demo, monkeypatch) -> N
     kinds = set()
     for radar in block.radars:
         full = radar.terms.full_terms(named[radar.radar_id])
-        assert _compiled_model(radar, full)
+        assert compiled_plot_model(radar, full)
         first, u = block.layout.locate(radar.path, radar.time_s - full[4])
         rates = basis_derivative(u) / block.layout.spacing_s
-        expected = _plots_numpy(radar, c, first, basis(u), rates, full)
-        got = _plots_compiled(radar, c, first, basis(u), rates, full)
+        expected = plots_on_paths(radar, c, first, basis(u), rates, full)
+        got = plots_on_paths_compiled(radar, c, first, basis(u), rates, full)
         for name, a, b in zip(("e", "hx", "hb", "position", "velocity"), expected, got,
                               strict=True):
             assert a.shape == b.shape, name
             assert np.abs(a - b).max() <= 1e-10 * max(np.abs(a).max(), 1.0), name
         assert np.abs(expected[2][:, :, -1]).max() > 0  # the time offset's column
         kinds.add(radar.ndim)
-        without = _plots_compiled(radar, c, first, basis(u), None, full)
+        without = plots_on_paths_compiled(radar, c, first, basis(u), None, full)
         assert without[4] is None
         assert np.array_equal(without[0], got[0])
     assert kinds == {2, 3}
@@ -216,24 +220,24 @@ def test_radars_the_compiled_plots_leave_to_numpy(short_demo, monkeypatch) -> No
     import dataclasses
 
     from graphcal.model.paths import basis
-    from graphcal.model.trajectory import _compiled_model, _plots_compiled
+    from graphcal.model.trajectory import compiled_plot_model, plots_on_paths_compiled
 
     compiled_sums(monkeypatch)
     block, named = time_offset_block(short_demo)
     radar = block.radars[0]
     full = radar.terms.full_terms(named[radar.radar_id])
-    assert _compiled_model(radar, full)
+    assert compiled_plot_model(radar, full)
     eccentric = full.copy()
     eccentric[5] = 1e-4
-    assert not _compiled_model(radar, eccentric)
+    assert not compiled_plot_model(radar, eccentric)
     refracted = dataclasses.replace(
         radar, site=dataclasses.replace(radar.site, refraction="exponential"))
-    assert not _compiled_model(refracted, full)
+    assert not compiled_plot_model(refracted, full)
     # A path straight above the radar: its azimuth has no derivative.
     above = dataclasses.replace(radar, map_a=np.zeros((3, 3)), map_c=np.array([0.0, 0.0, 9e3]))
     first, u = block.layout.locate(radar.path, radar.time_s)
     with pytest.raises(ValueError, match="zenith"):
-        _plots_compiled(above, block.coefficients, first, basis(u), None, full)
+        plots_on_paths_compiled(above, block.coefficients, first, basis(u), None, full)
 
 
 def test_compiled_heights_equal_numpys(monkeypatch) -> None:
@@ -279,12 +283,12 @@ def test_compiled_band_product_equals_numpys(numpy_sums, monkeypatch) -> None:
 def test_compiled_first_fit_equals_numpys(short_demo, numpy_sums, monkeypatch) -> None:  # noqa: F811
     """The first fit's plots (converted at the initial biases, 2-D at their heights) in
     its normal equations, summed with isotropic blocks in one compiled pass."""
-    from graphcal.model.trajectory import _initial_plot_system
+    from graphcal.model.trajectory import initial_plot_system
 
     block, values = truth_block(short_demo, use_adsb=True)
     named = block._split([v + 1e-4 for v in values])
-    expected_band, expected_rhs = _initial_plot_system(block, named)
+    expected_band, expected_rhs = initial_plot_system(block, named)
     compiled_sums(monkeypatch)
-    band, rhs = _initial_plot_system(block, named)
+    band, rhs = initial_plot_system(block, named)
     assert np.abs(band - expected_band).max() <= 1e-13 * np.abs(expected_band).max()
     assert np.abs(rhs - expected_rhs).max() <= 1e-12 * np.abs(expected_rhs).max()
