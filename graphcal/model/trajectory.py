@@ -820,8 +820,8 @@ def noise_likelihood_terms(data_band: FloatArray, data_gradient: FloatArray,
 
 
 def plots_on_paths(radar: RadarOnPaths, c: FloatArray, first: IntArray, weights: FloatArray,
-                 rates: FloatArray | None, full: FloatArray
-                 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray | None]:
+                   rates: FloatArray | None, full: FloatArray
+                   ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray | None]:
     """A radar's plots linearised on the paths ``c``: the whitened residuals ``e``
     (n, m), ``hx`` (n, m, 3) and ``hb`` (n, m, free terms), the paths' positions (n, 3)
     and, with ``rates`` (the basis' rates, given when the time offset is free), their
