@@ -104,16 +104,35 @@ def congruent_diagonal(jac: FloatArray, diagonal: FloatArray) -> FloatArray:
     """
     jac = np.asarray(jac, dtype=float)
     scaled = jac * np.asarray(diagonal, dtype=float)[..., None, :]
-    m, k = jac.shape[-2], jac.shape[-1]
+    m = jac.shape[-2]
     out = np.empty(jac.shape[:-1] + (m,))
     for a in range(m):
         for b in range(a, m):
-            value = scaled[..., a, 0] * jac[..., b, 0]
-            for c in range(1, k):
-                value = value + scaled[..., a, c] * jac[..., b, c]
+            value = _congruent_entry(scaled, jac, a, b)
             out[..., a, b] = value
             out[..., b, a] = value
     return out
 
 
-__all__ = ["cholesky_inverse", "congruent_diagonal", "sum_of_products"]
+def congruent_diagonal_variances(jac: FloatArray, diagonal: FloatArray) -> FloatArray:
+    """The diagonal ``(..., m)`` of :func:`congruent_diagonal`, the same values, without
+    its other entries."""
+    jac = np.asarray(jac, dtype=float)
+    scaled = jac * np.asarray(diagonal, dtype=float)[..., None, :]
+    out = np.empty(jac.shape[:-1])
+    for a in range(jac.shape[-2]):
+        out[..., a] = _congruent_entry(scaled, jac, a, a)
+    return out
+
+
+def _congruent_entry(scaled: FloatArray, jac: FloatArray, a: int, b: int) -> FloatArray:
+    """Entry ``(a, b)`` of ``J diag(d) J^T`` for a stack, ``scaled`` being ``J diag(d)``:
+    the sum over ``k`` term by term."""
+    value = scaled[..., a, 0] * jac[..., b, 0]
+    for c in range(1, jac.shape[-1]):
+        value = value + scaled[..., a, c] * jac[..., b, c]
+    return value
+
+
+__all__ = ["cholesky_inverse", "congruent_diagonal", "congruent_diagonal_variances",
+           "sum_of_products"]

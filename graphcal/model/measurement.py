@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from graphcal.core import frames
-from graphcal.core.batched import congruent_diagonal
+from graphcal.core.batched import congruent_diagonal, congruent_diagonal_variances
 from graphcal.core.refraction import refracted_polar, refracted_polar_jacobian
 from graphcal.data.align import AdsbAlignment
 from graphcal.data.bias import (
@@ -354,11 +354,18 @@ def reference_polar_covariance(al: AdsbAlignment, site: Site | None = None) -> F
     first-order conversion, eq. 17-19); along refracted rays when ``site`` has
     an atmosphere.  Computed once per alignment (kept in ``al.derived``): read-only.
     """
-    refracted = site is not None and site.atmosphere is not None
-    key = "reference_polar_covariance" + (" refracted" if refracted else "")
+    key, refracting = _covariance_key(site)
     if key not in al.derived:
-        al.derived[key] = _reference_polar_covariance(al, site if refracted else None)
+        al.derived[key] = _reference_polar_covariance(al, refracting)
     return al.derived[key]
+
+
+def _covariance_key(site: Site | None) -> tuple[str, Site | None]:
+    """Where an alignment keeps its :func:`reference_polar_covariance`, and the site whose
+    atmosphere it is computed along (``None``: straight lines of sight)."""
+    if site is not None and site.atmosphere is not None:
+        return "reference_polar_covariance refracted", site
+    return "reference_polar_covariance", None
 
 
 def _reference_polar_jacobian(al: AdsbAlignment, site: Site | None) -> FloatArray:
@@ -398,22 +405,13 @@ def polar_noise_variances(al: AdsbAlignment, site: Site) -> FloatArray:
     diagonal, 0 for a 2-D radar's elevation) plus the ADS-B position's in polar
     coordinates (the diagonal of :func:`reference_polar_covariance`, the same values;
     formed without its other entries when it has not been computed)."""
-    refracted = site.atmosphere is not None
-    key = "reference_polar_covariance" + (" refracted" if refracted else "")
+    key, refracting = _covariance_key(site)
     own = np.diagonal(measurement_model(site).covar(1)[0])
-    cached = al.derived.get(key)
-    diagonal = _diagonal_enu_covariance(al) if cached is None else None
-    if cached is not None or diagonal is None:
+    diagonal = _diagonal_enu_covariance(al) if key not in al.derived else None
+    if diagonal is None:  # computed already, or not diagonal in ENU
         return own + np.diagonal(reference_polar_covariance(al, site), axis1=1, axis2=2)
-    jac = _reference_polar_jacobian(al, site if refracted else None)
-    scaled = jac * diagonal[:, None, :]
-    variances = np.empty((len(jac), 3))
-    for a in range(3):  # the diagonal of congruent_diagonal, term by term in the same order
-        value = scaled[:, a, 0] * jac[:, a, 0]
-        for c in range(1, jac.shape[-1]):
-            value = value + scaled[:, a, c] * jac[:, a, c]
-        variances[:, a] = own[a] + value
-    return variances
+    return own + congruent_diagonal_variances(_reference_polar_jacobian(al, refracting),
+                                              diagonal)
 
 
 def residual_stats(site: Site, al: AdsbAlignment, bias: RadarBias) -> ResidualStats:

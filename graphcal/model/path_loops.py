@@ -388,26 +388,15 @@ def plot_linearisation(coefficients, first, weights, rates, map_a, map_c, measur
     e = np.empty((n, ndim))
     hx = np.empty((n, ndim, 3))
     hb = np.zeros((n, ndim, k))
-    position = np.zeros((n, 3))
-    velocity = np.zeros((n, 3))
-    with_rates = rates.shape[0] == n
+    position = evaluate(coefficients, first, weights)
+    velocity = (evaluate(coefficients, first, rates) if rates.shape[0] == n
+                else np.zeros((n, 3)))
     offset, gain, az_bias, el_bias = bias[0], bias[1], bias[2], bias[3]
     enu = np.empty(3)
     jac = np.empty((3, 3))
     residual = np.empty(3)
     zenith = 0
     for i in range(n):
-        for j in range(4):
-            wj = weights[i, j]
-            row = first[i] + j
-            for x in range(3):
-                position[i, x] += wj * coefficients[row, x]
-        if with_rates:
-            for j in range(4):
-                rj = rates[i, j]
-                row = first[i] + j
-                for x in range(3):
-                    velocity[i, x] += rj * coefficients[row, x]
         for x in range(3):
             enu[x] = (position[i, 0] * map_a[x, 0] + position[i, 1] * map_a[x, 1]
                       + position[i, 2] * map_a[x, 2]) + map_c[x]

@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from graphcal.core.batched import cholesky_inverse, congruent_diagonal, sum_of_products
+from graphcal.core.batched import (
+    cholesky_inverse,
+    congruent_diagonal,
+    congruent_diagonal_variances,
+    sum_of_products,
+)
 
 
 @pytest.mark.parametrize("m", [1, 2, 3, 4])
@@ -53,6 +58,8 @@ def test_congruent_diagonal_is_the_matrix_product(shape) -> None:
     got = congruent_diagonal(jac, diagonal)
     np.testing.assert_allclose(got, expected, rtol=1e-13, atol=1e-13)
     assert np.array_equal(got, np.swapaxes(got, -1, -2))
+    assert np.array_equal(congruent_diagonal_variances(jac, diagonal),
+                          np.diagonal(got, axis1=-2, axis2=-1))
     # One diagonal for the whole stack.
     one = diagonal.reshape(-1, shape[-1])[0]
     np.testing.assert_allclose(congruent_diagonal(jac, one),
