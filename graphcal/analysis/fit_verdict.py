@@ -35,8 +35,17 @@ Verdict
     order of 1e-4): ranges in km or NM are *exactly* a range gain of -0.999,
     which the residuals cannot reveal.
 
-Without ADS-B each residual compares two radars, so a radar's misfit also shows
-in its partners': the radars are listed worst first.
+Without ADS-B residuals the trajectory formulation (the default) judges each radar's
+plots on the aircraft's paths it estimated (``reference`` ``"paths"``;
+``info["target_state"]["fit"]``): the whitened residuals of the plots on the paths, in
+their own coordinates and through the same measurement model (refraction, eccentricity,
+time offsets) as the estimate, with ``dof`` their count less the share of the paths'
+unknowns they take (:meth:`graphcal.model.trajectory.TrajectoryBlock.residual_fit`) and
+less the radar's terms.  On the scenarios these are within 1.00 +- 0.03 of 1 where the
+pairwise comparison of two radars' plots (``"cross"``: interpolated partner, converted
+plots) gives up to 2.6 for the 3-D radars' elevations.  Otherwise, without ADS-B, each
+residual compares two radars (``"cross"``).  Either way one radar's misfit also shows in
+the others': the radars are listed worst first.
 
 Widening (:func:`sigma_inflation`)
     Between 1 and the limit the fit passes, yet the sigmas, computed from the stated
@@ -207,9 +216,10 @@ class FitVerdict:
 
     Attributes
     ----------
-    reference : {"adsb", "cross", "none"}
-        What the residuals were measured against (over windows: ``"adsb"`` when
-        any window's were).
+    reference : {"adsb", "paths", "cross", "none"}
+        What the residuals were measured against: ADS-B, the aircraft's paths (the
+        trajectory formulation without ADS-B residuals), the other radars' plots
+        (pairwise), or nothing (over windows: ``"adsb"`` when any window's were).
     radars : dict of str to RadarFit
         Over windows: each radar's fit in its worst window (a failing one when it
         failed anywhere).
@@ -257,6 +267,13 @@ class FitVerdict:
                 "(azimuth in degrees, range and heights in metres, ADS-B latitude and "
                 "longitude, the sites' positions and heights; a range gain of -0.999 is "
                 "ranges in km) and the sigmas in sites.toml")
+        if self.reference == "paths":
+            text += (" (without ADS-B each radar's plots are judged on the aircraft's paths, "
+                     "which every radar's plots shape, so one radar's misfit bends the paths "
+                     "and shows in the others' too; the worst is named first), and each "
+                     "radar's clock: a time-stamping bias of a second or more moves its "
+                     "plots along track, and without ADS-B it is not estimated (calibrate "
+                     "with ADS-B to estimate time_offset_s)")
         if self.reference == "cross":
             text += (" (without ADS-B each residual compares two radars, so one radar's "
                      "misfit shows in its partners' too; the worst is named first), and "
@@ -462,6 +479,11 @@ def fit_verdict(
     problem = as_problem(data)
     dataset = problem.dataset
     negative = negative_ranges(dataset, cal)
+    on_paths = paths_sums(cal)
+    if checks is not None and checks.reference == "adsb":
+        on_paths = None
+    if on_paths is not None:
+        return verdict_from_sums(cal, "paths", on_paths, p=p, floor=floor, negative=negative)
     if checks is not None:
         sums = {rid: {c: (r.chi2_per_dof[c] * r.n_residuals[c], r.n_residuals[c])
                       for c in r.chi2_per_dof if c in r.n_residuals}
@@ -474,6 +496,23 @@ def fit_verdict(
                                                    adsb_max_gap_s=adsb_max_gap_s)
     sums = {rid: normalised_sums(res) for rid, res in residuals.items()}
     return verdict_from_sums(cal, reference, sums, p=p, floor=floor, negative=negative)
+
+
+def paths_sums(cal: Calibration) -> dict[str, dict[str, tuple[float, float]]] | None:
+    """Each radar's ``{coordinate: (chi2, count)}`` on the aircraft's paths, when the
+    trajectory formulation judged them (``info["target_state"]["fit"]``: it did so for a
+    calibration without ADS-B residuals), else ``None``.
+
+    ``count`` is the residuals' number less the paths' share of the degrees of freedom
+    (:meth:`graphcal.model.trajectory.TrajectoryBlock.residual_fit`);
+    :func:`radar_fit` then subtracts the radar's estimated terms.
+    """
+    fit = (cal.info.get("target_state") or {}).get("fit")
+    if not fit:
+        return None
+    return {rid: {c: (float(e["chi2"]), float(e["n"]) - float(e["paths_dof"]))
+                  for c, e in by.items()}
+            for rid, by in fit.items()}
 
 
 def widen_limit(dof: float, p: float = WIDEN_P, floor: float = WIDEN_FLOOR) -> float:
@@ -524,6 +563,10 @@ class SigmaInflation:
                      "smaller than the data's scatter (residuals against ADS-B carry both "
                      "errors: ADS-B sigmas too small widen every radar, most those with the "
                      "smallest sigmas)")
+        elif self.reference == "paths":
+            cause = (f"the sigmas in sites.toml ({keys}) are smaller than the data's scatter "
+                     "(without ADS-B the residuals are against the aircraft's paths, fitted "
+                     "to every radar's plots)")
         else:
             cause = (f"the sigmas in sites.toml ({keys}) are smaller than the data's scatter "
                      "(without ADS-B each residual carries the partner radar's error too, "

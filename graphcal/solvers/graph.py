@@ -855,6 +855,9 @@ def graph(
     }
     if blocks.target_state is not None:
         info["target_state"] = blocks.target_state.summary()
+        if not any(len(al) for al in blocks.alignments.values()):
+            # Without ADS-B residuals the fit verdict judges the plots on the paths.
+            info["target_state"]["fit"] = _paths_fit(blocks, full_values)
     if atmosphere is not None:
         info["plot_altitude"] = dataset.plot_altitude
     timing["total_s"] = time.perf_counter() - start
@@ -881,6 +884,16 @@ def graph(
             bias = terms[rid].bias(values[rid])
             cal.residuals[rid] = residual_stats(dataset.sites[rid], al, bias)
     return cal
+
+
+def _paths_fit(blocks: FactorSet, values: dict[str, FloatArray]
+               ) -> dict[str, dict[str, dict[str, float]]]:
+    """Each radar's residuals on the paths at the estimate, by coordinate
+    (:meth:`~graphcal.model.trajectory.TrajectoryBlock.residual_fit`: chi-square, count
+    and the paths' share of the degrees of freedom), from a copy of the block."""
+    block = blocks.target_state
+    copy = dataclasses.replace(block, _reduced_cache=None)
+    return copy.residual_fit(block.values_of(values))
 
 
 def _trajectory_bound(blocks: FactorSet, values: dict[str, FloatArray],

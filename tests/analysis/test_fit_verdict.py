@@ -155,3 +155,41 @@ def test_over_windows_few_residuals_get_the_quantile_limit() -> None:
     [range_fit, _] = verdict.radars["A"].coordinates
     assert range_fit.dof == 10 and range_fit.limit == pytest.approx(chi2_limit(10))
     assert chi2_limit(10) > 4.5 and verdict.passed
+
+
+@pytest.fixture(scope="module")
+def v2_without_adsb() -> graphcal.Calibration:
+    """The version-2 demo (refraction, pressure altitudes, an eccentric antenna),
+    calibrated without ADS-B by the default formulation."""
+    ds = graphcal.simulate(SCENARIOS / "demo_v2.toml", seed=3).dataset
+    return graphcal.calibrate(ds, use_adsb=False, model_checks=False)
+
+
+def test_without_adsb_the_plots_are_judged_on_their_paths(v2_without_adsb) -> None:
+    """A correct model with the stated noise has ``E[chi2] = dof``: each coordinate's
+    ``chi2 / dof`` on the paths is within its chance spread of 1 (sd below 0.02 at its
+    5,000-22,000 dof; 0.1 leaves room for the capped path misfits), once the paths'
+    share of the degrees of freedom is counted (without it the 2-D radars' ranges,
+    whose plots shape the paths most, would show 0.75-0.8), and no sigma is widened."""
+    cal = v2_without_adsb
+    verdict = cal.info["fit_verdict"]
+    assert verdict["passed"] and verdict["reference"] == "paths"
+    ratios = {(rid, c): e["chi2_per_dof"] for rid, r in verdict["radars"].items()
+              for c, e in r["coordinates"].items()}
+    assert len(ratios) == 12  # five radars' range and azimuth, two elevations
+    assert all(0.9 < r < 1.1 for r in ratios.values()), ratios
+    fit = cal.info["target_state"]["fit"]
+    naive = min(e["chi2"] / e["n"] for by in fit.values() for c, e in by.items()
+                if c == "range")
+    assert naive < 0.85
+    assert not cal.info.get("sigma_inflation")
+
+
+def test_azimuth_in_radians_without_adsb_fails_on_the_paths(demo) -> None:
+    broken = replace(_scaled(demo, "NORD", "azimuth_deg", math.pi / 180), adsb=None)
+    with pytest.raises(ModelMisfitError) as info:
+        graphcal.calibrate(broken, "graph", model_checks=False)
+    verdict = info.value.verdict
+    assert verdict.reference == "paths"
+    assert verdict.failed[0] == "NORD"
+    assert "judged on the aircraft's paths" in str(info.value)

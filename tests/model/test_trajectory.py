@@ -10,6 +10,7 @@ import pytest
 import graphcal
 from graphcal.model.parameters import radar_terms, terms_vector
 from graphcal.model.robust import RobustKernel
+from graphcal.model.paths import add_motion_prior, band_zeros
 from graphcal.model.trajectory import build_trajectory_block
 from graphcal.simulation.scenario import load_scenario
 from graphcal.solvers.graph import graph
@@ -171,3 +172,38 @@ def test_measurement_jacobians_match_finite_differences(demo, refraction: str) -
         shifted[TERM_NAMES.index(name)] -= 2 * h
         minus, _, _ = model.measure(enu, shifted, free)
         assert np.allclose((plus - minus) / (2 * h), d_terms[:, :, k], rtol=1e-6, atol=1e-9), name
+
+
+def _dense(band: np.ndarray) -> np.ndarray:
+    """The symmetric matrix of a lower band (row ``d``: the ``d``-th subdiagonal)."""
+    n = band.shape[1]
+    dense = np.zeros((n, n))
+    for d in range(band.shape[0]):
+        idx = np.arange(n - d)
+        dense[idx + d, idx] = band[d, : n - d]
+        dense[idx, idx + d] = band[d, : n - d]
+    return dense
+
+
+def test_residual_dof_of_the_paths_add_up_to_the_datas_share(short_demo) -> None:
+    """``residual_fit``'s paths' shares of the degrees of freedom, estimated from random
+    draws, sum to the data's exact share ``n - tr(A^-1 P)`` (``P`` the motion prior, ``A``
+    the paths' normal matrix from the dense joint system): every measurement's
+    ``tr(A^-1 D)`` adds up with the prior's to ``tr(I) = n``."""
+    block, values = truth_block(short_demo, use_adsb=False)
+    block.settle(values, 5)
+    block.reduced(values, True)
+    n = block.layout.n_unknowns
+    a = block.normal_equations(values)["information"][:n, :n]
+    prior = band_zeros(n)
+    add_motion_prior(prior, block.layout, block.phase_scale, block.vertical_scale)
+    exact = n - float(np.trace(np.linalg.solve(a, _dense(prior))))
+    fit = block.residual_fit(values, n_probes=64)
+    estimated = sum(e["paths_dof"] for by in fit.values() for e in by.values())
+    # The estimate's standard deviation is at most sqrt(2 tr / draws) (the docstring).
+    assert estimated == pytest.approx(exact, abs=4.0 * np.sqrt(2.0 * exact / 64))
+    assert 0.0 < exact < n
+    again = block.residual_fit(values, n_probes=64)
+    assert again == fit  # seeded: the same figures on every run
+    plots = sum(len(r.rows) for r in block.radars)
+    assert sum(by["range"]["n"] for by in fit.values()) == plots

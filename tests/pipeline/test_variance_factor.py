@@ -136,6 +136,24 @@ def test_radar_sigma_too_small_widens_that_radar_only(demo, tmp_path) -> None:
     _consistent(path)
 
 
+def test_without_adsb_a_radar_sigma_too_small_widens_that_radar_on_the_paths(demo) -> None:
+    """Without ADS-B: NORD's sigma_azimuth stated 0.6 times its noise.  On the aircraft's
+    paths its azimuth residuals have ``chi2/dof`` 1 / 0.6^2 = 2.78 (the paths' share of
+    the degrees of freedom counted); only NORD's azimuth terms are widened."""
+    sites = dict(demo.sites)
+    sites["NORD"] = dataclasses.replace(sites["NORD"],
+                                        sigma_azimuth_rad=0.6 * sites["NORD"].sigma_azimuth_rad)
+    cal = graphcal.calibrate(dataclasses.replace(demo, sites=sites, adsb=None),
+                             model_checks=False)
+    inflation = cal.info["sigma_inflation"]
+    assert set(inflation) == {"NORD"} and inflation["NORD"]["reference"] == "paths"
+    assert set(inflation["NORD"]["coordinates"]) == {"azimuth"}
+    assert inflation["NORD"]["factor"] == pytest.approx(1.0 / 0.6**2, abs=0.15)
+    assert inflation["NORD"]["parameters"]["range_offset_m"] == 1.0
+    warning = next(w for w in cal.warnings if WIDENED in w)
+    assert "residuals are against the aircraft's paths" in warning
+
+
 def test_window_widens_from_pooled_residuals(demo) -> None:
     """--window: the residuals pooled over the windows widen every window's summary."""
     adsb = demo.adsb.assign(sigma_m=demo.adsb["sigma_m"] / 20.0, nacp=11)
