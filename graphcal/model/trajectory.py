@@ -753,8 +753,9 @@ class TrajectoryBlock:
         its aircraft for a few scans, which the robust kernel sets aside, would
         otherwise dominate the sum; the cap takes 1e-6 of a Gaussian residual's mean
         square, and a unit or frame error still gives ``chi2/dof`` near the cap's 25;
-        ``n_beyond_cap`` counts the residuals capped).  A correct model with the stated noise gives ``chi2`` near its degrees
-        of freedom ``n - paths_dof`` (less the radar's terms, which the caller counts):
+        ``n_beyond_cap`` counts the residuals capped).  A correct model with the stated
+        noise gives ``chi2`` near its degrees of freedom ``n - paths_dof`` (less the
+        radar's terms, which the caller counts):
         ``paths_dof`` is the share of the paths' unknowns the coordinate's measurements
         take, ``tr(A^-1 D)`` with ``A`` the paths' normal matrix (motion prior, every
         measurement and its robust weight) and ``D`` the coordinate's own share of it.

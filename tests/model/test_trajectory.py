@@ -9,8 +9,8 @@ import pytest
 
 import graphcal
 from graphcal.model.parameters import radar_terms, terms_vector
-from graphcal.model.robust import RobustKernel
 from graphcal.model.paths import add_motion_prior, band_zeros
+from graphcal.model.robust import RobustKernel
 from graphcal.model.trajectory import build_trajectory_block
 from graphcal.simulation.scenario import load_scenario
 from graphcal.solvers.graph import graph
