@@ -93,7 +93,7 @@ from graphcal.data.bias import CONTRACT_KEYS, count_non_positive_ranges
 from graphcal.data.calibration import Calibration
 from graphcal.data.dataset import Dataset
 from graphcal.model.problem import Problem, as_problem
-from graphcal.solvers.window_fit import WindowFit
+from graphcal.solvers.window_fit import WindowFit, sums_on_paths
 
 #: Chance that a correct model with the stated noise exceeds the limit (given its dof).
 P = 1e-6
@@ -219,7 +219,8 @@ class FitVerdict:
     reference : {"adsb", "paths", "cross", "none"}
         What the residuals were measured against: ADS-B, the aircraft's paths (the
         trajectory formulation without ADS-B residuals), the other radars' plots
-        (pairwise), or nothing (over windows: ``"adsb"`` when any window's were).
+        (pairwise), or nothing (over windows: ``"adsb"`` when any window's were against
+        ADS-B, else ``"paths"`` when any were on the paths).
     radars : dict of str to RadarFit
         Over windows: each radar's fit in its worst window (a failing one when it
         failed anywhere).
@@ -370,7 +371,7 @@ def negative_ranges(dataset: Dataset, cal: Calibration) -> dict[str, int]:
     return out
 
 
-def radar_fit(radar_id: str, sums: Mapping[str, tuple[float, int]], n_terms: int,
+def radar_fit(radar_id: str, sums: Mapping[str, tuple[float, float]], n_terms: int,
               range_gain: float | None, negative: int = 0, *, p: float = P,
               floor: float = FLOOR) -> RadarFit:
     """One radar's :class:`RadarFit` from its ``{coordinate: (sum e^2/v, count)}``.
@@ -389,7 +390,7 @@ def radar_fit(radar_id: str, sums: Mapping[str, tuple[float, int]], n_terms: int
 
 
 def verdict_from_sums(cal: Calibration, reference: str,
-                      sums: Mapping[str, Mapping[str, tuple[float, int]]], *,
+                      sums: Mapping[str, Mapping[str, tuple[float, float]]], *,
                       p: float = P, floor: float = FLOOR,
                       negative: Mapping[str, int] | None = None) -> FitVerdict:
     """The verdict from each radar's ``{coordinate: (sum e^2/v, count)}``.
@@ -430,7 +431,8 @@ def windows_verdict(windows: Iterable[tuple[float, float, WindowFit]], *, p: flo
     FitVerdict
         With ``windows``; each radar's entry is its fit in its worst window, so
         that it fails exactly when it failed in some window.  ``reference`` is
-        ``"adsb"`` when any window's residuals were formed, else ``"none"``.
+        ``"adsb"`` when any window's residuals were against ADS-B, else ``"paths"`` when
+        any were on the paths, else ``"none"``.
     """
     judged = sorted((WindowJudgement(float(t0), float(t1), window_verdict(fit, p=p, floor=floor))
                      for t0, t1, fit in windows), key=lambda w: (w.t_start_s, w.t_end_s))
@@ -439,8 +441,7 @@ def windows_verdict(windows: Iterable[tuple[float, float, WindowFit]], *, p: flo
         worst = _worst_window(judged, rid)
         if worst is not None:
             radars[rid] = worst.verdict.radars[rid]
-    references = {w.verdict.reference for w in judged}
-    reference = "adsb" if "adsb" in references else "none"
+    reference = _pooled_reference(w.verdict.reference for w in judged)
     return FitVerdict(reference, radars, p, floor, judged)
 
 
@@ -507,12 +508,7 @@ def paths_sums(cal: Calibration) -> dict[str, dict[str, tuple[float, float]]] | 
     (:meth:`graphcal.model.trajectory.TrajectoryBlock.residual_fit`);
     :func:`radar_fit` then subtracts the radar's estimated terms.
     """
-    fit = (cal.info.get("target_state") or {}).get("fit")
-    if not fit:
-        return None
-    return {rid: {c: (float(e["chi2"]), float(e["n"]) - float(e["paths_dof"]))
-                  for c, e in by.items()}
-            for rid, by in fit.items()}
+    return sums_on_paths(cal.info)
 
 
 def widen_limit(dof: float, p: float = WIDEN_P, floor: float = WIDEN_FLOOR) -> float:
@@ -600,23 +596,29 @@ def sigma_inflation(verdict: FitVerdict, *, p: float = WIDEN_P,
     return out
 
 
+def _pooled_reference(references: Iterable[str]) -> str:
+    """The windows' reference: ``"adsb"`` when any window's residuals were against ADS-B,
+    else ``"paths"`` when any were on the paths, else ``"none"``."""
+    found = set(references)
+    return next((r for r in ("adsb", "paths") if r in found), "none")
+
+
 def pooled_verdict(fits: Iterable[WindowFit]) -> FitVerdict:
     """One verdict from every window's residuals pooled, radar by radar: per coordinate
     the windows' chi-squares and counts summed, less every window's estimated terms
     (``calibrate --window``: a noise stated too small is too small in every window, and
     the pooled ``dof`` are the batch's; :func:`sigma_inflation` reads it)."""
-    sums: dict[str, dict[str, tuple[float, int]]] = {}
+    sums: dict[str, dict[str, tuple[float, float]]] = {}
     terms: dict[str, int] = {}
-    reference = "none"
+    fits = list(fits)
+    reference = _pooled_reference(fit.reference for fit in fits)
     for fit in fits:
-        if fit.reference == "adsb":
-            reference = "adsb"
         for rid, by in fit.sums.items():
             pooled = sums.setdefault(rid, {})
             for coordinate, (chi2, n) in by.items():
                 if n > 0 and math.isfinite(chi2):
-                    c0, n0 = pooled.get(coordinate, (0.0, 0))
-                    pooled[coordinate] = (c0 + float(chi2), n0 + int(n))
+                    c0, n0 = pooled.get(coordinate, (0.0, 0.0))
+                    pooled[coordinate] = (c0 + float(chi2), n0 + float(n))
             terms[rid] = terms.get(rid, 0) + int(fit.n_terms.get(rid, 0))
     radars = {rid: radar_fit(rid, by, terms.get(rid, 0), None) for rid, by in sums.items()}
     return FitVerdict(reference, radars)

@@ -608,6 +608,7 @@ def graph(
     progress: Progress | None = None,
     bound: bool = False,
     summarise_residuals: bool = True,
+    fit_on_paths: bool = True,
 ) -> Calibration:
     """Joint calibration of every radar with a GTSAM factor graph.
 
@@ -656,6 +657,10 @@ def graph(
     summarise_residuals : bool
         Also summarise each radar's residuals against ADS-B (:attr:`Calibration.residuals`,
         for the report); a window of a calibration over time leaves them out.
+    fit_on_paths : bool
+        With the trajectory formulation and no plot aligned with ADS-B, also sum each
+        radar's residuals on the paths for the fit verdict (``info["target_state"]["fit"]``,
+        :meth:`~graphcal.model.trajectory.TrajectoryBlock.residual_fit`).
 
     Returns
     -------
@@ -855,7 +860,8 @@ def graph(
     }
     if blocks.target_state is not None:
         info["target_state"] = blocks.target_state.summary()
-        if not any(len(al) for al in blocks.alignments.values()):
+        if (fit_on_paths and cross == "trajectory"
+                and not any(len(al) for al in blocks.alignments.values())):
             # Without ADS-B residuals the fit verdict judges the plots on the paths.
             info["target_state"]["fit"] = _paths_fit(blocks, full_values)
     if atmosphere is not None:

@@ -24,8 +24,12 @@ whose noise makes it uncertain by some 10 % (20 m for an aircraft moved 200 m by
 ``tau`` instead, as the estimator does; below :data:`NEGLIGIBLE_TIME_OFFSET_S` the
 reference is not moved.
 
-Without ADS-B (``--no-adsb``, or a window without any aligned report) the residuals
-would be cross-radar pairs, whose computation costs a quarter of a window's
+Without ADS-B (``--no-adsb``, or a window without any aligned report) the trajectory
+formulation's own residuals are used: each radar's plots on the aircraft's paths, which
+the window's estimator summed (``info["target_state"]["fit"]``,
+:meth:`graphcal.model.trajectory.TrajectoryBlock.residual_fit`; ``reference``
+``"paths"``, :func:`sums_on_paths`).  Without those either (``--cross pairwise``), the
+residuals would be cross-radar pairs, whose computation costs a quarter of a window's
 calibration: such a window carries only its range gains and negative-range counts
 (``reference`` ``"none"``), which still catch ranges in another unit.
 """
@@ -65,8 +69,9 @@ class WindowFit:
 
     Attributes
     ----------
-    reference : {"adsb", "none"}
-        What the residuals were measured against (``"none"``: no residuals).
+    reference : {"adsb", "paths", "none"}
+        What the residuals were measured against (``"paths"``: the aircraft's estimated
+        paths; ``"none"``: no residuals).
     sums : dict
         Radar id -> coordinate (``range``, ``azimuth``, ``elevation``) ->
         ``(sum e^2 / v, count)`` over the residuals kept.
@@ -83,7 +88,7 @@ class WindowFit:
     """
 
     reference: str
-    sums: dict[str, dict[str, tuple[float, int]]] = field(default_factory=dict)
+    sums: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
     n_terms: dict[str, int] = field(default_factory=dict)
     range_gain: dict[str, float | None] = field(default_factory=dict)
     negative_ranges: dict[str, int] = field(default_factory=dict)
@@ -132,7 +137,29 @@ def window_fit(problem: Problem, cal: Calibration, *, use_adsb: bool, max_gap_s:
             if sums is not None:
                 fit.sums[rid], fit.n_outliers[rid] = sums
                 fit.reference = "adsb"
+    on_paths = sums_on_paths(cal.info) if fit.reference == "none" else None
+    if on_paths:
+        fit.reference = "paths"
+        fit.sums = {rid: by for rid, by in on_paths.items()
+                    if rid in fit.n_terms and not fit.negative_ranges.get(rid)}
     return fit
+
+
+def sums_on_paths(info: dict[str, Any]) -> dict[str, dict[str, tuple[float, float]]] | None:
+    """Each radar's ``{coordinate: (chi2, count)}`` on the aircraft's paths, from a
+    calibration's ``info`` when the trajectory formulation summed them
+    (``info["target_state"]["fit"]``, without ADS-B residuals), else ``None``.
+
+    ``count`` is the residuals' number less the paths' share of their degrees of freedom
+    (:meth:`graphcal.model.trajectory.TrajectoryBlock.residual_fit`); the verdict then
+    subtracts the radar's estimated terms.
+    """
+    fit = (info.get("target_state") or {}).get("fit")
+    if not fit:
+        return None
+    return {rid: {c: (float(e["chi2"]), float(e["n"]) - float(e["paths_dof"]))
+                  for c, e in by.items()}
+            for rid, by in fit.items()}
 
 
 def _adsb_sums(problem: Problem, rid: str, bias: Any, max_gap_s: float

@@ -196,7 +196,7 @@ def _summarise_window(window: Window, options: WindowOptions, judge: bool
                     fixed=dict(options.fixed), max_iterations=options.max_iterations,
                     max_gap_s=options.adsb_max_gap_s, pair_max_gap_s=options.pair_max_gap_s,
                     time_offset=None if have_adsb and options.cross != "target-state"
-                    else False, bound=False, summarise_residuals=False)
+                    else False, bound=False, summarise_residuals=False, fit_on_paths=judge)
     except EstimationError:
         return None
     labels = list(cal.labels)

@@ -193,3 +193,22 @@ def test_azimuth_in_radians_without_adsb_fails_on_the_paths(demo) -> None:
     assert verdict.reference == "paths"
     assert verdict.failed[0] == "NORD"
     assert "judged on the aircraft's paths" in str(info.value)
+
+
+def test_windows_without_adsb_are_judged_on_their_paths(demo) -> None:
+    """``--window`` without ADS-B: every window's plots are judged on its paths; a correct
+    dataset passes within the chance spread of 1, NORD's azimuths in radians fail in
+    every window (before, such windows were judged on range gains alone)."""
+    no_adsb = replace(demo, adsb=None)
+    cal = graphcal.calibrate(no_adsb, window=900.0, model_checks=False)
+    verdict = cal.info["fit_verdict"]
+    assert verdict["passed"] and verdict["reference"] == "paths"
+    assert {w["reference"] for w in verdict["windows"]} == {"paths"}
+    ratios = [c["chi2_per_dof"] for r in verdict["radars"].values()
+              for c in r["coordinates"].values()]
+    assert len(ratios) == 12 and all(0.9 < r < 1.1 for r in ratios)
+    broken = replace(_scaled(demo, "NORD", "azimuth_deg", math.pi / 180), adsb=None)
+    with pytest.raises(ModelMisfitError) as info:
+        graphcal.calibrate(broken, window=900.0, model_checks=False)
+    assert info.value.verdict.failed[0] == "NORD"
+    assert "NORD: in 2 of 2 windows" in str(info.value)

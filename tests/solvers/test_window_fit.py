@@ -72,7 +72,18 @@ def test_the_summary_carries_its_window_fit(window) -> None:
     fit = window_fit(problem, cal, use_adsb=True, max_gap_s=WindowOptions().adsb_max_gap_s)
     assert summary.fit == fit  # the same fit, plain numbers
     assert summarise_window(window, judge=False).fit is None
-    assert summarise_window(window, WindowOptions(use_adsb=False)).fit.reference == "none"
+    # Without ADS-B: the plots on the window's paths.  The time offsets are not estimated,
+    # so NORD's 0.8 s (200 m along track) shows, beyond the verdict's floor of 4, and
+    # bends the paths the others are judged on less; with the pairs, no residuals.
+    on_paths = summarise_window(window, WindowOptions(use_adsb=False)).fit
+    assert on_paths.reference == "paths"
+    ratios = {(rid, c): chi2 / dof for rid, by in on_paths.sums.items()
+              for c, (chi2, dof) in by.items() if c != "altitude"}
+    worst = max(ratios, key=ratios.get)
+    assert worst == ("NORD", "range") and ratios[worst] > 4.0
+    assert max(r for (rid, _), r in ratios.items() if rid != "NORD") < 0.5 * ratios[worst]
+    pairs = WindowOptions(use_adsb=False, cross="pairwise")
+    assert summarise_window(window, pairs).fit.reference == "none"
 
 
 def test_negative_ranges_and_the_gain_are_counted_without_residuals(window) -> None:
