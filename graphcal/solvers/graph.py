@@ -122,9 +122,9 @@ def initial_biases(
     """Initial biases from the closed-form estimators, or zero.
 
     ``init``: ``auto`` (``fl-ls`` then ``ls`` with ADS-B; ``wls`` without),
-    a method name, or ``zero``.  With ADS-B and ``auto`` the estimators see the
-    problem thinned (:func:`thinned_for_initial_values`).  Returns the biases, the
-    method used and notes on the methods that failed.
+    a method name, or ``zero``.  With ``auto`` the estimators see the problem thinned
+    (with ADS-B :func:`thinned_for_initial_values`, without :func:`thinned_by_aircraft`).
+    Returns the biases, the method used and notes on the methods that failed.
     """
     from graphcal.solvers.registry import METHODS
 
@@ -140,8 +140,9 @@ def initial_biases(
         candidates = [init]
     notes = []
     problem = as_problem(data)
-    if use_adsb and init == "auto":
-        problem = thinned_for_initial_values(problem)
+    if init == "auto":
+        problem = (thinned_for_initial_values(problem) if use_adsb
+                   else thinned_by_aircraft(problem))
     for method in candidates:
         try:
             cal = METHODS[method](problem)
@@ -183,6 +184,34 @@ def thinned_for_initial_values(
     stride = -(-sizes[radar] // max_plots_per_radar)  # ceil, per row: its radar's stride
     keep = rank % stride == 0
     return problem.thinned(keep)
+
+
+def thinned_by_aircraft(
+    problem: Problem, max_plots_per_radar: int = INIT_MAX_PLOTS_PER_RADAR,
+) -> Problem:
+    """``problem`` with the plots of every ``k``-th aircraft only, for the closed-form
+    initial values without ADS-B.
+
+    Without ADS-B the closed forms compare the radars' plots of one aircraft pair by
+    pair, so an aircraft is kept or left out whole (thinning each radar's plots would
+    leave the partner tracks too sparse to pair): the aircraft, in the order of their
+    ``target_id``, are kept at the smallest stride ``k`` that brings every radar to at
+    most ``max_plots_per_radar`` plots (at least one aircraft is kept).  A dataset with no
+    radar over the limit is returned as it is.  As with
+    :func:`thinned_for_initial_values`, an initial value only has to fall in the basin of
+    the solution.
+    """
+    plots = problem.dataset.plots
+    radar, _ = pd.factorize(plots["radar_id"], use_na_sentinel=False)
+    aircraft, _ = pd.factorize(plots["target_id"], sort=True, use_na_sentinel=False)
+    n_radars, n_aircraft = int(radar.max(initial=-1)) + 1, int(aircraft.max(initial=-1)) + 1
+    counts = np.bincount(radar * n_aircraft + aircraft,
+                         minlength=n_radars * n_aircraft).reshape(n_radars, n_aircraft)
+    if counts.sum(axis=1).max(initial=0) <= max_plots_per_radar:
+        return problem
+    stride = next((k for k in range(2, n_aircraft + 1)
+                   if counts[:, ::k].sum(axis=1).max() <= max_plots_per_radar), n_aircraft)
+    return problem.thinned(aircraft % stride == 0)
 
 
 def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) -> FloatArray:

@@ -282,3 +282,43 @@ def test_the_solution_does_not_depend_on_thinning_the_initial_values(demo_runs,
     assert np.max(np.abs(thin.estimate - full.estimate) / sigma) < 0.01
     for stopped in (default, thin_default):
         assert np.max(np.abs(stopped.estimate - full.estimate) / sigma) < 0.05
+
+
+def test_thinned_by_aircraft_keeps_whole_aircraft_under_the_limit(demo_runs) -> None:
+    from graphcal.model.problem import build_problem
+    from graphcal.solvers.graph import thinned_by_aircraft
+
+    dataset = demo_runs[0].dataset
+    problem = build_problem(dataset)
+    counts = dataset.plots["radar_id"].value_counts()
+    assert thinned_by_aircraft(problem, int(counts.max())) is problem
+    cap = int(counts.max()) // 3
+    thin = thinned_by_aircraft(problem, cap).dataset
+    assert thin.plots["radar_id"].value_counts().max() <= cap
+    kept = set(thin.plots["target_id"])
+    aircraft = sorted(set(dataset.plots["target_id"]))
+    # Every k-th aircraft in target_id order, each with all of its plots.
+    stride = aircraft.index(sorted(kept)[1]) if len(kept) > 1 else len(aircraft)
+    assert sorted(kept) == aircraft[::stride]
+    whole = dataset.plots[dataset.plots["target_id"].isin(kept)]
+    assert len(thin.plots) == len(whole)
+    # The smallest such stride: one less leaves some radar over the limit.
+    if stride > 2:
+        denser = dataset.plots[dataset.plots["target_id"].isin(aircraft[::stride - 1])]
+        assert denser["radar_id"].value_counts().max() > cap
+
+
+def test_without_adsb_the_solution_does_not_depend_on_thinning_the_initial_values(
+        demo_runs, monkeypatch) -> None:
+    """Without ADS-B the closed-form initial values come from a subset of the aircraft;
+    the calibration ends where it ends from all of them (within 0.01 sigma)."""
+    import graphcal.solvers.graph as graph_module
+
+    dataset = dataclasses.replace(demo_runs[0].dataset, adsb=None)
+    for cross in ("trajectory", "pairwise"):
+        thin = graph(dataset, use_adsb=False, cross=cross)
+        monkeypatch.setattr(graph_module.thinned_by_aircraft, "__defaults__", (10**9,))
+        full = graph(dataset, use_adsb=False, cross=cross)
+        monkeypatch.undo()
+        sigma = np.sqrt(np.diag(full.covariance))
+        assert np.max(np.abs(thin.estimate - full.estimate) / sigma) < 0.01
