@@ -196,22 +196,30 @@ def thinned_by_aircraft(
     pair, so an aircraft is kept or left out whole (thinning each radar's plots would
     leave the partner tracks too sparse to pair): the aircraft, in the order of their
     ``target_id``, are kept at the smallest stride ``k`` that brings every radar to at
-    most ``max_plots_per_radar`` plots (at least one aircraft is kept).  A dataset with no
-    radar over the limit is returned as it is.  As with
+    most ``max_plots_per_radar`` plots (at least one aircraft is kept); plots without a
+    ``target_id`` pair with nothing and are left out.  A dataset with no radar over the
+    limit, or without any identity, is returned as it is.  As with
     :func:`thinned_for_initial_values`, an initial value only has to fall in the basin of
     the solution.
     """
     plots = problem.dataset.plots
     radar, _ = pd.factorize(plots["radar_id"], use_na_sentinel=False)
-    aircraft, _ = pd.factorize(plots["target_id"], sort=True, use_na_sentinel=False)
-    n_radars, n_aircraft = int(radar.max(initial=-1)) + 1, int(aircraft.max(initial=-1)) + 1
-    counts = np.bincount(radar * n_aircraft + aircraft,
-                         minlength=n_radars * n_aircraft).reshape(n_radars, n_aircraft)
-    if counts.sum(axis=1).max(initial=0) <= max_plots_per_radar:
+    n_radars = int(radar.max(initial=-1)) + 1
+    if np.bincount(radar, minlength=n_radars).max(initial=0) <= max_plots_per_radar:
         return problem
-    stride = next((k for k in range(2, n_aircraft + 1)
+    # Plots without an identity pair with nothing: they are left out.
+    target = plots["target_id"]
+    has_id = (target.notna() & (target.astype(str) != "")).to_numpy()
+    if not has_id.any():
+        return problem
+    aircraft = np.full(len(plots), -1, dtype=np.int64)
+    aircraft[has_id], _ = pd.factorize(target[has_id].astype(str), sort=True)
+    n_aircraft = int(aircraft.max()) + 1
+    counts = np.bincount(radar[has_id] * n_aircraft + aircraft[has_id],
+                         minlength=n_radars * n_aircraft).reshape(n_radars, n_aircraft)
+    stride = next((k for k in range(1, n_aircraft + 1)
                    if counts[:, ::k].sum(axis=1).max() <= max_plots_per_radar), n_aircraft)
-    return problem.thinned(aircraft % stride == 0)
+    return problem.thinned(has_id & (aircraft % stride == 0))
 
 
 def _initial_free(terms: RadarTerms, bias: RadarBias | None, prior: FloatArray) -> FloatArray:

@@ -302,6 +302,11 @@ def test_thinned_by_aircraft_keeps_whole_aircraft_under_the_limit(demo_runs) -> 
     assert sorted(kept) == aircraft[::stride]
     whole = dataset.plots[dataset.plots["target_id"].isin(kept)]
     assert len(thin.plots) == len(whole)
+    # Plots without an identity pair with nothing: left out.
+    blank = dataset.plots.copy()
+    blank.loc[:99, "target_id"] = ""
+    blanked = build_problem(dataclasses.replace(dataset, plots=blank))
+    assert (thinned_by_aircraft(blanked, cap).dataset.plots["target_id"] != "").all()
     # The smallest such stride: one less leaves some radar over the limit.
     if stride > 2:
         denser = dataset.plots[dataset.plots["target_id"].isin(aircraft[::stride - 1])]
