@@ -41,9 +41,10 @@ plots on the aircraft's paths it estimated (``reference`` ``"paths"``;
 their own coordinates and through the same measurement model (refraction, eccentricity,
 time offsets) as the estimate, with ``dof`` their count less the share of the paths'
 unknowns they take (:meth:`graphcal.model.trajectory.TrajectoryBlock.residual_fit`) and
-less the radar's terms.  On the scenarios these are within 1.00 +- 0.03 of 1 where the
-pairwise comparison of two radars' plots (``"cross"``: interpolated partner, converted
-plots) gives up to 2.6 for the 3-D radars' elevations.  Otherwise, without ADS-B, each
+less the radar's terms.  On correct data these read 1.002 +- 0.019 (the demo network,
+12 seeds) and at most 1.13 (``demo_v2``, 40 seeds), where the pairwise comparison of
+two radars' plots (``"cross"``: interpolated partner, converted plots; without the model
+checks' outlier screening) gave up to 2.6 for ``demo_v2``'s 3-D radars' elevations.  Otherwise, without ADS-B, each
 residual compares two radars (``"cross"``).  Either way one radar's misfit also shows in
 the others': the radars are listed worst first.
 

@@ -743,7 +743,7 @@ class TrajectoryBlock:
 
     def residual_fit(self, values: list[FloatArray], n_probes: int = FIT_PROBES,
                      rng: np.random.Generator | None = None
-                     ) -> dict[str, dict[str, dict[str, float]]]:
+                     ) -> dict[str, dict[str, dict[str, float | int]]]:
         """Each radar's residuals on the paths at the biases ``values``, by coordinate.
 
         The paths follow the biases from the last elimination (its Gauss-Newton response,
@@ -755,9 +755,8 @@ class TrajectoryBlock:
         square, and a unit or frame error still gives ``chi2/dof`` near the cap's 25;
         ``n_beyond_cap`` counts the residuals capped).  A correct model with the stated
         noise gives ``chi2`` near its degrees of freedom ``n - paths_dof`` (less the
-        radar's terms, which the caller counts):
-        ``paths_dof`` is the share of the paths' unknowns the coordinate's measurements
-        take, ``tr(A^-1 D)`` with ``A`` the paths' normal matrix (motion prior, every
+        radar's terms, which the caller counts): ``paths_dof`` is the share of the paths'
+        unknowns the coordinate's measurements take, ``tr(A^-1 D)`` with ``A`` the paths' normal matrix (motion prior, every
         measurement and its robust weight) and ``D`` the coordinate's own share of it.
         Summed over every group, ADS-B and the prior it is the number of unknowns.
 
@@ -779,7 +778,7 @@ class TrajectoryBlock:
         factor = BandFactor.of(lin.band)
         draws = factor.backward(rng.standard_normal((self.layout.n_unknowns, n_probes)))
         draws = draws.reshape(-1, 3, n_probes)  # by coefficient, axis and draw
-        out: dict[str, dict[str, dict[str, float]]] = {}
+        out: dict[str, dict[str, dict[str, float | int]]] = {}
         for g in lin.groups:
             m = g.e.shape[1]
             names = ("altitude",) if g.kind == "heights" else FIT_COORDINATES[:m]
@@ -794,12 +793,12 @@ class TrajectoryBlock:
             beyond = np.sum(squares > FIT_CAP_SIGMA**2, axis=0)
             radar = out.setdefault(g.radar_id, {})
             for c, name in enumerate(names):
-                entry = radar.setdefault(name, {"chi2": 0.0, "n": 0.0, "paths_dof": 0.0,
-                                                "n_beyond_cap": 0.0})
+                entry = radar.setdefault(name, {"chi2": 0.0, "n": 0, "paths_dof": 0.0,
+                                                "n_beyond_cap": 0})
                 entry["chi2"] += float(chi2[c])
-                entry["n"] += float(len(g.e))
+                entry["n"] += len(g.e)
                 entry["paths_dof"] += float(share[c] / n_probes)
-                entry["n_beyond_cap"] += float(beyond[c])
+                entry["n_beyond_cap"] += int(beyond[c])
         return out
 
     def n_pressure_plots(self) -> int:

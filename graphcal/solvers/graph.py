@@ -930,7 +930,7 @@ def graph(
 
 
 def _paths_fit(blocks: FactorSet, values: dict[str, FloatArray]
-               ) -> dict[str, dict[str, dict[str, float]]]:
+               ) -> dict[str, dict[str, dict[str, float | int]]]:
     """Each radar's residuals on the paths at the estimate, by coordinate
     (:meth:`~graphcal.model.trajectory.TrajectoryBlock.residual_fit`: chi-square, count
     and the paths' share of the degrees of freedom), from a copy of the block."""
