@@ -44,9 +44,9 @@ unknowns they take (:meth:`graphcal.model.trajectory.TrajectoryBlock.residual_fi
 less the radar's terms.  On correct data these read 1.002 +- 0.019 (the demo network,
 12 seeds) and at most 1.13 (``demo_v2``, 40 seeds), where the pairwise comparison of
 two radars' plots (``"cross"``: interpolated partner, converted plots; without the model
-checks' outlier screening) gave up to 2.6 for ``demo_v2``'s 3-D radars' elevations.  Otherwise, without ADS-B, each
-residual compares two radars (``"cross"``).  Either way one radar's misfit also shows in
-the others': the radars are listed worst first.
+checks' outlier screening) gave up to 2.6 for ``demo_v2``'s 3-D radars' elevations.
+Otherwise, without ADS-B, each residual compares two radars (``"cross"``).  Either way
+one radar's misfit also shows in the others': the radars are listed worst first.
 
 Widening (:func:`sigma_inflation`)
     Between 1 and the limit the fit passes, yet the sigmas, computed from the stated

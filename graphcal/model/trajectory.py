@@ -756,9 +756,10 @@ class TrajectoryBlock:
         ``n_beyond_cap`` counts the residuals capped).  A correct model with the stated
         noise gives ``chi2`` near its degrees of freedom ``n - paths_dof`` (less the
         radar's terms, which the caller counts): ``paths_dof`` is the share of the paths'
-        unknowns the coordinate's measurements take, ``tr(A^-1 D)`` with ``A`` the paths' normal matrix (motion prior, every
-        measurement and its robust weight) and ``D`` the coordinate's own share of it.
-        Summed over every group, ADS-B and the prior it is the number of unknowns.
+        unknowns the coordinate's measurements take, ``tr(A^-1 D)`` with ``A`` the paths'
+        normal matrix (motion prior, every measurement and its robust weight) and ``D``
+        the coordinate's own share of it.  Summed over every group, ADS-B and the prior
+        it is the number of unknowns.
 
         ``tr(A^-1 D) = E[v^T D v]`` for ``v ~ N(0, A^-1)`` (``v = L^-T xi``, ``xi``
         standard normal): it is estimated from ``n_probes`` such draws of ``rng``
