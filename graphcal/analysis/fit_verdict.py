@@ -481,7 +481,7 @@ def fit_verdict(
     problem = as_problem(data)
     dataset = problem.dataset
     negative = negative_ranges(dataset, cal)
-    on_paths = paths_sums(cal)
+    on_paths = sums_on_paths(cal.info)  # the trajectory formulation's, without ADS-B
     if checks is not None and checks.reference == "adsb":
         on_paths = None
     if on_paths is not None:
@@ -498,18 +498,6 @@ def fit_verdict(
                                                    adsb_max_gap_s=adsb_max_gap_s)
     sums = {rid: normalised_sums(res) for rid, res in residuals.items()}
     return verdict_from_sums(cal, reference, sums, p=p, floor=floor, negative=negative)
-
-
-def paths_sums(cal: Calibration) -> dict[str, dict[str, tuple[float, float]]] | None:
-    """Each radar's ``{coordinate: (chi2, count)}`` on the aircraft's paths, when the
-    trajectory formulation judged them (``info["target_state"]["fit"]``: it did so for a
-    calibration without ADS-B residuals), else ``None``.
-
-    ``count`` is the residuals' number less the paths' share of the degrees of freedom
-    (:meth:`graphcal.model.trajectory.TrajectoryBlock.residual_fit`);
-    :func:`radar_fit` then subtracts the radar's estimated terms.
-    """
-    return sums_on_paths(cal.info)
 
 
 def widen_limit(dof: float, p: float = WIDEN_P, floor: float = WIDEN_FLOOR) -> float:

@@ -233,6 +233,18 @@ def band_zeros(n_unknowns: int) -> FloatArray:
     return np.zeros((HALF_BANDWIDTH + 1, n_unknowns), order="F")
 
 
+def band_to_dense(band: FloatArray) -> FloatArray:
+    """The symmetric ``(n, n)`` matrix of a lower band (:func:`band_zeros`'s convention;
+    for checks on small problems)."""
+    n = band.shape[1]
+    dense = np.zeros((n, n))
+    for d in range(band.shape[0]):
+        idx = np.arange(n - d)
+        dense[idx + d, idx] = band[d, : n - d]
+        dense[idx, idx + d] = band[d, : n - d]
+    return dense
+
+
 def spread_matrix(first: IntArray, weights: FloatArray, n_coefficients: int,
                   offset: int | None = None) -> scipy.sparse.csc_matrix:
     """The sparse ``P`` ``(n_coefficients, n)`` that spreads measurements over coefficients.

@@ -66,6 +66,7 @@ from graphcal.model.paths import (
     add_measurement_blocks,
     add_motion_prior,
     band_matvec,
+    band_to_dense,
     band_zeros,
     basis,
     basis_derivative,
@@ -602,13 +603,8 @@ class TrajectoryBlock:
         lin = self._linearise(self._split(values), want_bias=True)
         assert lin.cross is not None and lin.bias_information is not None
         assert lin.bias_gradient is not None
-        n = self.layout.n_unknowns
-        dense = np.zeros((n, n))
-        for d in range(lin.band.shape[0]):
-            idx = np.arange(n - d)
-            dense[idx + d, idx] = lin.band[d, : n - d]
-            dense[idx, idx + d] = lin.band[d, : n - d]
-        information = np.block([[dense, lin.cross], [lin.cross.T, lin.bias_information]])
+        information = np.block([[band_to_dense(lin.band), lin.cross],
+                                [lin.cross.T, lin.bias_information]])
         return {"information": information,
                 "gradient": np.concatenate([lin.gradient, lin.bias_gradient]),
                 "cost": np.array(lin.cost)}

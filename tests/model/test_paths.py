@@ -14,6 +14,7 @@ from graphcal.model.paths import (
     add_measurement_blocks,
     add_motion_prior,
     band_matvec,
+    band_to_dense,
     band_zeros,
     basis,
     basis_derivative,
@@ -21,16 +22,6 @@ from graphcal.model.paths import (
     scatter_columns,
     scatter_vectors,
 )
-
-
-def dense_from_band(band: np.ndarray) -> np.ndarray:
-    n = band.shape[1]
-    a = np.zeros((n, n))
-    for d in range(band.shape[0]):
-        idx = np.arange(n - d)
-        a[idx + d, idx] = band[d, : n - d]
-        a[idx, idx + d] = band[d, : n - d]
-    return a
 
 
 def test_basis_is_a_partition_of_unity_and_reproduces_lines() -> None:
@@ -100,7 +91,7 @@ def test_banded_assembly_matches_dense_assembly() -> None:
         rows = np.arange(3 * f, 3 * f + 12)
         dense[np.ix_(rows, rows)] += np.kron(
             SECOND_DERIVATIVE_GRAM / layout.spacing_s**3, np.diag(scale[layout.phase[k]]))
-    assert np.allclose(dense_from_band(band), dense)
+    assert np.allclose(band_to_dense(band), dense)
     x = rng.normal(size=n)
     assert np.allclose(band_matvec(band, x), dense @ x)
     # Vectors and columns.
@@ -143,7 +134,7 @@ def test_band_factor_solves_like_numpy() -> None:
     band = band_zeros(n)
     band[0] = 5.0 + rng.uniform(size=n)
     band[1:] = 0.1 * rng.normal(size=(HALF_BANDWIDTH, n))
-    dense = dense_from_band(band)
+    dense = band_to_dense(band)
     factor = BandFactor.of(band)
     rhs = rng.normal(size=(n, 3))
     assert np.allclose(factor.solve(rhs), np.linalg.solve(dense, rhs))

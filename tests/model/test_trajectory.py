@@ -9,7 +9,7 @@ import pytest
 
 import graphcal
 from graphcal.model.parameters import radar_terms, terms_vector
-from graphcal.model.paths import add_motion_prior, band_zeros
+from graphcal.model.paths import add_motion_prior, band_to_dense, band_zeros
 from graphcal.model.robust import RobustKernel
 from graphcal.model.trajectory import build_trajectory_block
 from graphcal.simulation.scenario import load_scenario
@@ -174,17 +174,6 @@ def test_measurement_jacobians_match_finite_differences(demo, refraction: str) -
         assert np.allclose((plus - minus) / (2 * h), d_terms[:, :, k], rtol=1e-6, atol=1e-9), name
 
 
-def _dense(band: np.ndarray) -> np.ndarray:
-    """The symmetric matrix of a lower band (row ``d``: the ``d``-th subdiagonal)."""
-    n = band.shape[1]
-    dense = np.zeros((n, n))
-    for d in range(band.shape[0]):
-        idx = np.arange(n - d)
-        dense[idx + d, idx] = band[d, : n - d]
-        dense[idx, idx + d] = band[d, : n - d]
-    return dense
-
-
 def test_residual_dof_of_the_paths_add_up_to_the_datas_share(short_demo) -> None:
     """``residual_fit``'s paths' shares of the degrees of freedom, estimated from random
     draws, sum to the data's exact share ``n - tr(A^-1 P)`` (``P`` the motion prior, ``A``
@@ -197,7 +186,7 @@ def test_residual_dof_of_the_paths_add_up_to_the_datas_share(short_demo) -> None
     a = block.normal_equations(values)["information"][:n, :n]
     prior = band_zeros(n)
     add_motion_prior(prior, block.layout, block.phase_scale, block.vertical_scale)
-    exact = n - float(np.trace(np.linalg.solve(a, _dense(prior))))
+    exact = n - float(np.trace(np.linalg.solve(a, band_to_dense(prior))))
     fit = block.residual_fit(values, n_probes=64)
     estimated = sum(e["paths_dof"] for by in fit.values() for e in by.values())
     # The estimate's standard deviation is at most sqrt(2 tr / draws) (the docstring).
