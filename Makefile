@@ -48,7 +48,14 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.bench_speed
 	$(BIN)/python -m benchmarks.bench_speed --sizes 1M --window 1h --repeats 3 \
 		--json $(BENCH_RESULTS)/bench_speed_window.json
+	$(BIN)/python -m benchmarks.bench_speed --sizes 40k --pairwise --repeats 5 \
+		--json $(BENCH_RESULTS)/bench_speed_pairwise.json
+	$(BIN)/python -m benchmarks.bench_speed --sizes 40k --pairwise --no-adsb --repeats 5 \
+		--json $(BENCH_RESULTS)/bench_speed_pairwise_no_adsb.json
 	$(BIN)/python -m benchmarks.bench_memory
+	$(BIN)/python -m benchmarks.bench_memory --function benchmarks.bench_memory:calibrate_batch \
+		--json $(BENCH_RESULTS)/bench_memory_batch.json
+	$(BIN)/python -m benchmarks.trajectory_study --seeds 30 --json $(BENCH_RESULTS)/trajectory_study.json
 	$(BIN)/python -m benchmarks.drift_steps
 
 papers: export GRAPHCAL_BENCH_RESULTS = $(abspath $(BENCH_RESULTS))

@@ -24,7 +24,7 @@ The measured function is a parameter, ``--function MODULE:NAME``: any function
 (validation and cleaning included) and counts its rows.  A windowed calibration can be
 measured the same way.
 
-Outputs: a table on stdout and ``benchmarks/results/bench_memory.json``.
+Outputs: a table on stdout and ``benchmarks/results/bench_memory.json`` (``--json``).
 """
 
 from __future__ import annotations
@@ -172,6 +172,8 @@ def main() -> int:
     parser.add_argument("--function", default=DEFAULT_FUNCTION, help="MODULE:NAME measured")
     parser.add_argument("--format", choices=["parquet", "csv"], default="parquet")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--json", type=Path, default=None,
+                        help="where to write the figures (default: RESULTS/bench_memory.json)")
     parser.add_argument("--measure", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.measure is not None:
@@ -203,8 +205,9 @@ def main() -> int:
                 "peak_ratio_above_baseline": ratio_above, "data_ratio": data_ratio,
                 "target_ratio": TARGET_RATIO, "machine": platform.platform(),
                 "python": platform.python_version()}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(RESULTS / "bench_memory.json", json.dumps(document, indent=2) + "\n")
+    target = args.json if args.json is not None else RESULTS / "bench_memory.json"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(target, json.dumps(document, indent=2) + "\n")
     return 0
 
 

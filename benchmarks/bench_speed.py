@@ -18,9 +18,9 @@ dataset has the plots asked for, and the dataset is then cut at the time of its
 Then three commands are timed end to end, as subprocesses, alternately and
 ``--repeats`` times each:
 
-* ``graphcal calibrate DIR --out result.json`` with its defaults (ADS-B and
-  pairwise cross-radar factors, Huber kernel, time offsets, Cramér-Rao bound and
-  model checks);
+* ``graphcal calibrate DIR --out result.json`` with its defaults (ADS-B, every
+  aircraft's path in the problem (``--cross trajectory``), Huber kernel, time offsets,
+  Cramér-Rao bound and model checks);
 * :mod:`benchmarks.scipy_adsb`, a plain scipy least-squares fit of the ADS-B model
   alone (range offset, gain, azimuth and elevation biases per radar, ADS-B
   interpolated to the plot times);
@@ -47,7 +47,12 @@ as an installed package is (:func:`byte_compile`).
 With ``--compare-root DIR`` the graphcal command is also run from the package tree
 in ``DIR`` (e.g. an older checkout, with its ``models/``), labelled ``compared``, in
 the same alternation, so that a before/after ratio is measured under the same load.
-The figures go to ``benchmarks/results/bench_speed.json``.
+With ``--pairwise`` the same command with ``--cross pairwise`` (paper 001's pairs, the
+baseline formulation) is run too, labelled ``pairwise``, and the default's ratio to it
+printed: the default should take at most 1.5 times as long.  ``--no-adsb`` adds
+``--no-adsb`` to every graphcal command (the cross-radar observations alone; the
+scipy script, an ADS-B fit, is still run as the yardstick of the machine's speed).
+The figures go to ``benchmarks/results/bench_speed.json`` (``--json``).
 """
 
 from __future__ import annotations
@@ -290,8 +295,14 @@ FLOOR_IMPORTS = ("pandas", "gtsam", "scipy.special", "typer")
 
 
 def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
-               work: Path, window: str | None = None) -> dict[str, Any]:
-    """Time graphcal (each root) and the scipy script on one dataset, alternately.
+               work: Path, window: str | None = None,
+               extra_args: dict[str, list[str]] | None = None,
+               warmup: int = 0) -> dict[str, Any]:
+    """Time graphcal (each root) and the scipy script on one dataset, alternately, after
+    ``warmup`` uncounted runs of each.
+
+    ``roots``: each graphcal run's package tree by label; ``extra_args``: more options
+    of a run's ``graphcal calibrate`` by label (``--cross pairwise``, ``--no-adsb``).
 
     Returns
     -------
@@ -301,7 +312,8 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
     """
     commands = {
         name: ([sys.executable, "-m", "graphcal", "calibrate", str(folder), "--out",
-                str(work / f"{name}.json"), *(["--window", window] if window else [])],
+                str(work / f"{name}.json"), *(["--window", window] if window else []),
+                *(extra_args or {}).get(name, [])],
                environment_for(root))
         for name, root in roots.items()
     }
@@ -313,6 +325,11 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
     cpu: dict[str, list[float]] = {name: [] for name in commands}
     memory: dict[str, list[float]] = {name: [] for name in commands}
     stages: dict[str, list[dict[str, float]]] = {name: [] for name in roots}
+    for _ in range(warmup):  # not counted: the first run after a write reads cold files
+        for name, (command, env) in commands.items():
+            (work / f"{name}.json").unlink(missing_ok=True)
+            run_timed(command, env, work)
+        print(f"  [{label}] warm-up run of every command done", flush=True)
     for repeat in range(repeats):
         for name, (command, env) in commands.items():
             if name in roots:  # calibrate refuses to replace its --out (it has --overwrite)
@@ -329,7 +346,8 @@ def bench_size(label: str, folder: Path, repeats: int, roots: dict[str, Path],
     plain = json.loads((work / "scipy.json").read_text())
     truth = json.loads((folder / "truth.json").read_text())
     out: dict[str, Any] = {
-        "label": label, "dataset": folder.name, "repeats": repeats, "window": window,
+        "label": label, "dataset": folder.name, "repeats": repeats, "warmup": warmup,
+        "window": window,
         "floor_imports": list(FLOOR_IMPORTS),
         "n_plots": int(sum(e["n_plots"] for e in truth["radars"].values())),
         "wall_s": {name: {"median": statistics.median(t), "all": t} for name, t in walls.items()},
@@ -382,9 +400,10 @@ def print_table(results: list[dict[str, Any]], names: list[str]) -> None:
           "other load; stages: graphcal's info['timing_s'], medians)")
     for r in results:
         if len(names) > 1:
-            base = r["wall_s"][names[-1]]["median"]
+            base, base_cpu = r["wall_s"][names[-1]]["median"], r["cpu_s"][names[-1]]["median"]
             print(f"  [{r['label']}] " + ", ".join(
-                f"{n} / {names[-1]} = {r['wall_s'][n]['median'] / base:.2f}" for n in names[:-1]))
+                f"{n} / {names[-1]} = {r['wall_s'][n]['median'] / base:.2f} "
+                f"(CPU {r['cpu_s'][n]['median'] / base_cpu:.2f})" for n in names[:-1]))
         floor = r["wall_s"].get("floor")
         if floor is not None:
             print(f"  [{r['label']}] import floor ({', '.join(r['floor_imports'])}): "
@@ -421,13 +440,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--compare-root", type=Path, default=None,
                         help="also time `graphcal calibrate` from the package tree in this "
                              "folder (labelled 'compared'), alternating with this one")
+    parser.add_argument("--pairwise", action="store_true",
+                        help="also time `graphcal calibrate --cross pairwise` (labelled "
+                             "'pairwise'), alternating, and print the default's ratio to it")
+    parser.add_argument("--warmup", type=int, default=None,
+                        help=f"uncounted runs of each command first (default 1; 0 above "
+                             f"{LARGE_PLOTS:,} plots)")
+    parser.add_argument("--no-adsb", action="store_true",
+                        help="give every graphcal command --no-adsb")
     args = parser.parse_args(argv)
 
     traffic, scenario = choose_traffic(args.traffic, args.opensky)
     roots = {"graphcal": ROOT}
     if args.compare_root is not None:
         roots["compared"] = args.compare_root.resolve()
-    byte_compile([*roots.values()])
+    extra_args = {name: ["--no-adsb"] if args.no_adsb else [] for name in roots}
+    if args.pairwise:
+        roots["pairwise"] = ROOT
+        extra_args["pairwise"] = ["--cross", "pairwise", *extra_args["graphcal"]]
+    byte_compile(sorted(set(roots.values())))
     load = os.getloadavg()[0]
     print(f"traffic: {traffic}; load average {load:.2f} on {os.cpu_count()} CPUs "
           "(wall times: other load inflates them)")
@@ -439,13 +470,16 @@ def main(argv: list[str] | None = None) -> int:
                   flush=True)
             folder = make_dataset(n, traffic, scenario, args.seed, args.fmt, args.data_dir)
             repeats = args.repeats or (1 if n > LARGE_PLOTS else 3)
-            results.append(bench_size(label, folder, repeats, roots, Path(tmp), args.window))
+            warmup = args.warmup if args.warmup is not None else (0 if n > LARGE_PLOTS else 1)
+            results.append(bench_size(label, folder, repeats, roots, Path(tmp), args.window,
+                                      extra_args, warmup))
     print_table(results, list(roots))
     document = {
         "benchmark": "bench_speed",
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "traffic": traffic, "format": args.fmt, "seed": args.seed,
-        "runs": list(roots), "window": args.window,
+        "runs": list(roots), "window": args.window, "no_adsb": args.no_adsb,
+        "options": extra_args,
         "environment": {"load_average_1min": load, "cpu_count": os.cpu_count(),
                         "python": platform.python_version(), "machine": platform.machine()},
         "results": results,

@@ -921,7 +921,10 @@ def graph(
     )
     cal.information = data_information
     if bound and cross == "trajectory" and blocks.target_state is not None:
+        t0 = time.perf_counter()
         cal.bound = _trajectory_bound(blocks, full_values, labels, priors, radars, settings)
+        timing["crlb_s"] = time.perf_counter() - t0
+        timing["total_s"] = time.perf_counter() - start
     for rid, al in blocks.alignments.items() if summarise_residuals else ():
         if rid in radars:
             bias = terms[rid].bias(values[rid])
