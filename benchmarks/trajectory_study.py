@@ -12,7 +12,8 @@ Every dataset is simulated with an explicit seed (``1 .. N``), cleaned as
 then calibrated by ``graph(...)`` directly (no variance-factor widening).  Cases:
 
 * ``adsb-5s``, ``adsb-10s``: ``scenarios/paris_opensky.toml`` (real OpenSky traffic,
-  needs ``../shared/data/opensky_paris_2021-10-07.parquet``) with the ADS-B report
+  needs ``../shared/data/opensky_paris_2021-10-07.parquet``, skipped with a message
+  when it is missing) with the ADS-B report
   period set to 5 s and 10 s; ADS-B used, time offsets automatic (``time_offset=None``:
   estimated where the traffic determines them; the true offsets are 0).  6 seeds.
 * ``noisy-7mrad``: ``scenarios/demo_network.toml`` reduced to NORD, SUD, EST3D and
@@ -79,6 +80,15 @@ CASES: dict[str, int] = {"adsb-5s": 6, "adsb-10s": 6, "noisy-7mrad": 12, "demo-n
 NOISY_RADARS: tuple[str, ...] = ("NORD", "SUD", "EST3D", "OUEST3D")
 NOISY_AZIMUTH_RAD = 7e-3
 NOISY_ELEVATION_RAD = 6e-3
+
+
+#: The cases flown by the shared OpenSky table's real trajectories.
+OPENSKY_CASES = ("adsb-5s", "adsb-10s")
+
+
+def opensky_table() -> Path:
+    """The OpenSky table the real-traffic cases replay (``scenarios/paris_opensky.toml``'s)."""
+    return load_scenario(SCENARIOS / "paris_opensky.toml").opensky.file
 
 
 def scenario_of(case: str) -> tuple[Scenario, bool]:
@@ -302,6 +312,12 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     start = time.perf_counter()
     runs: dict[str, list[dict]] = {}
+    table = opensky_table()
+    if not table.exists():
+        skipped = [c for c in args.cases if c in OPENSKY_CASES]
+        if skipped:
+            print(f"OpenSky table not found ({table}): {', '.join(skipped)} skipped")
+        args.cases = [c for c in args.cases if c not in OPENSKY_CASES]
     for case in args.cases:
         runs[case] = []
         for seed in range(1, (args.seeds or CASES[case]) + 1):
