@@ -241,14 +241,22 @@ def test_cli_calibrates_with_graph_by_default_and_writes_the_result(tmp_path: Pa
         assert "error:" in result.output
 
 
-def test_thinned_initial_values_keep_a_strided_subset_per_radar(demo_runs) -> None:
+def _thinning_case(demo_runs, thinned):
+    """The demo's dataset, its problem and plots per radar; ``thinned`` at a limit no radar
+    exceeds returns the problem as it is."""
     from graphcal.model.problem import build_problem
-    from graphcal.solvers.graph import thinned_for_initial_values
 
     dataset = demo_runs[0].dataset
     problem = build_problem(dataset)
     counts = dataset.plots["radar_id"].value_counts()
-    assert thinned_for_initial_values(problem, int(counts.max())) is problem
+    assert thinned(problem, int(counts.max())) is problem
+    return dataset, problem, counts
+
+
+def test_thinned_initial_values_keep_a_strided_subset_per_radar(demo_runs) -> None:
+    from graphcal.solvers.graph import thinned_for_initial_values
+
+    dataset, problem, counts = _thinning_case(demo_runs, thinned_for_initial_values)
     cap = int(counts.min()) // 3
     thin = thinned_for_initial_values(problem, cap).dataset
     thin_counts = thin.plots["radar_id"].value_counts()
@@ -288,10 +296,7 @@ def test_thinned_by_aircraft_keeps_whole_aircraft_under_the_limit(demo_runs) -> 
     from graphcal.model.problem import build_problem
     from graphcal.solvers.graph import thinned_by_aircraft
 
-    dataset = demo_runs[0].dataset
-    problem = build_problem(dataset)
-    counts = dataset.plots["radar_id"].value_counts()
-    assert thinned_by_aircraft(problem, int(counts.max())) is problem
+    dataset, problem, counts = _thinning_case(demo_runs, thinned_by_aircraft)
     cap = int(counts.max()) // 3
     thin = thinned_by_aircraft(problem, cap).dataset
     assert thin.plots["radar_id"].value_counts().max() <= cap
